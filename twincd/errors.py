@@ -1,0 +1,64 @@
+"""One exception root for the whole library; each subclass carries its CLI exit code.
+
+A message reads as ``<what> (<where>) — <what to do>`` so that the CLI can print it on one
+line as ``twincd: error: <message>`` (DESIGN §5).
+"""
+
+from __future__ import annotations
+
+
+class TwincdError(Exception):
+    """Root of every error twincd raises on purpose."""
+
+    exit_code: int = 2
+
+    def __init__(self, what: str, where: str = "", hint: str = "") -> None:
+        self.what = what
+        self.where = where
+        self.hint = hint
+        super().__init__(self.message)
+
+    @property
+    def message(self) -> str:
+        text = self.what
+        if self.where:
+            text += f" ({self.where})"
+        if self.hint:
+            text += f" — {self.hint}"
+        return text
+
+
+class UsageError(TwincdError):
+    """An option or a combination of options that cannot work."""
+
+
+class LogReadError(TwincdError):
+    """A log that cannot be opened, is empty, truncated or corrupt."""
+
+
+class TopicError(TwincdError):
+    """A topic that is missing, ambiguous or of the wrong type."""
+
+
+class JointMismatchError(TwincdError):
+    """Joints of a log, a robot model and a calibration that do not fit together."""
+
+
+class RobotModelError(TwincdError):
+    """An unknown robot name or a URDF that cannot be loaded."""
+
+
+class CalibrationError(TwincdError):
+    """A calibration file that is missing, of another schema, or incomplete."""
+
+
+class NotFittedError(CalibrationError):
+    """An estimator used before ``fit()``."""
+
+
+class OutputError(TwincdError):
+    """An output that cannot be written."""
+
+
+class DataError(TwincdError):
+    """Data that is valid on disk but unusable for the method (too short, no labels, ...)."""

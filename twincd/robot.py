@@ -1,0 +1,209 @@
+"""Robot models: find a URDF by name in example-robot-data, load it with Pinocchio, and reduce it
+to the joints a log actually has.
+
+Only the model's 1-DoF joints (revolute, prismatic, and unbounded revolute stored as cos/sin) are
+matched to log joints; joints the log lacks are locked at their neutral value with Pinocchio's
+``buildReducedModel``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+from numpy.typing import NDArray
+
+from twincd.errors import JointMismatchError, RobotModelError
+
+log = logging.getLogger("twincd")
+
+DEFAULT_ROBOT = "xarm7"
+FloatArray = NDArray[np.float64]
+
+
+@lru_cache(maxsize=1)
+def robots_dir() -> Path:
+    """The ``robots`` folder that the installed example-robot-data wheel ships."""
+    try:
+        dist = importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError as exc:
+        raise RobotModelError(
+            "example-robot-data is not installed", "--robot", "pip install example-robot-data"
+        ) from exc
+    path = Path(str(dist.locate_file("cmeel.prefix/share/example-robot-data/robots")))
+    if not path.is_dir():
+        raise RobotModelError(
+            "example-robot-data ships no robots folder", str(path), "reinstall example-robot-data"
+        )
+    return path
+
+
+@lru_cache(maxsize=1)
+def list_robots() -> dict[str, Path]:
+    """Robot names (URDF stem without ``_robot``) to URDF paths, sorted by name.
+
+    A stem shipped by several packages is named ``<package>/<stem>`` to stay unambiguous.
+    """
+    root = robots_dir()
+    by_stem: dict[str, list[Path]] = {}
+    for urdf in sorted(root.glob("*/*/*.urdf")):
+        stem = urdf.stem.removesuffix("_robot")
+        by_stem.setdefault(stem, []).append(urdf)
+    names: dict[str, Path] = {}
+    for stem, paths in by_stem.items():
+        if len(paths) == 1:
+            names[stem] = paths[0]
+        else:
+            for urdf in paths:
+                package = urdf.relative_to(root).parts[0].removesuffix("_description")
+                names[f"{package}/{stem}"] = urdf
+    return dict(sorted(names.items()))
+
+
+def resolve_urdf(name_or_path: str) -> Path:
+    """A URDF path for an example-robot-data name or a path to a URDF file."""
+    robots = list_robots()
+    if name_or_path in robots:
+        return robots[name_or_path]
+    path = Path(name_or_path)
+    if path.suffix.lower() == ".urdf" or path.exists():
+        if not path.is_file():
+            raise RobotModelError("URDF file not found", str(path), "check the --robot path")
+        return path
+    close = [n for n in robots if name_or_path.lower() in n.lower()][:5]
+    hint = f"did you mean {', '.join(close)}?" if close else "see `twincd simulate --list-robots`"
+    raise RobotModelError(f"unknown robot {name_or_path!r}", "--robot", hint)
+
+
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@dataclass(frozen=True)
+class JointSpec:
+    """Where one model joint lives in Pinocchio's q and v vectors."""
+
+    name: str
+    idx_q: int
+    idx_v: int
+    unbounded: bool  # stored as (cos, sin) in q
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """A Pinocchio model reduced to the joints a log has, in model order."""
+
+    name: str
+    urdf_path: Path
+    urdf_sha256: str
+    model: pin.Model
+    joints: tuple[JointSpec, ...]
+    locked: tuple[str, ...]
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def dof(self) -> int:
+        return len(self.joints)
+
+    def configuration(self, position: FloatArray) -> FloatArray:
+        """Pinocchio configurations (N, nq) from joint positions (N, dof) in model order."""
+        position = np.atleast_2d(position)
+        q = np.tile(pin.neutral(self.model), (position.shape[0], 1))
+        for col, joint in enumerate(self.joints):
+            if joint.unbounded:
+                q[:, joint.idx_q] = np.cos(position[:, col])
+                q[:, joint.idx_q + 1] = np.sin(position[:, col])
+            else:
+                q[:, joint.idx_q] = position[:, col]
+        return q
+
+    def velocity_vector(self, values: FloatArray) -> FloatArray:
+        """Tangent vectors (N, nv) from per-joint values (N, dof) in model order."""
+        values = np.atleast_2d(values)
+        v = np.zeros((values.shape[0], self.model.nv))
+        v[:, [j.idx_v for j in self.joints]] = values
+        return v
+
+    def joint_values(self, tangent: FloatArray) -> FloatArray:
+        """Per-joint values (N, dof) from tangent-space arrays (N, nv), e.g. torques."""
+        return np.atleast_2d(tangent)[:, [j.idx_v for j in self.joints]]
+
+
+def _joint_specs(model: pin.Model) -> tuple[JointSpec, ...]:
+    specs = []
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        if joint.nv != 1:
+            continue  # free-flyers, spherical joints: never a log joint
+        specs.append(
+            JointSpec(model.names[jid], joint.idx_q, joint.idx_v, unbounded=joint.nq == 2)
+        )
+    return tuple(specs)
+
+
+@lru_cache(maxsize=16)
+def _full_model(urdf_path: Path) -> pin.Model:
+    try:
+        return pin.buildModelFromUrdf(str(urdf_path))
+    except (RuntimeError, ValueError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise RobotModelError(
+            f"cannot load URDF: {first}", str(urdf_path), "check that the file is a valid URDF"
+        ) from exc
+
+
+def full_joint_names(name_or_path: str) -> tuple[str, ...]:
+    """The 1-DoF joint names of the unreduced model."""
+    return tuple(j.name for j in _joint_specs(_full_model(resolve_urdf(name_or_path))))
+
+
+def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = None) -> RobotModel:
+    """Load a robot; with ``keep``, lock every model joint not listed (at its neutral value).
+
+    Raises JointMismatchError when ``keep`` shares no joint with the model.
+    """
+    urdf = resolve_urdf(name_or_path)
+    full = _full_model(urdf)
+    specs = _joint_specs(full)
+    if not specs:
+        raise RobotModelError("the URDF has no movable 1-DoF joints", str(urdf), "use an arm URDF")
+    locked: tuple[str, ...] = ()
+    model = full
+    if keep is not None:
+        wanted = set(keep)
+        names = [s.name for s in specs]
+        if not wanted & set(names):
+            raise JointMismatchError(
+                "no joint of the log is in the robot model",
+                f"log: {', '.join(sorted(wanted)[:8])}; model: {', '.join(names[:8])}",
+                "pick the right --robot or rename joints with --joint-map old=new",
+            )
+        locked = tuple(n for n in names if n not in wanted)
+        if locked:
+            ids = [full.getJointId(n) for n in locked]
+            model = pin.buildReducedModel(full, ids, pin.neutral(full))
+            log.warning(
+                "locking %d model joint(s) the log lacks at their neutral value: %s",
+                len(locked),
+                ", ".join(locked),
+            )
+            specs = _joint_specs(model)
+    label = name_or_path if name_or_path in list_robots() else str(urdf)
+    return RobotModel(
+        name=label,
+        urdf_path=urdf,
+        urdf_sha256=file_sha256(urdf),
+        model=model,
+        joints=specs,
+        locked=locked,
+    )
