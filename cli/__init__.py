@@ -1,0 +1,1 @@
+"""The twincd command line: a thin typer layer over the ``twincd`` library."""

@@ -1,0 +1,132 @@
+"""What every subcommand shares: log options, error mapping to exit codes, stderr messages."""
+
+from __future__ import annotations
+
+import functools
+import logging
+import os
+import sys
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import typer
+from rich.console import Console
+
+from twincd.errors import TwincdError
+from twincd.logs import (
+    DEFAULT_LABEL_TOPIC,
+    DEFAULT_SIM_TOPIC,
+    DEFAULT_TOPIC,
+    LogOptions,
+    parse_joint_map,
+)
+from twincd.robot import DEFAULT_ROBOT
+
+T = TypeVar("T")
+
+Logs = Annotated[
+    list[Path],
+    typer.Argument(help="Logs: rosbag2 folders, .mcap or .bag files, or folders of logs."),
+]
+Robot = Annotated[
+    str | None,
+    typer.Option(
+        "--robot", "-r", help=f"example-robot-data name or URDF path [default: {DEFAULT_ROBOT}]"
+    ),
+]
+Topic = Annotated[
+    str | None, typer.Option("--topic", help=f"JointState topic [default: {DEFAULT_TOPIC}]")
+]
+LabelTopic = Annotated[
+    str | None,
+    typer.Option("--label-topic", help=f"Bool collision labels [default: {DEFAULT_LABEL_TOPIC}]"),
+]
+SimTopic = Annotated[
+    str | None,
+    typer.Option("--sim-topic", help=f"simulated effort topic [default: {DEFAULT_SIM_TOPIC}]"),
+]
+JointMap = Annotated[
+    str | None, typer.Option("--joint-map", help="rename log joints: old=new,old2=new2")
+]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.")]
+Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")]
+
+stderr = Console(stderr=True, highlight=False)
+stdout = Console(highlight=False)
+
+
+class _StderrHandler(logging.Handler):
+    def emit(self, record: logging.LogRecord) -> None:
+        level = record.levelname.lower()
+        prefix = "twincd: " if record.levelno < logging.WARNING else f"twincd: {level}: "
+        sys.stderr.write(prefix + record.getMessage() + "\n")
+
+
+def setup_logging(quiet: bool, debug: bool) -> None:
+    logger = logging.getLogger("twincd")
+    logger.handlers[:] = [_StderrHandler()]
+    logger.propagate = False
+    logger.setLevel(logging.ERROR if quiet else logging.DEBUG if debug else logging.INFO)
+
+
+def log_options(
+    topic: str | None,
+    label_topic: str | None,
+    sim_topic: str | None,
+    joint_map: str | None,
+    defaults: LogOptions | None = None,
+) -> LogOptions:
+    """Options from the command line; unset ones fall back to ``defaults`` (a calibration's)."""
+    base = defaults or LogOptions()
+    return LogOptions(
+        topic=topic or base.topic,
+        label_topic=label_topic or base.label_topic,
+        sim_topic=sim_topic or base.sim_topic,
+        joint_map=parse_joint_map(joint_map) if joint_map else base.joint_map,
+    )
+
+
+def fail(exc: TwincdError, debug: bool) -> None:
+    """Print the one-line error (DESIGN §5) and leave with its exit code."""
+    if debug:
+        traceback.print_exception(exc)
+    sys.stderr.write(f"twincd: error: {exc.message}\n")
+    raise typer.Exit(exc.exit_code)
+
+
+def command(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Wrap a subcommand: logging set-up, and TwincdError → one line on stderr, its exit code."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        debug = bool(kwargs.get("debug", False))
+        setup_logging(bool(kwargs.get("quiet", False)), debug)
+        try:
+            return func(*args, **kwargs)
+        except TwincdError as exc:
+            fail(exc, debug)
+        except KeyboardInterrupt:
+            sys.stderr.write("twincd: interrupted\n")
+            raise typer.Exit(130) from None
+
+    return wrapper
+
+
+def show_progress(quiet: bool) -> bool:
+    return not quiet and sys.stderr.isatty() and os.environ.get("TERM") != "dumb"
+
+
+def progress(items: Sequence[T], description: str, quiet: bool) -> Iterator[T]:
+    """Iterate with a progress bar on stderr, only when stderr is a terminal."""
+    if not show_progress(quiet) or len(items) < 2:
+        yield from items
+        return
+    from rich.progress import track
+
+    yield from track(items, description=description, console=stderr, transient=True)
+
+
+def paths_text(paths: Iterable[Path]) -> str:
+    return ", ".join(str(p) for p in paths)

@@ -1,0 +1,81 @@
+"""``twincd simulate``: the twin's effort written into MCAP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from .common import (
+    Debug,
+    JointMap,
+    Quiet,
+    Robot,
+    SimTopic,
+    Topic,
+    command,
+    log_options,
+    progress,
+    stdout,
+)
+from twincd.errors import UsageError
+from twincd.logs import expand_logs
+from twincd.robot import DEFAULT_ROBOT, list_robots
+from twincd.simulate import default_output, simulate_log
+
+
+@command
+def simulate(
+    logs: Annotated[
+        list[Path] | None,
+        typer.Argument(help="Logs: rosbag2 folders, .mcap or .bag files, or folders of logs."),
+    ] = None,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "--output", "-o", help="Output .mcap (one log) or folder (several logs)."
+        ),
+    ] = None,
+    robot: Robot = None,
+    topic: Topic = None,
+    sim_topic: SimTopic = None,
+    joint_map: JointMap = None,
+    in_place: Annotated[
+        bool, typer.Option("--in-place", help="Rewrite a bare .mcap input atomically.")
+    ] = False,
+    list_robots_: Annotated[
+        bool, typer.Option("--list-robots", help="List the robot names --robot accepts.")
+    ] = False,
+    quiet: Quiet = False,
+    debug: Debug = False,
+) -> None:
+    """Run the digital twin over logs and write its effort to /twincd/sim_effort.
+
+    Each output is the input copied losslessly into MCAP plus the twin's channel.
+
+    Example: twincd simulate run.mcap --robot xarm7 -o run.twin.mcap
+    """
+    if list_robots_:
+        for name in list_robots():
+            stdout.print(name)
+        return
+    if not logs:
+        raise UsageError("no logs given", "simulate", "pass LOG... or --list-robots")
+    paths = expand_logs(logs)
+    if in_place and output is not None:
+        raise UsageError("--in-place and --output exclude each other", "simulate", "pick one")
+    several = len(paths) > 1
+    if several and output is not None:
+        if output.suffix == ".mcap":
+            raise UsageError(
+                "several logs need an output folder", str(output), "give -o a folder"
+            )
+        output.mkdir(parents=True, exist_ok=True)
+    options = log_options(topic, None, sim_topic, joint_map)
+    for path in progress(paths, "simulating", quiet):
+        target = None
+        if output is not None:
+            target = output / default_output(path).name if several else output
+        result = simulate_log(path, target, robot or DEFAULT_ROBOT, options, in_place=in_place)
+        stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")

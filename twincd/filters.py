@@ -1,0 +1,92 @@
+"""Low-pass filtering of effort signals (the paper's τ̃ and τ̂̃), with scipy.signal.
+
+A Butterworth filter as second-order sections, run zero-phase (``sosfiltfilt``, the default for
+offline logs) or causal (``sosfilt`` forward only, started in steady state: what a live detector
+sees). Logs are cut at gaps (twincd.derivatives.segment_bounds) and each segment is filtered on
+its own; the sampling rate is the median rate of the log.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import signal
+
+from twincd.derivatives import segment_bounds
+from twincd.errors import DataError, UsageError
+
+FloatArray = NDArray[np.float64]
+
+DEFAULT_ORDER = 2
+DEFAULT_CUTOFF_HZ = 5.0
+
+
+@dataclass(frozen=True)
+class LowPass:
+    """Butterworth low-pass settings; recorded in the calibration (DESIGN §4 ``filter``)."""
+
+    cutoff_hz: float = DEFAULT_CUTOFF_HZ
+    order: int = DEFAULT_ORDER
+    causal: bool = False
+    kind: str = "butterworth"
+
+    def __post_init__(self) -> None:
+        if self.kind != "butterworth":
+            raise UsageError(f"unknown filter kind {self.kind!r}", "filter", "use butterworth")
+        if self.order < 1 or self.cutoff_hz <= 0:
+            raise UsageError(
+                "filter order must be >= 1 and cut-off > 0 Hz",
+                f"order={self.order}, cutoff={self.cutoff_hz}",
+                "pick a positive --filter-order and --cutoff",
+            )
+
+    def sos(self, fs_hz: float) -> FloatArray:
+        if self.cutoff_hz >= fs_hz / 2:
+            raise UsageError(
+                f"cut-off {self.cutoff_hz} Hz is not below the Nyquist rate {fs_hz / 2:.3g} Hz",
+                "--cutoff",
+                "pick a lower cut-off",
+            )
+        sos: FloatArray = signal.butter(self.order, self.cutoff_hz, fs=fs_hz, output="sos")
+        return sos
+
+    def apply(self, t_s: FloatArray, values: FloatArray, source: str = "") -> FloatArray:
+        """Filter (N, channels) or (N,) values sampled at t_s (seconds), gap by gap."""
+        x = np.asarray(values, dtype=np.float64)
+        if len(t_s) < 2:
+            raise DataError("log too short to filter", source, "record at least a few seconds")
+        fs = 1.0 / float(np.median(np.diff(t_s)))
+        sos = self.sos(fs)
+        out = np.empty_like(x)
+        for a, b in segment_bounds(t_s):
+            out[a:b] = self._segment(sos, x[a:b])
+        return out
+
+    def _segment(self, sos: FloatArray, x: FloatArray) -> FloatArray:
+        if len(x) == 1:
+            return x.copy()
+        if self.causal:
+            zi = signal.sosfilt_zi(sos)  # (sections, 2): steady state for a unit step
+            zi = zi[:, :, None] * x[0][None, None, ...] if x.ndim == 2 else zi * x[0]
+            y, _ = signal.sosfilt(sos, x, axis=0, zi=zi)
+            return np.asarray(y)
+        # short segments after a gap get a shorter pad instead of an error
+        padlen = min(3 * (2 * len(sos) + 1), len(x) - 1)
+        return np.asarray(signal.sosfiltfilt(sos, x, axis=0, padlen=padlen))
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["zero_phase"] = not self.causal
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> LowPass:
+        return cls(
+            cutoff_hz=float(d["cutoff_hz"]),
+            order=int(d["order"]),
+            causal=bool(d["causal"]),
+            kind=str(d.get("kind", "butterworth")),
+        )
