@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 
 DEFAULT_WINDOW = 9
-DEFAULT_POLYORDER = 2
+DEFAULT_POLYORDER = 3
 DEFAULT_GAP_FACTOR = 5.0
 _BLOCK = 65536
 

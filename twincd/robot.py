@@ -47,23 +47,23 @@ def robots_dir() -> Path:
 
 @lru_cache(maxsize=1)
 def list_robots() -> dict[str, Path]:
-    """Robot names (URDF stem without ``_robot``) to URDF paths, sorted by name.
+    """Robot names to URDF paths, sorted by name.
 
-    A stem shipped by several packages is named ``<package>/<stem>`` to stay unambiguous.
+    A name is the URDF's stem (``<package>/<stem>`` where several packages ship that stem);
+    ``ur5_robot`` is also known as ``ur5`` when no URDF is called that already.
     """
     root = robots_dir()
     by_stem: dict[str, list[Path]] = {}
     for urdf in sorted(root.glob("*/*/*.urdf")):
-        stem = urdf.stem.removesuffix("_robot")
-        by_stem.setdefault(stem, []).append(urdf)
+        by_stem.setdefault(urdf.stem, []).append(urdf)
     names: dict[str, Path] = {}
     for stem, paths in by_stem.items():
-        if len(paths) == 1:
-            names[stem] = paths[0]
-        else:
-            for urdf in paths:
-                package = urdf.relative_to(root).parts[0].removesuffix("_description")
-                names[f"{package}/{stem}"] = urdf
+        for urdf in paths:
+            package = urdf.relative_to(root).parts[0].removesuffix("_description")
+            names[stem if len(paths) == 1 else f"{package}/{stem}"] = urdf
+    for name, urdf in list(names.items()):
+        short = name.removesuffix("_robot")
+        names.setdefault(short, urdf)
     return dict(sorted(names.items()))
 
 

@@ -1,0 +1,128 @@
+"""Build tiny logs in every form twincd reads, with rosbags' writers (independent of twincd's).
+
+A recording is a list of ``Message(topic, msgtype, log_time_ns, msg)``; ``write(path, form, msgs)``
+stores it as a bare MCAP, a rosbag2 MCAP or sqlite3 folder, or a ROS 1 bag.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
+
+TS = get_typestore(Stores.LATEST)
+JointState = TS.types["sensor_msgs/msg/JointState"]
+Header = TS.types["std_msgs/msg/Header"]
+Time = TS.types["builtin_interfaces/msg/Time"]
+Bool = TS.types["std_msgs/msg/Bool"]
+String = TS.types["std_msgs/msg/String"]
+
+FORMS = ("mcap", "rosbag2-mcap", "rosbag2-sqlite3", "ros1")
+SUFFIX = {"mcap": ".mcap", "rosbag2-mcap": "", "rosbag2-sqlite3": "", "ros1": ".bag"}
+XARM = tuple(f"joint{i}" for i in range(1, 8))
+
+
+@dataclass
+class Message:
+    topic: str
+    msgtype: str
+    log_time: int
+    msg: Any
+
+
+def header(stamp_ns: int) -> Any:
+    return Header(stamp=Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000), frame_id="")
+
+
+def joint_state(stamp_ns: int, names: Sequence[str], pos: Any, vel: Any = (), eff: Any = ()) -> Any:
+    return JointState(
+        header=header(stamp_ns),
+        name=list(names),
+        position=np.asarray(pos, dtype=np.float64),
+        velocity=np.asarray(vel, dtype=np.float64),
+        effort=np.asarray(eff, dtype=np.float64),
+    )
+
+
+def _write_rosbag2(path: Path, plugin: StoragePlugin, msgs: Sequence[Message]) -> None:
+    with Writer2(path, version=8, storage_plugin=plugin) as writer:
+        conns: dict[str, Any] = {}
+        for m in msgs:
+            if m.topic not in conns:
+                conns[m.topic] = writer.add_connection(m.topic, m.msgtype, typestore=TS)
+            writer.write(conns[m.topic], m.log_time, TS.serialize_cdr(m.msg, m.msgtype))
+
+
+def write(path: Path, form: str, msgs: Sequence[Message]) -> Path:
+    """Store ``msgs`` at ``path`` in ``form``; returns the path to hand to twincd."""
+    if form == "rosbag2-mcap":
+        _write_rosbag2(path, StoragePlugin.MCAP, msgs)
+    elif form == "rosbag2-sqlite3":
+        _write_rosbag2(path, StoragePlugin.SQLITE3, msgs)
+    elif form == "mcap":
+        folder = path.with_name(path.name + ".bagdir")
+        _write_rosbag2(folder, StoragePlugin.MCAP, msgs)
+        shutil.move(next(folder.glob("*.mcap")), path)
+        shutil.rmtree(folder)
+    elif form == "ros1":
+        with Writer1(path) as writer:
+            conns1: dict[str, Any] = {}
+            for m in msgs:
+                if m.topic not in conns1:
+                    conns1[m.topic] = writer.add_connection(m.topic, m.msgtype, typestore=TS)
+                writer.write(conns1[m.topic], m.log_time, TS.serialize_ros1(m.msg, m.msgtype))
+    else:
+        raise ValueError(form)
+    return path
+
+
+def trajectory(
+    t_s: np.ndarray, dof: int = 7, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A smooth analytic joint trajectory: sums of sines; exact q, q̇, q̈ at any times."""
+    rng = np.random.default_rng(seed)
+    amp = rng.uniform(0.2, 0.6, (3, dof))
+    freq = rng.uniform(0.1, 0.5, (3, dof))
+    phase = rng.uniform(0, 2 * np.pi, (3, dof))
+    w = 2 * np.pi * freq
+    arg = w[None] * t_s[:, None, None] + phase[None]
+    q = (amp[None] * np.sin(arg)).sum(1)
+    qd = (amp[None] * w[None] * np.cos(arg)).sum(1)
+    qdd = -(amp[None] * w[None] ** 2 * np.sin(arg)).sum(1)
+    return q, qd, qdd
+
+
+def joint_recording(
+    n: int = 400,
+    period_ns: int = 10_000_000,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    names: Sequence[str] = XARM,
+    effort: np.ndarray | None = None,
+    with_velocity: bool = True,
+    topic: str = "/joint_states",
+    seed: int = 0,
+) -> list[Message]:
+    """A clean recording: header stamp = log time, a regular period, optional effort rows."""
+    t_s = np.arange(n) * period_ns * 1e-9
+    q, qd, _ = trajectory(t_s, len(names), seed)
+    msgs = []
+    for i in range(n):
+        stamp = t0_ns + i * period_ns
+        eff = effort[i] if effort is not None else ()
+        msgs.append(
+            Message(
+                topic,
+                "sensor_msgs/msg/JointState",
+                stamp,
+                joint_state(stamp, names, q[i], qd[i] if with_velocity else (), eff),
+            )
+        )
+    return msgs

@@ -1,0 +1,150 @@
+"""``twincd simulate`` through typer's CliRunner: exit codes, stdout, stderr, files left behind."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from builders import Message, String, joint_recording, write
+from typer.testing import CliRunner
+
+from twincd_cli.main import app
+
+runner = CliRunner()
+
+
+def run(*args: str):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def files(folder: Path) -> set[str]:
+    return {p.name for p in folder.rglob("*")}
+
+
+def assert_one_line_error(result, code: int = 2, match: str = "") -> None:
+    assert result.exit_code == code, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("twincd: error: "), result.stderr
+    assert match in lines[0]
+    assert "Traceback" not in result.output
+
+
+def test_list_robots():
+    result = run("simulate", "--list-robots")
+    assert result.exit_code == 0
+    names = result.stdout.split()
+    assert {"xarm7", "panda", "ur5"} <= set(names)
+
+
+def test_simulate_writes_default_output(tmp_path):
+    src = write(tmp_path / "run.mcap", "mcap", joint_recording(n=30))
+    result = run("simulate", src)
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "run.twin.mcap").is_file()
+    assert "run.twin.mcap" in result.stdout and "30 samples" in result.stdout
+
+
+def test_several_logs_into_a_folder(tmp_path):
+    a = write(tmp_path / "a.mcap", "mcap", joint_recording(n=20))
+    b = write(tmp_path / "b", "rosbag2-sqlite3", joint_recording(n=20))
+    result = run("simulate", a, b, "-o", tmp_path / "out", "--quiet")
+    assert result.exit_code == 0, result.output
+    assert files(tmp_path / "out") == {"a.twin.mcap", "b.twin.mcap"}
+    assert result.stderr == ""
+
+
+def test_missing_joints_warn_once_on_stderr(tmp_path):
+    names = [f"panda_joint{i}" for i in range(1, 8)]
+    src = write(tmp_path / "p.mcap", "mcap", joint_recording(n=20, names=names))
+    result = run("simulate", src, "--robot", "panda")
+    assert result.exit_code == 0
+    assert result.stderr.count("warning: locking") <= 1
+
+
+BAD_BYTES = {
+    "empty": b"",
+    "random": np.random.default_rng(0).bytes(2048),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(BAD_BYTES))
+def test_unreadable_files(tmp_path, kind):
+    src = tmp_path / "bad.mcap"
+    src.write_bytes(BAD_BYTES[kind])
+    result = run("simulate", src)
+    assert_one_line_error(result)
+    assert files(tmp_path) == {"bad.mcap"}
+    assert src.read_bytes() == BAD_BYTES[kind]
+
+
+def test_truncated_mcap(tmp_path):
+    good = write(tmp_path / "good.mcap", "mcap", joint_recording(n=200))
+    data = good.read_bytes()
+    good.unlink()
+    src = tmp_path / "cut.mcap"
+    src.write_bytes(data[: len(data) // 2])
+    result = run("simulate", src)
+    assert_one_line_error(result)
+    assert files(tmp_path) == {"cut.mcap"}
+
+
+def test_missing_topic(tmp_path):
+    src = write(tmp_path / "a.mcap", "mcap", [Message("/x", "std_msgs/msg/String", 1, String(data="x"))])
+    assert_one_line_error(run("simulate", src), match="JointState")
+
+
+def test_no_matching_joints(tmp_path):
+    src = write(tmp_path / "a.mcap", "mcap", joint_recording(n=10, names=[f"x{i}" for i in range(7)]))
+    assert_one_line_error(run("simulate", src), match="no joint of the log")
+    assert files(tmp_path) == {"a.mcap"}
+
+
+def test_ragged_arrays(tmp_path):
+    msgs = joint_recording(n=10)
+    msgs[4].msg.position = np.zeros(2)
+    src = write(tmp_path / "a.mcap", "mcap", msgs)
+    assert_one_line_error(run("simulate", src), match="ragged")
+
+
+def test_unknown_robot_and_broken_urdf(tmp_path):
+    src = write(tmp_path / "a.mcap", "mcap", joint_recording(n=10))
+    assert_one_line_error(run("simulate", src, "--robot", "nosuchbot"), match="unknown robot")
+    urdf = tmp_path / "broken.urdf"
+    urdf.write_text("<robot name='x'><joint")
+    assert_one_line_error(run("simulate", src, "--robot", urdf), match="URDF")
+    assert files(tmp_path) == {"a.mcap", "broken.urdf"}
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_unwritable_output_folder(tmp_path):
+    src = write(tmp_path / "a.mcap", "mcap", joint_recording(n=10))
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        assert_one_line_error(run("simulate", src, "-o", ro / "out.mcap"), match="cannot write")
+    finally:
+        ro.chmod(0o700)
+
+
+def test_output_in_a_missing_folder_is_an_error(tmp_path):
+    src = write(tmp_path / "a.mcap", "mcap", joint_recording(n=10))
+    assert_one_line_error(run("simulate", src, "-o", tmp_path / "no" / "such" / "out.mcap"), match="cannot write")
+    assert files(tmp_path) == {"a.mcap"}
+
+
+def test_in_place_only_for_bare_mcap(tmp_path):
+    bag = write(tmp_path / "bag", "rosbag2-sqlite3", joint_recording(n=10))
+    assert_one_line_error(run("simulate", bag, "--in-place"), match="--in-place")
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    result = run("simulate", tmp_path / "nope.mcap", "--debug")
+    assert result.exit_code == 2
+    assert "Traceback" in result.stderr
+
+
+def test_no_logs_is_a_usage_error():
+    assert_one_line_error(run("simulate"), match="no logs")

@@ -1,0 +1,59 @@
+"""Robot models: names, URDF paths, reduced models for joints a log lacks."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from twincd.errors import JointMismatchError, RobotModelError
+from twincd.robot import list_robots, load_robot, resolve_urdf
+
+
+def test_example_robot_data_names():
+    robots = list_robots()
+    for name in ("xarm7", "panda", "ur5", "ur3", "ur10", "kinova", "z1"):
+        assert name in robots and robots[name].is_file()
+
+
+def test_unknown_robot_suggests_names():
+    with pytest.raises(RobotModelError, match="unknown robot 'xarm'.*xarm7"):
+        resolve_urdf("xarm")
+
+
+def test_broken_urdf_is_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.urdf"
+    bad.write_text("<robot><link name=")
+    with pytest.raises(RobotModelError, match="cannot load URDF"):
+        load_robot(str(bad))
+    with pytest.raises(RobotModelError, match="not found"):
+        load_robot(str(tmp_path / "missing.urdf"))
+
+
+def test_missing_joints_are_locked_with_one_warning(caplog):
+    with caplog.at_level(logging.WARNING, logger="twincd"):
+        robot = load_robot("panda", keep=[f"panda_joint{i}" for i in range(1, 8)])
+    assert robot.dof == 7
+    assert robot.locked == ("panda_finger_joint1", "panda_finger_joint2")
+    assert caplog.text.count("locking") == 1
+
+
+def test_no_shared_joint_is_a_mismatch():
+    with pytest.raises(JointMismatchError, match="no joint of the log"):
+        load_robot("xarm7", keep=["shoulder_pan_joint"])
+
+
+def test_unbounded_joints_use_cos_sin():
+    robot = load_robot("kinova")
+    assert robot.model.nq > robot.dof
+    angles = np.linspace(-3, 3, robot.dof)[None, :]
+    q = robot.configuration(angles)[0]
+    assert q.shape == (robot.model.nq,)
+    # Pinocchio's own difference from neutral recovers the angles
+    np.testing.assert_allclose(
+        robot.joint_values(pin.difference(robot.model, pin.neutral(robot.model), q)[None])[0],
+        angles[0],
+        atol=1e-12,
+    )
