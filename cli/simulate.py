@@ -7,6 +7,11 @@ from typing import Annotated
 
 import typer
 
+from twincd.errors import UsageError
+from twincd.logs import expand_logs
+from twincd.robot import DEFAULT_ROBOT, list_robots
+from twincd.simulate import default_output, simulate_log
+
 from .common import (
     Debug,
     JointMap,
@@ -19,10 +24,6 @@ from .common import (
     progress,
     stdout,
 )
-from twincd.errors import UsageError
-from twincd.logs import expand_logs
-from twincd.robot import DEFAULT_ROBOT, list_robots
-from twincd.simulate import default_output, simulate_log
 
 
 @command
@@ -33,9 +34,7 @@ def simulate(
     ] = None,
     output: Annotated[
         Path | None,
-        typer.Option(
-            "--output", "-o", help="Output .mcap (one log) or folder (several logs)."
-        ),
+        typer.Option("--output", "-o", help="Output .mcap (one log) or folder (several logs)."),
     ] = None,
     robot: Robot = None,
     topic: Topic = None,
@@ -68,9 +67,7 @@ def simulate(
     several = len(paths) > 1
     if several and output is not None:
         if output.suffix == ".mcap":
-            raise UsageError(
-                "several logs need an output folder", str(output), "give -o a folder"
-            )
+            raise UsageError("several logs need an output folder", str(output), "give -o a folder")
         output.mkdir(parents=True, exist_ok=True)
     options = log_options(topic, None, sim_topic, joint_map)
     for path in progress(paths, "simulating", quiet):

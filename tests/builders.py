@@ -39,7 +39,9 @@ class Message:
 
 
 def header(stamp_ns: int) -> Any:
-    return Header(stamp=Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000), frame_id="")
+    return Header(
+        stamp=Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000), frame_id=""
+    )
 
 
 def joint_state(stamp_ns: int, names: Sequence[str], pos: Any, vel: Any = (), eff: Any = ()) -> Any:

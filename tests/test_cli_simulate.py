@@ -8,9 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from builders import Message, String, joint_recording, write
-from typer.testing import CliRunner
-
 from twincd_cli.main import app
+from typer.testing import CliRunner
 
 runner = CliRunner()
 
@@ -91,12 +90,16 @@ def test_truncated_mcap(tmp_path):
 
 
 def test_missing_topic(tmp_path):
-    src = write(tmp_path / "a.mcap", "mcap", [Message("/x", "std_msgs/msg/String", 1, String(data="x"))])
+    src = write(
+        tmp_path / "a.mcap", "mcap", [Message("/x", "std_msgs/msg/String", 1, String(data="x"))]
+    )
     assert_one_line_error(run("simulate", src), match="JointState")
 
 
 def test_no_matching_joints(tmp_path):
-    src = write(tmp_path / "a.mcap", "mcap", joint_recording(n=10, names=[f"x{i}" for i in range(7)]))
+    src = write(
+        tmp_path / "a.mcap", "mcap", joint_recording(n=10, names=[f"x{i}" for i in range(7)])
+    )
     assert_one_line_error(run("simulate", src), match="no joint of the log")
     assert files(tmp_path) == {"a.mcap"}
 
@@ -131,7 +134,9 @@ def test_unwritable_output_folder(tmp_path):
 
 def test_output_in_a_missing_folder_is_an_error(tmp_path):
     src = write(tmp_path / "a.mcap", "mcap", joint_recording(n=10))
-    assert_one_line_error(run("simulate", src, "-o", tmp_path / "no" / "such" / "out.mcap"), match="cannot write")
+    assert_one_line_error(
+        run("simulate", src, "-o", tmp_path / "no" / "such" / "out.mcap"), match="cannot write"
+    )
     assert files(tmp_path) == {"a.mcap"}
 
 

@@ -98,11 +98,16 @@ def test_shuffled_order_extra_joints_and_missing_velocity(tmp_path):
 
 def test_unsorted_duplicates_and_zero_stamps(tmp_path):
     msgs = joint_recording(n=50)
-    dup = Message(msgs[10].topic, msgs[10].msgtype, msgs[10].log_time + 5, joint_state(msgs[10].log_time, XARM, np.full(7, 99.0)))
+    dup = Message(
+        msgs[10].topic,
+        msgs[10].msgtype,
+        msgs[10].log_time + 5,
+        joint_state(msgs[10].log_time, XARM, np.full(7, 99.0)),
+    )
     zero = msgs[20]
     zero.msg.header.stamp.sec = 0
     zero.msg.header.stamp.nanosec = 0
-    shuffled = list(reversed(msgs[:30])) + [dup] + msgs[30:]
+    shuffled = [*list(reversed(msgs[:30])), dup, *msgs[30:]]
     states = read_log(write(tmp_path / "a.mcap", "mcap", shuffled))
     assert len(states) == 50
     assert np.all(np.diff(states.stamp_ns) > 0)

@@ -19,7 +19,7 @@ def test_example_robot_data_names():
 
 
 def test_unknown_robot_suggests_names():
-    with pytest.raises(RobotModelError, match="unknown robot 'xarm'.*xarm7"):
+    with pytest.raises(RobotModelError, match=r"unknown robot 'xarm'.*xarm7"):
         resolve_urdf("xarm")
 
 

@@ -117,7 +117,7 @@ def quirky_recording(t_nominal: np.ndarray, rng: np.random.Generator, t0: int) -
     names = [*XARM, "left_finger", "right_finger"]
     msgs = []
     for i, ti in enumerate(t):
-        stamp = t0 + int(round(ti * 1e9))
+        stamp = t0 + round(ti * 1e9)
         lag = int(rng.uniform(0.2e6, 3e6))
         order = rng.permutation(9)
         pos = [*q[i], 0.02, 0.02]
@@ -127,7 +127,12 @@ def quirky_recording(t_nominal: np.ndarray, rng: np.random.Generator, t0: int) -
                 "/joint_states",
                 "sensor_msgs/msg/JointState",
                 stamp + lag,
-                joint_state(stamp, [names[k] for k in order], [pos[k] for k in order], [vel[k] for k in order]),
+                joint_state(
+                    stamp,
+                    [names[k] for k in order],
+                    [pos[k] for k in order],
+                    [vel[k] for k in order],
+                ),
             )
         )
         if i % 10 == 0:  # a gripper driver publishing on its own topic
@@ -147,8 +152,12 @@ def test_real_world_quirks_match_the_clean_twin(tmp_path, caplog):
     t_nominal = np.arange(0, 15, 0.01)
     q, qd, _ = trajectory(t_nominal, seed=7)
     clean = [
-        Message("/joint_states", "sensor_msgs/msg/JointState", t0 + int(round(t * 1e9)),
-                joint_state(t0 + int(round(t * 1e9)), XARM, q[i], qd[i]))
+        Message(
+            "/joint_states",
+            "sensor_msgs/msg/JointState",
+            t0 + round(t * 1e9),
+            joint_state(t0 + round(t * 1e9), XARM, q[i], qd[i]),
+        )
         for i, t in enumerate(t_nominal)
     ]
     quirky = quirky_recording(t_nominal, np.random.default_rng(8), t0)

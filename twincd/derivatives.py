@@ -13,6 +13,8 @@ one batched (polyorder+1)² solve per sample over all channels.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -24,7 +26,9 @@ DEFAULT_GAP_FACTOR = 5.0
 _BLOCK = 65536
 
 
-def segment_bounds(t_s: FloatArray, gap_factor: float = DEFAULT_GAP_FACTOR) -> list[tuple[int, int]]:
+def segment_bounds(
+    t_s: FloatArray, gap_factor: float = DEFAULT_GAP_FACTOR
+) -> list[tuple[int, int]]:
     """[start, stop) index ranges of runs without a gap longer than gap_factor × median period."""
     n = len(t_s)
     if n < 2:
@@ -33,7 +37,7 @@ def segment_bounds(t_s: FloatArray, gap_factor: float = DEFAULT_GAP_FACTOR) -> l
     median = float(np.median(dt))
     cuts = np.flatnonzero(dt > gap_factor * median) + 1 if median > 0 else np.array([], int)
     edges = [0, *cuts.tolist(), n]
-    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    return [(a, b) for a, b in itertools.pairwise(edges) if b > a]
 
 
 def _segment_derivative(t: FloatArray, y: FloatArray, window: int, polyorder: int) -> FloatArray:

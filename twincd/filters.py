@@ -67,15 +67,17 @@ class LowPass:
 
     def _segment(self, sos: FloatArray, x: FloatArray) -> FloatArray:
         if len(x) == 1:
-            return x.copy()
+            single: FloatArray = x.copy()
+            return single
         if self.causal:
             zi = signal.sosfilt_zi(sos)  # (sections, 2): steady state for a unit step
             zi = zi[:, :, None] * x[0][None, None, ...] if x.ndim == 2 else zi * x[0]
-            y, _ = signal.sosfilt(sos, x, axis=0, zi=zi)
-            return np.asarray(y)
+            y: FloatArray = signal.sosfilt(sos, x, axis=0, zi=zi)[0]
+            return y
         # short segments after a gap get a shorter pad instead of an error
         padlen = min(3 * (2 * len(sos) + 1), len(x) - 1)
-        return np.asarray(signal.sosfiltfilt(sos, x, axis=0, padlen=padlen))
+        filtered: FloatArray = signal.sosfiltfilt(sos, x, axis=0, padlen=padlen)
+        return filtered
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)

@@ -85,7 +85,8 @@ class JointStates:
     @property
     def t_s(self) -> FloatArray:
         """Seconds since the first stamp (subtracted in integer ns to keep precision)."""
-        return (self.stamp_ns - self.stamp_ns[0]).astype(np.float64) * 1e-9
+        seconds: FloatArray = (self.stamp_ns - self.stamp_ns[0]).astype(np.float64) * 1e-9
+        return seconds
 
     def select(self, names: Sequence[str]) -> JointStates:
         """The same log restricted to ``names``, in that order."""
@@ -130,7 +131,9 @@ def expand_logs(paths: Iterable[str | Path]) -> list[Path]:
             continue
         below = sorted(_logs_below(path))
         if not below:
-            raise LogReadError("no logs in folder", str(path), "give .mcap, .bag or rosbag2 folders")
+            raise LogReadError(
+                "no logs in folder", str(path), "give .mcap, .bag or rosbag2 folders"
+            )
         found.extend(below)
     return found
 
@@ -188,8 +191,10 @@ def choose_topic(reader: Any, wanted: str, source: str) -> str:
         t for t, m in topics.items() if m == JOINT_STATE and not t.startswith(OWN_PREFIX)
     )
     if len(candidates) == 1:
-        log.warning("topic %s not in %s; using its only JointState topic %s", wanted, source, candidates[0])
-        return candidates[0]
+        log.warning(
+            "topic %s not in %s; using its only JointState topic %s", wanted, source, candidates[0]
+        )
+        return str(candidates[0])
     if not candidates:
         raise TopicError(
             f"no {JOINT_STATE} topic (wanted {wanted})",
@@ -214,7 +219,9 @@ class _Rows:
     effort: list[FloatArray]
 
 
-def _iter_messages(reader: Any, connections: list[Any], source: str) -> Iterator[tuple[Any, int, Any]]:
+def _iter_messages(
+    reader: Any, connections: list[Any], source: str
+) -> Iterator[tuple[Any, int, Any]]:
     try:
         for conn, log_time, raw in reader.messages(connections=connections):
             yield conn, log_time, reader.deserialize(raw, conn.msgtype)
@@ -249,7 +256,11 @@ def _read_joint_topic(
         pos = np.asarray(msg.position, dtype=np.float64)
         vel = np.asarray(msg.velocity, dtype=np.float64)
         eff = np.asarray(msg.effort, dtype=np.float64)
-        for label, arr, optional in (("position", pos, False), ("velocity", vel, True), ("effort", eff, True)):
+        for label, arr, optional in (
+            ("position", pos, False),
+            ("velocity", vel, True),
+            ("effort", eff, True),
+        ):
             if len(arr) != n and not (optional and len(arr) == 0):
                 raise LogReadError(
                     f"ragged JointState: {n} names but {len(arr)} {label} values",
@@ -279,9 +290,7 @@ def _stack(rows: list[FloatArray], width: int) -> FloatArray:
     return out
 
 
-def _zero_order_hold(
-    event_ns: IntArray, event_values: BoolArray, sample_ns: IntArray
-) -> BoolArray:
+def _zero_order_hold(event_ns: IntArray, event_values: BoolArray, sample_ns: IntArray) -> BoolArray:
     """Each sample takes the value of the latest event at or before it (False before any)."""
     order = np.argsort(event_ns, kind="stable")
     event_ns, event_values = event_ns[order], event_values[order]
@@ -358,7 +367,9 @@ def _read_labels(reader: Any, topic: str, log_time: IntArray, source: str) -> Bo
     if not conns:
         return None
     if conns[0].msgtype != BOOL:
-        raise TopicError(f"label topic {topic} is {conns[0].msgtype}, not {BOOL}", source, "pick --label-topic")
+        raise TopicError(
+            f"label topic {topic} is {conns[0].msgtype}, not {BOOL}", source, "pick --label-topic"
+        )
     times: list[int] = []
     values: list[bool] = []
     for _c, t, msg in _iter_messages(reader, conns, source):

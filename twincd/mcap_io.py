@@ -108,7 +108,7 @@ class _McapOut:
         self.writer.add_message(channel_id, log_time, data, publish_time, sequence=seq)
 
     def finish(self) -> None:
-        self.writer.finish()
+        self.writer.finish()  # type: ignore[no-untyped-call]
 
 
 class McapLogWriter:
@@ -139,9 +139,16 @@ class McapLogWriter:
         assert self._out is not None, "use McapLogWriter as a context manager"
         return self._out.ros2_channel(topic, msgtype)
 
-    def write(self, channel_id: int, log_time_ns: int, data: bytes, publish_time_ns: int | None = None) -> None:
+    def write(
+        self, channel_id: int, log_time_ns: int, data: bytes, publish_time_ns: int | None = None
+    ) -> None:
         assert self._out is not None, "use McapLogWriter as a context manager"
-        self._out.message(channel_id, log_time_ns, data, log_time_ns if publish_time_ns is None else publish_time_ns)
+        self._out.message(
+            channel_id,
+            log_time_ns,
+            data,
+            log_time_ns if publish_time_ns is None else publish_time_ns,
+        )
 
 
 def _mcap_storage_files(source: Path) -> list[Path] | None:
@@ -206,7 +213,9 @@ def _copy_via_rosbags(source: Path, out: _McapOut, replaced: frozenset[str]) -> 
             meta = {QOS_KEY: dump_qos_v8(list(qos)) if qos else DEFAULT_QOS}
             channels[conn.id] = out.channel(conn.topic, schema_id, "cdr", meta)
         is_ros1 = not reader.is2
-        for conn, log_time, raw in reader.messages(connections=[c for c in reader.connections if c.id in channels]):
+        for conn, log_time, raw in reader.messages(
+            connections=[c for c in reader.connections if c.id in channels]
+        ):
             data = reader.typestore.ros1_to_cdr(raw, conn.msgtype) if is_ros1 else raw
             out.writer.add_message(channels[conn.id], log_time, bytes(data), log_time)
     except TwincdError:
@@ -244,4 +253,3 @@ def write_augmented(source: Path, target: Path, new_topics: Iterable[NewTopic]) 
             for log_time, publish_time, data in topic.messages:
                 out.message(channel_id, log_time, data, publish_time)
         out.finish()
-

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,7 +18,7 @@ _Bool = TYPESTORE.types["std_msgs/msg/Bool"]
 _Float64 = TYPESTORE.types["std_msgs/msg/Float64"]
 
 
-def header(stamp_ns: int, frame_id: str = "") -> object:
+def header(stamp_ns: int, frame_id: str = "") -> Any:
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
     return _Header(stamp=_Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
 

@@ -48,6 +48,7 @@ class ScoringMethod(ABC):
 
     def check(self, logs: Sequence[PreparedLog]) -> None:
         """Raise MethodSkipped when the method cannot run on these logs."""
+        return None  # most methods run on any log with measured and simulated effort
 
     @abstractmethod
     def fit(self, train: Sequence[PreparedLog]) -> ScoringMethod:

@@ -145,9 +145,7 @@ def _joint_specs(model: pin.Model) -> tuple[JointSpec, ...]:
         joint = model.joints[jid]
         if joint.nv != 1:
             continue  # free-flyers, spherical joints: never a log joint
-        specs.append(
-            JointSpec(model.names[jid], joint.idx_q, joint.idx_v, unbounded=joint.nq == 2)
-        )
+        specs.append(JointSpec(model.names[jid], joint.idx_q, joint.idx_v, unbounded=joint.nq == 2))
     return tuple(specs)
 
 
