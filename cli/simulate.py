@@ -15,6 +15,7 @@ from twincd.simulate import default_output, simulate_log
 from .common import (
     Debug,
     JointMap,
+    LabelTopic,
     Quiet,
     Robot,
     SimTopic,
@@ -38,6 +39,7 @@ def simulate(
     ] = None,
     robot: Robot = None,
     topic: Topic = None,
+    label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
     in_place: Annotated[
@@ -69,7 +71,7 @@ def simulate(
         if output.suffix == ".mcap":
             raise UsageError("several logs need an output folder", str(output), "give -o a folder")
         output.mkdir(parents=True, exist_ok=True)
-    options = log_options(topic, None, sim_topic, joint_map)
+    options = log_options(topic, label_topic, sim_topic, joint_map)
     for path in progress(paths, "simulating", quiet):
         target = None
         if output is not None:

@@ -19,6 +19,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
 TS = get_typestore(Stores.LATEST)
+TS1 = get_typestore(Stores.ROS1_NOETIC)
 JointState = TS.types["sensor_msgs/msg/JointState"]
 Header = TS.types["std_msgs/msg/Header"]
 Time = TS.types["builtin_interfaces/msg/Time"]
@@ -79,11 +80,24 @@ def write(path: Path, form: str, msgs: Sequence[Message]) -> Path:
             conns1: dict[str, Any] = {}
             for m in msgs:
                 if m.topic not in conns1:
-                    conns1[m.topic] = writer.add_connection(m.topic, m.msgtype, typestore=TS)
-                writer.write(conns1[m.topic], m.log_time, TS.serialize_ros1(m.msg, m.msgtype))
+                    conns1[m.topic] = writer.add_connection(m.topic, m.msgtype, typestore=TS1)
+                data = TS1.serialize_ros1(to_ros1(m.msg), m.msgtype)
+                writer.write(conns1[m.topic], m.log_time, data)
     else:
         raise ValueError(form)
     return path
+
+
+def to_ros1(msg: Any) -> Any:
+    """The same message as a ROS 1 (Noetic) object: headers gain their ``seq``."""
+    import dataclasses
+
+    cls = TS1.types[msg.__msgtype__]
+    values = {}
+    for f in dataclasses.fields(cls):
+        value = getattr(msg, f.name, 0)
+        values[f.name] = to_ros1(value) if hasattr(value, "__msgtype__") else value
+    return cls(**values)
 
 
 def trajectory(
@@ -128,3 +142,31 @@ def joint_recording(
             )
         )
     return msgs
+
+
+def write_humble_sqlite3(path: Path, msgs: Sequence[Message]) -> Path:
+    """A rosbag2 sqlite3 bag as ROS 2 Humble writes it: metadata version 5, no message
+    definitions stored (readers must bring their own types)."""
+    import sqlite3
+
+    write(path, "rosbag2-sqlite3", msgs)
+    db = next(path.glob("*.db3"))
+    con = sqlite3.connect(db)
+    con.executescript(
+        """
+        CREATE TABLE topics_old(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+            serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+        INSERT INTO topics_old SELECT id, name, type, serialization_format, offered_qos_profiles
+            FROM topics;
+        DROP TABLE topics; ALTER TABLE topics_old RENAME TO topics;
+        DROP TABLE message_definitions; DROP TABLE metadata; DROP TABLE schema;
+        """
+    )
+    con.commit()
+    con.close()
+    meta = path / "metadata.yaml"
+    text = meta.read_text().replace("version: 8", "version: 5")
+    dropped = ("type_description_hash", "RIHS01", "ros_distro")
+    lines = [ln for ln in text.splitlines() if not any(d in ln for d in dropped)]
+    meta.write_text("\n".join(lines) + "\n")
+    return path

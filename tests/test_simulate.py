@@ -6,7 +6,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import XARM, Bool, Message, String, joint_recording, joint_state, trajectory, write
+from builders import (
+    XARM,
+    Bool,
+    Message,
+    String,
+    joint_recording,
+    joint_state,
+    trajectory,
+    write,
+    write_humble_sqlite3,
+)
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
@@ -186,3 +196,26 @@ def test_locked_joints_still_simulate(tmp_path, robot, caplog):
         result = simulate_log(src, None, robot)
     assert result.locked == ("panda_finger_joint1", "panda_finger_joint2")
     assert caplog.text.count("locking") <= 1  # once per model, cached afterwards
+
+
+def test_humble_bag_without_message_definitions(tmp_path):
+    msgs = recording(40)
+    src = write_humble_sqlite3(tmp_path / "humble", msgs)
+    ref = read_log(write(tmp_path / "ref.mcap", "mcap", msgs))
+    out = simulate_log(src, None, "xarm7").output
+    got = read_log(out)
+    np.testing.assert_array_equal(got.position, ref.position)
+    assert got.sim_effort is not None and np.isfinite(got.sim_effort).all()
+
+
+def test_output_decodes_with_mcap_ros2(tmp_path):
+    from mcap_ros2.decoder import DecoderFactory
+
+    src = write(tmp_path / "in.bag", "ros1", recording(30))
+    out = simulate_log(src, None, "xarm7").output
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        decoded = list(reader.iter_decoded_messages(topics=["/twincd/sim_effort", "/joint_states"]))
+    assert len(decoded) == 60
+    sim = [m for _, c, _, m in decoded if c.topic == "/twincd/sim_effort"]
+    assert list(sim[0].name) == list(XARM) and len(sim[0].effort) == 7

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from twincd.derivatives import differentiate
 from twincd.errors import JointMismatchError, LogReadError, TopicError, UsageError
+from twincd.messages import TYPESTORE
 
 log = logging.getLogger("twincd")
 
@@ -162,7 +163,8 @@ def open_reader(path: Path) -> Any:
             "a bare .db3 file is not a log", str(path), "give the rosbag2 folder that holds it"
         )
     try:
-        reader = AnyReader([path])
+        # Humble-era rosbag2 bags store no message definitions: bring the standard ones
+        reader = AnyReader([path], default_typestore=TYPESTORE)
         reader.open()
     except Exception as exc:  # the I/O edge: every reader failure becomes one line
         raise LogReadError(

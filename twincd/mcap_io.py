@@ -24,6 +24,7 @@ from typing import IO, Any
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
+from rosbags.convert.converter import migrate_bytes
 
 from twincd import __version__
 from twincd.errors import LogReadError, OutputError, TwincdError
@@ -204,19 +205,40 @@ def _copy_via_rosbags(source: Path, out: _McapOut, replaced: frozenset[str]) -> 
     reader = open_reader(source)
     try:
         channels: dict[int, int] = {}
+        # ROS 1 messages become ROS 2 ones (Header loses `seq`) with rosbags' own converter,
+        # for every type the ROS 2 store knows; others keep the bag's own definition
+        to_ros2: dict[str, tuple[Any, str]] = {}
         for conn in reader.connections:
             if conn.topic in replaced:
                 continue
-            msgdef, _ = reader.typestore.generate_msgdef(conn.msgtype, ros_version=2)
+            store = reader.typestore
+            if not reader.is2 and conn.msgtype in TYPESTORE.fielddefs:
+                store = TYPESTORE
+            to_ros2[conn.msgtype] = (store, conn.msgtype)
+            try:
+                msgdef, _ = store.generate_msgdef(conn.msgtype, ros_version=2)
+            except Exception:  # a custom type an old bag did not describe: bytes still copy
+                msgdef = ""
             schema_id = out.schema(conn.msgtype, "ros2msg", msgdef.encode())
             qos = getattr(conn.ext, QOS_KEY, None)
             meta = {QOS_KEY: dump_qos_v8(list(qos)) if qos else DEFAULT_QOS}
             channels[conn.id] = out.channel(conn.topic, schema_id, "cdr", meta)
-        is_ros1 = not reader.is2
-        for conn, log_time, raw in reader.messages(
-            connections=[c for c in reader.connections if c.id in channels]
-        ):
-            data = reader.typestore.ros1_to_cdr(raw, conn.msgtype) if is_ros1 else raw
+        wanted = [c for c in reader.connections if c.id in channels]
+        cache: dict[str, object] = {}
+        for conn, log_time, raw in reader.messages(connections=wanted):
+            data = raw
+            if not reader.is2:
+                store, msgtype = to_ros2[conn.msgtype]
+                data = migrate_bytes(
+                    reader.typestore,
+                    store,
+                    conn.msgtype,
+                    msgtype,
+                    cache,
+                    raw,
+                    src_is2=False,
+                    dst_is2=True,
+                )
             out.writer.add_message(channels[conn.id], log_time, bytes(data), log_time)
     except TwincdError:
         raise
