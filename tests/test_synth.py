@@ -1,0 +1,262 @@
+"""The synthetic xArm 7 (twincd.synth): determinism, a plant that is not the twin, honest pushes."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import shlex
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from typer.testing import CliRunner
+
+from twincd import synth
+from twincd.logs import read_log
+from twincd.messages import TYPESTORE
+from twincd.twin import simulate_effort
+
+SAMPLE_LOGS = Path(__file__).resolve().parent.parent / "sample_logs"
+
+# short paths keep the tests fast; everything else is the default plant
+SHORT = replace(
+    synth.SynthConfig(),
+    motion=replace(synth.MotionConfig(), duration_s=(5.0, 6.0)),
+    collision=replace(synth.CollisionConfig(), presses=(2, 3)),
+)
+
+
+def _tree(root: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_same_seed_gives_byte_identical_logs(tmp_path: Path) -> None:
+    a = synth.write_dataset(tmp_path / "a", SHORT, seed=3, counts=(1, 1, 1))
+    synth.write_dataset(tmp_path / "b", SHORT, seed=3, counts=(1, 1, 1), jobs=2)
+    synth.write_dataset(tmp_path / "c", SHORT, seed=4, counts=(1, 1, 1))
+    assert [p.relative_to(tmp_path / "a").as_posix() for p in a] == [
+        "train/train_000.mcap",
+        "val/val_000.mcap",
+        "test/test_000.mcap",
+        "rosbag2/test_000",
+    ]
+    tree_a, tree_b, tree_c = (_tree(tmp_path / n) for n in "abc")
+    assert tree_a == tree_b
+    assert set(tree_a) == set(tree_c)
+    assert all(tree_a[k] != tree_c[k] for k in tree_a if k.endswith(".mcap"))
+    # the rosbag2 copy holds the same log as the bare MCAP
+    bare, bag = (
+        read_log(tmp_path / "a/test/test_000.mcap"),
+        read_log(tmp_path / "a/rosbag2/test_000"),
+    )
+    for field in ("stamp_ns", "log_time_ns", "position", "velocity", "effort", "labels"):
+        assert np.array_equal(getattr(bare, field), getattr(bag, field)), field
+
+
+def test_motion_follows_the_paper_protocol() -> None:
+    config = synth.SynthConfig()
+    plant = synth.make_plant(config.plant, 0)
+    run = synth.simulate_path(config, 0, "test", 1)
+    t = run.t_s
+    assert 22.0 <= t[-1] <= 35.0
+    assert np.allclose(np.diff(run.stamp_ns), 10_000_000)
+    latency = run.log_time_ns - run.stamp_ns
+    assert latency.min() >= 200_000 and latency.max() <= 1_000_000
+    moving = np.linalg.norm(run.true_velocity, axis=1) > 0
+    speed = np.rad2deg(np.linalg.norm(run.true_velocity[moving], axis=1).mean())
+    assert speed == pytest.approx(30.0, rel=0.03)
+    home = np.asarray(config.motion.home)
+    flange = synth._flange_positions(plant.nominal, run.trajectory.position)
+    home_xyz = synth._flange_positions(plant.nominal, home[None])[0]
+    assert np.linalg.norm(flange - home_xyz, axis=1).max() <= 0.2
+    assert np.array_equal(run.trajectory.position[0], home)
+    assert np.array_equal(run.trajectory.position[-1], home)
+    assert 5 <= len(run.presses) <= 7
+    assert run.joint_names == tuple(f"joint{i}" for i in range(1, 8))
+
+
+def test_plant_is_not_the_twin(tmp_path: Path) -> None:
+    """Raw twin ≠ measured effort beyond noise; known gains come back from the true dynamics."""
+    plant = synth.make_plant(SHORT.plant, 0)
+    assert not np.allclose(
+        [i.mass for i in plant.true.model.inertias], [i.mass for i in plant.nominal.model.inertias]
+    )
+    assert plant.nominal.model.inertias[7].mass == pytest.approx(0.17)  # cached model untouched
+    assert np.all((plant.gain >= 0.72) & (plant.gain <= 0.88))
+
+    measured, twin, ideal = [], [], []
+    for index in range(3):
+        run = synth.simulate_path(SHORT, 0, "train", index)
+        assert not run.presses and np.all(run.tau_ext == 0.0) and not run.label.any()
+        path = synth.write_mcap(run, tmp_path / f"train_{index}.mcap")
+        states = read_log(path)
+        assert states.effort is not None and np.array_equal(states.effort, run.effort)
+        measured.append(states.effort)
+        twin.append(simulate_effort(plant.nominal, states))
+        # noise-free plant effort on the logged positions with the true velocity/acceleration
+        ideal.append(plant.ideal_effort(states.position, run.true_velocity, run.acceleration))
+    y, x, z = np.vstack(measured), np.vstack(twin), np.vstack(ideal)
+
+    raw_rms = np.sqrt(np.mean((y - x) ** 2, axis=0))
+    assert np.all(raw_rms > 2.0 * plant.noise), (raw_rms, plant.noise)
+
+    for j in range(7):
+        gain, offset = np.polyfit(z[:, j], y[:, j], 1)
+        assert gain == pytest.approx(plant.gain[j], rel=0.05), j
+        rest = y[:, j] - (gain * z[:, j] + offset)
+        assert np.std(rest) == pytest.approx(plant.noise[j], rel=0.15), j
+
+
+def _frame_jacobian_torque(
+    model: pin.Model, link: str, point: np.ndarray, q: np.ndarray, force: np.ndarray
+) -> np.ndarray:
+    """Jᵀ F from a frame placed at the contact point (independent of synth's own mapping)."""
+    model = pin.Model(model)
+    parent = model.frames[model.getFrameId(link)]
+    placement = parent.placement * pin.SE3(np.eye(3), point)
+    fid = model.addFrame(
+        pin.Frame("contact", parent.parentJoint, placement, pin.FrameType.OP_FRAME)
+    )
+    data = model.createData()
+    jac = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL_WORLD_ALIGNED)
+    return np.asarray(jac[:3].T @ force)
+
+
+def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path) -> None:
+    cfg = SHORT.collision
+    plant = synth.make_plant(SHORT.plant, 0)
+    robot = plant.nominal
+    run = synth.simulate_path(SHORT, 0, "test", 0)
+    touched = [p for p in run.presses if p.touched]
+    assert touched and run.contact.any()
+    contact = run.contact
+    assert np.all(run.tau_ext[~contact] == 0.0)
+    assert np.all(run.contact_wrench[~contact] == 0.0)
+
+    t = run.t_s
+    for press in touched:
+        magnitude = synth.press_force(press, t)
+        rows = np.flatnonzero(magnitude > 0)
+        assert all(run.contact_link[r] == press.link for r in rows)
+        assert press.link in cfg.links and cfg.force_n[0] <= press.peak_n <= cfg.force_n[1]
+        assert magnitude.max() == pytest.approx(press.peak_n, rel=0.01)
+        for r in rows[:: max(1, len(rows) // 8)]:
+            q = robot.configuration(run.trajectory.position[r : r + 1])[0]
+            expected = _frame_jacobian_torque(
+                robot.model, press.link, press.point, q, magnitude[r] * press.direction
+            )
+            np.testing.assert_allclose(run.tau_ext[r], expected, atol=1e-9)
+
+    # the measurement equation, with τ_ext
+    rest = run.effort - plant.gain * (run.rigid + run.friction - run.tau_ext) - plant.offset
+    assert np.all(np.abs(rest) < 6 * plant.noise + 1e-3)
+
+    # labels read back from the log line up with the pushes within the configured lead/lag
+    path = synth.write_mcap(run, tmp_path / "test.mcap")
+    states = read_log(path)
+    assert states.labels is not None and np.array_equal(states.labels, run.label)
+    period = 0.01
+    for press in run.presses:
+        assert 0.0 <= press.start_s - press.label_on_s <= cfg.lead_s[1]
+        assert 0.0 <= press.label_off_s - press.end_s <= cfg.lag_s[1]
+        on = np.flatnonzero(
+            states.labels & (t > press.label_on_s - 0.5) & (t < press.label_off_s + 0.5)
+        )
+        assert on.size
+        assert press.label_on_s - 1e-3 <= t[on[0]] <= press.label_on_s + period + 1e-3
+        assert press.label_off_s - period - 1e-3 <= t[on[-1]] <= press.label_off_s + 1e-3
+        if press.touched:
+            rows = np.flatnonzero(synth.press_force(press, t) > 0)
+            assert states.labels[rows].all()
+            assert (t[rows[0]] - t[on[0]]) <= cfg.lead_s[1] + period
+            assert (t[on[-1]] - t[rows[-1]]) <= cfg.lag_s[1] + period
+
+    # the ground-truth topic: wrench in the link frame; J_LOCALᵀ w reproduces τ_ext
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path], default_typestore=TYPESTORE) as reader:
+        conns = [c for c in reader.connections if c.topic == synth.CONTACT_TOPIC]
+        msgs = [(t_, reader.deserialize(raw, c.msgtype)) for c, t_, raw in reader.messages(conns)]
+    by_time = {int(t_): m for t_, m in msgs}
+    rows = np.flatnonzero(contact)
+    assert set(run.log_time_ns[rows].tolist()) <= set(by_time)
+    data = robot.model.createData()
+    for r in rows[:: max(1, len(rows) // 10)]:
+        msg = by_time[int(run.log_time_ns[r])]
+        assert msg.header.frame_id == run.contact_link[r]
+        f, n = msg.wrench.force, msg.wrench.torque
+        w = np.array([f.x, f.y, f.z, n.x, n.y, n.z])
+        jid = robot.model.frames[robot.model.getFrameId(msg.header.frame_id)].parentJoint
+        q = robot.configuration(run.trajectory.position[r : r + 1])[0]
+        jac = pin.computeJointJacobian(robot.model, data, q, jid)
+        np.testing.assert_allclose(jac.T @ w, run.tau_ext[r], atol=1e-9)
+    # hold semantics: after each contact a zero message with an empty frame
+    ends = [*rows[np.flatnonzero(np.diff(rows) > 1)].tolist(), int(rows[-1])]
+    for r in ends:
+        assert by_time[int(run.log_time_ns[r + 1])].header.frame_id == ""
+
+
+def test_a_press_that_misses_raises_the_label_only() -> None:
+    config = replace(SHORT, collision=replace(SHORT.collision, miss_probability=1.0))
+    run = synth.simulate_path(config, 0, "test", 0)
+    assert run.presses and not any(p.touched for p in run.presses)
+    assert run.label.any()
+    assert np.all(run.tau_ext == 0.0) and not run.contact.any()
+    # the contact topics carry only the initial "nothing touches" message
+    own = [topic for topic, _, _ in synth.run_messages(run) if topic.startswith("/twincd/")]
+    assert sorted(own) == [synth.CONTACT_TOPIC, synth.CONTACT_POINT_TOPIC]
+
+
+def test_cli_writes_the_protocol_and_rejects_bad_options(tmp_path: Path) -> None:
+    from twincd_cli.main import app
+
+    runner = CliRunner()
+    args = ["synth", str(tmp_path / "out"), "--seed", "1", "--train", "1", "--val", "0"]
+    args += ["--test", "1", "--min-duration", "4", "--max-duration", "5", "--no-rosbag2-copy"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert sorted(_tree(tmp_path / "out")) == ["test/test_000.mcap", "train/train_000.mcap"]
+    assert "train_000.mcap" in result.stdout
+    bad = runner.invoke(
+        app, ["synth", str(tmp_path / "x"), "--min-duration", "9", "--max-duration", "5"]
+    )
+    assert bad.exit_code == 2
+    assert "twincd: error:" in bad.output
+    assert runner.invoke(app, ["synth", str(tmp_path / "x"), "--seed", "-1"]).exit_code == 2
+
+
+def _readme_command() -> list[str]:
+    text = (SAMPLE_LOGS / "README.md").read_text()
+    match = re.search(r"^\s*(twincd synth [^\n]+)$", text, re.MULTILINE)
+    assert match, "sample_logs/README.md names no `twincd synth` command"
+    return shlex.split(match.group(1))[1:]
+
+
+@pytest.mark.skipif(not (SAMPLE_LOGS / "README.md").exists(), reason="no shipped sample logs")
+def test_shipped_sample_logs_are_reproduced_by_the_readme_command(tmp_path: Path) -> None:
+    from twincd_cli.main import app
+
+    args = _readme_command()
+    assert args[1] == "sample_logs"
+    args[1] = str(tmp_path / "regen")
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    shipped = {k: v for k, v in _tree(SAMPLE_LOGS).items() if k.endswith((".mcap", ".db3"))}
+    regenerated = _tree(tmp_path / "regen")
+    assert set(shipped) <= set(regenerated)
+    for name in shipped:
+        if shipped[name] == regenerated[name]:
+            continue
+        # other library versions may differ in bytes (writer tag, last float bits): compare content
+        log = str(Path(name).parent) if name.endswith(".db3") else name
+        a, b = read_log(SAMPLE_LOGS / log), read_log(tmp_path / "regen" / log)
+        assert np.array_equal(a.stamp_ns, b.stamp_ns) and np.array_equal(a.labels, b.labels)
+        assert a.effort is not None and b.effort is not None
+        np.testing.assert_allclose(a.effort, b.effort, atol=1e-4)
+        np.testing.assert_allclose(a.position, b.position, atol=1e-6)

@@ -1,0 +1,794 @@
+"""A synthetic "real" xArm 7: a stand-in for the seed paper's recordings, with everything the
+digital twin does not know.
+
+Ground truth (the *plant*) is the xArm 7 URDF with errors that the twin does not model, drawn
+once per run set from the seed (``make_plant``):
+
+- link masses × (1 + N(0, 0.08)), centres of mass shifted by N(0, 4 mm) per axis, rotational
+  inertias scaled with the mass; an unmodelled 0.25 kg payload (a solid cylinder, r = 3 cm) whose
+  centre is 6 cm beyond the flange, rigidly on link 7;
+- joint friction fc·tanh(q̇/0.02) + fv·q̇ per joint (nominal fc, fv each × U(0.8, 1.2));
+- the reported effort is a current-based estimate: gain ∈ U(0.72, 0.88) per joint, offset
+  N(0, 0.2) N·m, white noise of σ = (0.35, 0.35, 0.25, 0.25, 0.12, 0.10, 0.03) N·m;
+  velocity noise σ = 0.002 rad/s; the driver reports float32 values (as the xArm SDK does).
+
+    measured effort = gain ⊙ (RNEA_true(q, q̇, q̈) + friction − τ_ext) + offset + noise
+
+Motion (paper Table I, Fig. 3): teaching points drawn around a home pose, each keeping the
+flange within 180 mm of its home position; a quintic interpolating spline in joint space through
+home → points → home with zero velocity and acceleration at both ends (smoother than a clamped
+cubic: no acceleration step at start and stop); 0.5 s at rest before and after. The time scale
+is set so that the mean joint-space speed while moving, mean over time of ‖q̇‖₂, is 30 °/s (a
+little less counting the rests); a path whose
+flange leaves the 200 mm sphere is redrawn. Sampled every 10 ms; 22–35 s per path. The position
+controller tracks perfectly: pushes show up in the effort only.
+
+Collisions (paper Fig. 4), test paths only: 5–7 presses per path (mean 6), one per equal time
+slot. A hand pushes on link3, link4, link5 or link6 (between joints 3–4, 4–5, 5–6, 6–7) at a
+point of that link (on the segment between its joint and the next, 4.5 cm off the axis), with a
+force of 8–35 N peak in a random direction (uniform on the half-sphere pointing into the
+surface: a hand pushes, it does not pull), fixed in the world frame during the press, with
+magnitude peak·sin²(π s/T) over T = 0.4–1.6 s. τ_ext = J(q)ᵀ w, with J Pinocchio's joint
+Jacobian of the contact link (LOCAL) and w the contact force moved to the link origin. The label
+is the experimenter's switch: on 0–150 ms before contact, off 0–100 ms after; 15 % of presses
+touch nothing (label on, no force).
+
+Topics of a written log (bare MCAP, ros2 profile, or rosbag2 sqlite3):
+
+- ``/joint_states`` sensor_msgs/msg/JointState every 10 ms: ``joint1``…``joint7``, position,
+  velocity, effort. ``header.stamp`` is the nominal sample time; the log time is the stamp plus
+  a recorder latency of 0.2–1.0 ms.
+- ``/collision_flag`` std_msgs/msg/Bool: ``false`` at the start, then one message at every
+  switch change (held until the next; log time = switch time + latency).
+- ``/twincd/contact`` geometry_msgs/msg/WrenchStamped (ground truth, for isolation work; test
+  logs only), while a hand touches: one per joint-state sample (same stamp and log time), plus
+  one message with an empty ``frame_id`` and zero wrench at the first sample and at the first
+  sample after each contact (hold semantics). ``header.frame_id`` = the Pinocchio body frame touched
+  (``link3``…``link6``); the wrench is expressed in that link's frame, about its origin: force =
+  the hand's force, torque = p × force. τ_ext = J_LOCAL(q)ᵀ [force; torque], with J the joint
+  Jacobian of the link's parent joint (the xArm 7's link frames coincide with its joint frames).
+- ``/twincd/contact_point`` geometry_msgs/msg/PointStamped, alongside each contact message: the
+  contact point p in the link frame (``header.frame_id`` = link).
+
+Every path is a pure function of (config, seed, split, index): ``simulate_path`` is vectorised
+and paths can be generated in parallel; output bytes are deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+from numpy.typing import NDArray
+from scipy.interpolate import make_interp_spline
+
+from twincd.errors import DataError, OutputError, UsageError
+from twincd.messages import TYPESTORE, bool_cdr, header, joint_state_cdr, serialize
+from twincd.robot import RobotModel, load_robot
+from twincd.twin import inverse_dynamics
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+ROBOT = "xarm7"
+SPLITS = ("train", "val", "test")
+JOINT_TOPIC = "/joint_states"
+LABEL_TOPIC = "/collision_flag"
+CONTACT_TOPIC = "/twincd/contact"
+CONTACT_POINT_TOPIC = "/twincd/contact_point"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+BOOL = "std_msgs/msg/Bool"
+WRENCH = "geometry_msgs/msg/WrenchStamped"
+POINT = "geometry_msgs/msg/PointStamped"
+# 2024-05-01T01:00:00Z: the first sample of path 0 of seed 0
+EPOCH_NS = 1_714_525_200_000_000_000
+
+_Wrench = TYPESTORE.types["geometry_msgs/msg/Wrench"]
+_WrenchStamped = TYPESTORE.types[WRENCH]
+_Vector3 = TYPESTORE.types["geometry_msgs/msg/Vector3"]
+_Point = TYPESTORE.types["geometry_msgs/msg/Point"]
+_PointStamped = TYPESTORE.types[POINT]
+
+
+# ---------------------------------------------------------------- configuration
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """What the twin does not know; drawn once per run set."""
+
+    mass_sigma: float = 0.08
+    com_sigma_m: float = 0.004
+    payload_kg: float = 0.25
+    payload_offset_m: float = 0.06  # centre beyond the flange, along the flange normal
+    payload_radius_m: float = 0.03
+    payload_length_m: float = 0.06
+    coulomb_nm: tuple[float, ...] = (1.2, 1.2, 0.8, 0.8, 0.4, 0.3, 0.12)
+    viscous_nms: tuple[float, ...] = (0.8, 0.8, 0.5, 0.5, 0.3, 0.2, 0.05)
+    friction_spread: float = 0.2  # each coefficient × U(1 − s, 1 + s)
+    coulomb_velocity: float = 0.02  # rad/s in tanh(q̇ / v)
+    gain_range: tuple[float, float] = (0.72, 0.88)
+    offset_sigma_nm: float = 0.2
+    effort_noise_nm: tuple[float, ...] = (0.35, 0.35, 0.25, 0.25, 0.12, 0.10, 0.03)
+    velocity_noise: float = 0.002  # rad/s
+    float32: bool = True  # the driver reports float32 values
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Teaching-point paths around a home pose (paper Table I)."""
+
+    rate_hz: float = 100.0
+    duration_s: tuple[float, float] = (22.0, 35.0)
+    mean_speed_deg_s: float = 30.0
+    radius_m: float = 0.2  # the flange stays within this of its home position
+    point_radius_m: float = 0.18  # teaching points keep this margin
+    home: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0)
+    spread_rad: tuple[float, ...] = (0.25, 0.2, 0.3, 0.25, 0.5, 0.35, 0.8)
+    rest_s: float = 0.5
+    latency_ms: tuple[float, float] = (0.2, 1.0)
+
+
+@dataclass(frozen=True)
+class CollisionConfig:
+    """Hand presses on the moving arm (paper Fig. 4)."""
+
+    presses: tuple[int, int] = (5, 7)  # per path, inclusive
+    links: tuple[str, ...] = ("link3", "link4", "link5", "link6")
+    force_n: tuple[float, float] = (8.0, 35.0)
+    duration_s: tuple[float, float] = (0.4, 1.6)
+    lead_s: tuple[float, float] = (0.0, 0.15)  # switch on before contact
+    lag_s: tuple[float, float] = (0.0, 0.10)  # switch off after contact
+    miss_probability: float = 0.15  # label on, nothing touched
+    surface_radius_m: float = 0.045
+    margin_s: float = 1.0  # no press in the first/last second
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    plant: PlantConfig = field(default_factory=PlantConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    collision: CollisionConfig = field(default_factory=CollisionConfig)
+
+
+# ---------------------------------------------------------------- the plant
+
+
+@dataclass(frozen=True)
+class Plant:
+    """The "real" robot of one run set."""
+
+    nominal: RobotModel  # what the twin uses
+    true: RobotModel  # same kinematics, perturbed inertias, payload
+    mass_scale: FloatArray  # per link 1..7
+    com_shift_m: FloatArray  # (7, 3)
+    coulomb: FloatArray
+    viscous: FloatArray
+    coulomb_velocity: float
+    gain: FloatArray
+    offset: FloatArray
+    noise: FloatArray
+    velocity_noise: float
+
+    def friction(self, velocity: FloatArray) -> FloatArray:
+        return self.coulomb * np.tanh(velocity / self.coulomb_velocity) + self.viscous * velocity
+
+    def ideal_effort(
+        self, position: FloatArray, velocity: FloatArray, acceleration: FloatArray
+    ) -> FloatArray:
+        """RNEA_true + friction, without τ_ext, gain, offset or noise."""
+        rigid = inverse_dynamics(self.true, position, velocity, acceleration)
+        return rigid + self.friction(velocity)
+
+
+def _rng(seed: int, *key: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([int(seed), *key]))
+
+
+def _check_seed(seed: int) -> None:
+    if seed < 0:
+        raise UsageError(f"seed must be ≥ 0, got {seed}", "--seed", "pass a non-negative integer")
+
+
+@lru_cache(maxsize=8)
+def make_plant(config: PlantConfig, seed: int) -> Plant:
+    """Draw the plant of a run set; the cached nominal model is never modified."""
+    _check_seed(seed)
+    nominal = load_robot(ROBOT)
+    dof = nominal.dof
+    rng = _rng(seed, 0)
+    model = pin.Model(nominal.model)
+    mass_scale = np.maximum(1.0 + rng.normal(0.0, config.mass_sigma, dof), 0.5)
+    com_shift = rng.normal(0.0, config.com_sigma_m, (dof, 3))
+    for k in range(dof):
+        jid = k + 1
+        inertia = model.inertias[jid]
+        model.inertias[jid] = pin.Inertia(
+            float(inertia.mass * mass_scale[k]),
+            np.asarray(inertia.lever) + com_shift[k],
+            np.asarray(inertia.inertia) * mass_scale[k],
+        )
+    # payload beyond the flange (link_eef when the URDF has it, else the last joint's origin)
+    last = model.njoints - 1
+    flange = (
+        model.frames[model.getFrameId("link_eef")].placement
+        if model.existFrame("link_eef")
+        else pin.SE3.Identity()
+    )
+    m, r, h = config.payload_kg, config.payload_radius_m, config.payload_length_m
+    cylinder = np.diag([m * (3 * r * r + h * h) / 12, m * (3 * r * r + h * h) / 12, m * r * r / 2])
+    rot = np.asarray(flange.rotation)
+    centre = flange.act(np.array([0.0, 0.0, config.payload_offset_m]))
+    model.inertias[last] = model.inertias[last] + pin.Inertia(m, centre, rot @ cylinder @ rot.T)
+
+    spread = config.friction_spread
+    coulomb = np.asarray(config.coulomb_nm) * rng.uniform(1 - spread, 1 + spread, dof)
+    viscous = np.asarray(config.viscous_nms) * rng.uniform(1 - spread, 1 + spread, dof)
+    gain = rng.uniform(*config.gain_range, dof)
+    offset = rng.normal(0.0, config.offset_sigma_nm, dof)
+    return Plant(
+        nominal=nominal,
+        true=replace(nominal, model=model),
+        mass_scale=mass_scale,
+        com_shift_m=com_shift,
+        coulomb=coulomb,
+        viscous=viscous,
+        coulomb_velocity=config.coulomb_velocity,
+        gain=gain,
+        offset=offset,
+        noise=np.asarray(config.effort_noise_nm, dtype=np.float64),
+        velocity_noise=config.velocity_noise,
+    )
+
+
+# ---------------------------------------------------------------- motion
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    t_s: FloatArray  # nominal sample times from 0
+    position: FloatArray  # (N, 7)
+    velocity: FloatArray
+    acceleration: FloatArray
+    teaching_points: FloatArray  # (K, 7), home first and last
+    knots_s: FloatArray  # when the path passes each teaching point
+
+
+def _flange_positions(robot: RobotModel, position: FloatArray) -> FloatArray:
+    model = robot.model
+    data = model.createData()
+    fid = model.getFrameId("link_eef") if model.existFrame("link_eef") else None
+    out = np.empty((len(position), 3))
+    for i, q in enumerate(robot.configuration(position)):
+        if fid is None:
+            pin.forwardKinematics(model, data, q)
+            out[i] = data.oMi[model.njoints - 1].translation
+        else:
+            pin.framesForwardKinematics(model, data, q)
+            out[i] = data.oMf[fid].translation
+    return out
+
+
+def _teaching_points(
+    robot: RobotModel, cfg: MotionConfig, rng: np.random.Generator, path_rad: float
+) -> FloatArray:
+    home = np.asarray(cfg.home)
+    spread = np.asarray(cfg.spread_rad)
+    lower = robot.model.lowerPositionLimit + 0.05
+    upper = robot.model.upperPositionLimit - 0.05
+    home_xyz = _flange_positions(robot, home[None])[0]
+    points = [home]
+    total = 0.0
+    for _ in range(10_000):
+        candidates = home + rng.uniform(-1.0, 1.0, (16, len(home))) * spread
+        ok = np.all((candidates > lower) & (candidates < upper), axis=1)
+        dist = np.linalg.norm(_flange_positions(robot, candidates) - home_xyz, axis=1)
+        ok &= dist <= cfg.point_radius_m
+        for cand in candidates[ok]:
+            total += float(np.linalg.norm(cand - points[-1]))
+            points.append(cand)
+            if total + float(np.linalg.norm(cand - home)) >= path_rad:
+                points.append(home)
+                return np.array(points)
+    raise DataError("cannot draw teaching points", "twincd.synth", "widen MotionConfig.spread_rad")
+
+
+def make_trajectory(robot: RobotModel, cfg: MotionConfig, rng: np.random.Generator) -> Trajectory:
+    """A smooth path home → teaching points → home at ≈ the configured mean speed."""
+    if not 2 * cfg.rest_s + 1.0 <= cfg.duration_s[0] <= cfg.duration_s[1]:
+        raise UsageError(
+            f"bad path duration range {cfg.duration_s[0]}–{cfg.duration_s[1]} s",
+            "--min-duration/--max-duration",
+            f"give {2 * cfg.rest_s + 1.0:g} s ≤ min ≤ max",
+        )
+    speed = np.deg2rad(cfg.mean_speed_deg_s)
+    home_xyz = _flange_positions(robot, np.asarray(cfg.home)[None])[0]
+    lo, hi = cfg.duration_s
+    dt = 1.0 / cfg.rate_hz
+    zero = np.zeros(len(cfg.home))
+    bc = ([(1, zero), (2, zero)], [(1, zero), (2, zero)])
+    for _ in range(200):
+        target = rng.uniform(lo, hi)
+        moving = target - 2 * cfg.rest_s
+        points = _teaching_points(robot, cfg, rng, 0.85 * speed * moving)
+        chord = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        knots = np.concatenate([[0.0], np.cumsum(chord)])
+        spline = make_interp_spline(knots, points, k=5, bc_type=bc)
+        dense = np.linspace(0.0, knots[-1], 4000)
+        arc = float(np.mean(np.linalg.norm(spline(dense, 1), axis=1))) * knots[-1]
+        scale = float(np.clip(arc / speed, lo - 2 * cfg.rest_s, hi - 2 * cfg.rest_s)) / knots[-1]
+        duration = knots[-1] * scale + 2 * cfg.rest_s
+        n = int(np.floor(duration / dt + 1e-9)) + 1
+        t = np.arange(n) * dt
+        s = np.clip(t - cfg.rest_s, 0.0, knots[-1] * scale) / scale
+        moving_mask = (t > cfg.rest_s) & (t < cfg.rest_s + knots[-1] * scale)
+        position = spline(s)
+        velocity = np.where(moving_mask[:, None], spline(s, 1) / scale, 0.0)
+        acceleration = np.where(moving_mask[:, None], spline(s, 2) / scale**2, 0.0)
+        position[~moving_mask] = np.where(
+            t[~moving_mask, None] <= cfg.rest_s, points[0], points[-1]
+        )
+        within = np.linalg.norm(_flange_positions(robot, position) - home_xyz, axis=1)
+        limits = np.all(
+            (position >= robot.model.lowerPositionLimit)
+            & (position <= robot.model.upperPositionLimit)
+        )
+        if within.max() <= cfg.radius_m and limits:
+            return Trajectory(
+                np.asarray(t, dtype=np.float64),
+                position,
+                velocity,
+                acceleration,
+                points,
+                knots * scale + cfg.rest_s,
+            )
+    raise DataError("cannot draw a path within the radius", "twincd.synth", "check MotionConfig")
+
+
+# ---------------------------------------------------------------- collisions
+
+
+@dataclass(frozen=True)
+class Press:
+    """One press of the experimenter; ``touched`` False: the switch went on, nothing touched."""
+
+    link: str
+    point: FloatArray  # contact point in the link frame (m)
+    direction: FloatArray  # unit force direction in the world frame
+    peak_n: float
+    start_s: float  # contact start (for a miss: when it would have started)
+    duration_s: float
+    label_on_s: float
+    label_off_s: float
+    touched: bool
+
+    @property
+    def end_s(self) -> float:
+        return self.start_s + self.duration_s
+
+
+def _link_point(model: pin.Model, jid: int, radius: float, rng: np.random.Generator) -> FloatArray:
+    """A point on the surface of a link: along its joint-to-next-joint segment, off the axis."""
+    seg = (
+        np.asarray(model.jointPlacements[jid + 1].translation)
+        if jid + 1 < model.njoints
+        else np.zeros(3)
+    )
+    length = float(np.linalg.norm(seg))
+    normal = rng.normal(size=3)
+    if length > 1e-6:
+        axis = seg / length
+        normal -= axis * float(normal @ axis)
+    normal /= np.linalg.norm(normal)
+    return np.asarray(rng.uniform(0.15, 0.85) * seg + radius * normal, dtype=np.float64)
+
+
+def draw_presses(
+    cfg: CollisionConfig, plant: Plant, traj: Trajectory, rng: np.random.Generator
+) -> list[Press]:
+    model = plant.nominal.model
+    total = float(traj.t_s[-1])
+    count = int(rng.integers(cfg.presses[0], cfg.presses[1] + 1))
+    span = total - 2 * cfg.margin_s
+    longest = cfg.duration_s[1] + cfg.lead_s[1] + cfg.lag_s[1] + 0.2
+    count = min(count, max(0, int(span // longest)))  # short paths take fewer presses
+    slot = span / max(count, 1)
+    presses: list[Press] = []
+    for k in range(count):
+        a = cfg.margin_s + k * slot
+        duration = rng.uniform(*cfg.duration_s)
+        lead = rng.uniform(*cfg.lead_s)
+        lag = rng.uniform(*cfg.lag_s)
+        first = a + lead + 0.1
+        last = max(first, a + slot - duration - lag - 0.1)
+        start = rng.uniform(first, last)
+        link = cfg.links[int(rng.integers(len(cfg.links)))]
+        frame = model.frames[model.getFrameId(link)]
+        jid = int(frame.parentJoint)
+        point = _link_point(model, jid, cfg.surface_radius_m, rng)  # in the joint frame
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        peak = rng.uniform(*cfg.force_n)
+        touched = bool(rng.uniform() >= cfg.miss_probability)
+        # push, do not pull: the force points into the surface at the press's middle
+        mid = int(np.searchsorted(traj.t_s, start + duration / 2).clip(0, len(traj.t_s) - 1))
+        data = model.createData()
+        q_mid = plant.nominal.configuration(traj.position[mid : mid + 1])[0]
+        pin.forwardKinematics(model, data, q_mid)
+        outward = np.asarray(data.oMi[jid].rotation) @ (point - _axis_projection(model, jid, point))
+        if float(direction @ outward) > 0:
+            direction = -direction
+        presses.append(
+            Press(
+                link=link,
+                point=np.asarray(frame.placement.actInv(point), dtype=np.float64),
+                direction=direction,
+                peak_n=float(peak),
+                start_s=float(start),
+                duration_s=float(duration),
+                label_on_s=float(start - lead),
+                label_off_s=float(start + duration + lag),
+                touched=touched,
+            )
+        )
+    return presses
+
+
+def _axis_projection(model: pin.Model, jid: int, point: FloatArray) -> FloatArray:
+    seg = (
+        np.asarray(model.jointPlacements[jid + 1].translation)
+        if jid + 1 < model.njoints
+        else np.zeros(3)
+    )
+    length2 = float(seg @ seg)
+    if length2 < 1e-12:
+        return np.zeros(3)
+    return np.asarray(seg * float(point @ seg) / length2, dtype=np.float64)
+
+
+def press_force(press: Press, t_s: FloatArray) -> FloatArray:
+    """Force magnitude over time: peak · sin²(π (t − start) / T) inside the press, else 0."""
+    phase = (t_s - press.start_s) / press.duration_s
+    inside = (phase > 0.0) & (phase < 1.0)
+    if not press.touched:
+        return np.zeros(len(t_s))
+    return np.asarray(np.where(inside, press.peak_n * np.sin(np.pi * phase) ** 2, 0.0), np.float64)
+
+
+def contact_torque(
+    robot: RobotModel, position: FloatArray, link: str, point: FloatArray, force_world: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """τ_ext = J_LOCAL(q)ᵀ w per sample, and w = (force, p × force) in the link frame (N, 6).
+
+    ``force_world`` (N, 3) acts at ``point`` (link frame); ``position`` is (N, dof).
+    """
+    model = robot.model
+    data = model.createData()
+    jid = int(model.frames[model.getFrameId(link)].parentJoint)
+    body = model.frames[model.getFrameId(link)].placement  # body frame in the joint frame
+    p_joint = body.act(point)
+    tau = np.zeros((len(position), model.nv))
+    wrench = np.zeros((len(position), 6))
+    for i, q in enumerate(robot.configuration(position)):
+        pin.forwardKinematics(model, data, q)
+        f_local = np.asarray(data.oMi[jid].rotation).T @ force_world[i]
+        w = np.concatenate([f_local, np.cross(p_joint, f_local)])
+        jac = pin.computeJointJacobian(model, data, q, jid)
+        tau[i] = jac.T @ w
+        w_body = np.concatenate(
+            [body.rotation.T @ f_local, np.cross(point, body.rotation.T @ f_local)]
+        )
+        wrench[i] = w_body
+    return robot.joint_values(tau), wrench
+
+
+# ---------------------------------------------------------------- one path
+
+
+@dataclass(frozen=True)
+class SynthRun:
+    """One synthetic recording with its ground truth."""
+
+    split: str
+    index: int
+    seed: int
+    joint_names: tuple[str, ...]
+    stamp_ns: IntArray
+    log_time_ns: IntArray
+    position: FloatArray  # reported
+    velocity: FloatArray  # reported (noisy)
+    effort: FloatArray  # reported
+    true_velocity: FloatArray
+    acceleration: FloatArray
+    rigid: FloatArray  # RNEA_true(q, q̇, q̈)
+    friction: FloatArray
+    tau_ext: FloatArray
+    contact_link: tuple[str, ...]  # per sample, "" when nothing touches
+    contact_wrench: FloatArray  # (N, 6) in the link frame, about its origin
+    contact_point: FloatArray  # (N, 3) in the link frame
+    label: BoolArray  # the switch held onto the joint-state log times
+    label_events: tuple[tuple[int, bool], ...]  # (log_time_ns, value)
+    presses: tuple[Press, ...]
+    trajectory: Trajectory
+
+    @property
+    def t_s(self) -> FloatArray:
+        return np.asarray((self.stamp_ns - self.stamp_ns[0]) * 1e-9, dtype=np.float64)
+
+    @property
+    def contact(self) -> BoolArray:
+        return np.array([bool(c) for c in self.contact_link])
+
+
+def path_start_ns(seed: int, split: str, index: int) -> int:
+    """Wall-clock start of a path: one run set per seed-day, paths a minute apart.
+
+    Days wrap after 10 years so stamps stay within int32 seconds.
+    """
+    split_no = SPLITS.index(split) if split in SPLITS else len(SPLITS)
+    day = seed % 3650
+    return EPOCH_NS + (day * 86_400 + split_no * 3_600 + index * 60) * 1_000_000_000
+
+
+def simulate_path(
+    config: SynthConfig, seed: int, split: str, index: int, collisions: bool | None = None
+) -> SynthRun:
+    """One path of a run set: a pure function of its arguments.
+
+    ``collisions`` defaults to ``split == "test"``.
+    """
+    _check_seed(seed)
+    if index < 0:
+        raise UsageError(f"path index must be ≥ 0, got {index}", "twincd.synth")
+    split_no = SPLITS.index(split) if split in SPLITS else len(SPLITS)
+    collisions = split == "test" if collisions is None else collisions
+    plant = make_plant(config.plant, seed)
+    robot = plant.nominal
+    rng = _rng(seed, 1 + split_no, index)
+    traj = make_trajectory(robot, config.motion, rng)
+    n, dof = traj.position.shape
+    t = traj.t_s
+
+    presses = draw_presses(config.collision, plant, traj, rng) if collisions else []
+    tau_ext = np.zeros((n, dof))
+    wrench = np.zeros((n, 6))
+    point = np.zeros((n, 3))
+    link = [""] * n
+    for press in presses:
+        magnitude = press_force(press, t)
+        rows = np.flatnonzero(magnitude > 0.0)
+        if rows.size == 0:
+            continue
+        force = magnitude[rows, None] * press.direction[None, :]
+        tau, w = contact_torque(robot, traj.position[rows], press.link, press.point, force)
+        tau_ext[rows] = tau
+        wrench[rows] = w
+        point[rows] = press.point
+        for r in rows:
+            link[int(r)] = press.link
+
+    rigid = inverse_dynamics(plant.true, traj.position, traj.velocity, traj.acceleration)
+    friction = plant.friction(traj.velocity)
+    noise = rng.normal(size=(n, dof)) * plant.noise
+    effort = plant.gain * (rigid + friction - tau_ext) + plant.offset + noise
+    velocity = traj.velocity + rng.normal(0.0, plant.velocity_noise, (n, dof))
+    position = traj.position.copy()
+    if config.plant.float32:
+        position, velocity, effort = (
+            a.astype(np.float32).astype(np.float64) for a in (position, velocity, effort)
+        )
+
+    lat_lo, lat_hi = config.motion.latency_ms
+    start_ns = path_start_ns(seed, split, index)
+    period_ns = round(1e9 / config.motion.rate_hz)
+    stamp = start_ns + np.arange(n, dtype=np.int64) * period_ns
+    log_time = stamp + np.round(rng.uniform(lat_lo, lat_hi, n) * 1e6).astype(np.int64)
+
+    events: list[tuple[int, bool]] = [(int(stamp[0]), False)]
+    for press in presses:
+        for when, value in ((press.label_on_s, True), (press.label_off_s, False)):
+            latency = round(rng.uniform(lat_lo, lat_hi) * 1e6)
+            events.append((start_ns + round(when * 1e9) + latency, value))
+    ev_t = np.array([e[0] for e in events], dtype=np.int64)
+    ev_v = np.array([e[1] for e in events], dtype=bool)
+    held = np.searchsorted(ev_t, log_time, side="right") - 1
+    label = np.where(held >= 0, ev_v[np.maximum(held, 0)], False)
+
+    return SynthRun(
+        split=split,
+        index=index,
+        seed=seed,
+        joint_names=robot.joint_names,
+        stamp_ns=stamp,
+        log_time_ns=log_time,
+        position=position,
+        velocity=velocity,
+        effort=effort,
+        true_velocity=traj.velocity,
+        acceleration=traj.acceleration,
+        rigid=rigid,
+        friction=friction,
+        tau_ext=tau_ext,
+        contact_link=tuple(link),
+        contact_wrench=wrench,
+        contact_point=point,
+        label=label,
+        label_events=tuple(events),
+        presses=tuple(presses),
+        trajectory=traj,
+    )
+
+
+# ---------------------------------------------------------------- writing
+
+
+def _contact_cdr(
+    stamp_ns: int, link: str, wrench: FloatArray, point: FloatArray
+) -> tuple[bytes, bytes]:
+    hdr: Any = header(stamp_ns, link)
+    w = _WrenchStamped(
+        header=hdr,
+        wrench=_Wrench(
+            force=_Vector3(x=float(wrench[0]), y=float(wrench[1]), z=float(wrench[2])),
+            torque=_Vector3(x=float(wrench[3]), y=float(wrench[4]), z=float(wrench[5])),
+        ),
+    )
+    p = _PointStamped(
+        header=hdr,
+        point=_Point(x=float(point[0]), y=float(point[1]), z=float(point[2])),
+    )
+    return serialize(w, WRENCH), serialize(p, POINT)
+
+
+def run_messages(run: SynthRun) -> list[tuple[str, int, bytes]]:
+    """Every message of a run as (topic, log_time_ns, cdr), sorted by log time (stable)."""
+    out: list[tuple[str, int, bytes]] = []
+    states = joint_state_cdr(run.stamp_ns, run.joint_names, run.position, run.velocity, run.effort)
+    for i, data in enumerate(states):
+        out.append((JOINT_TOPIC, int(run.log_time_ns[i]), data))
+    for when, value in run.label_events:
+        out.append((LABEL_TOPIC, when, bool_cdr(value)))
+    if run.presses:
+        previous = None
+        for i, link in enumerate(run.contact_link):
+            if link or (previous is None or previous):
+                wrench, point = _contact_cdr(
+                    int(run.stamp_ns[i]), link, run.contact_wrench[i], run.contact_point[i]
+                )
+                out.append((CONTACT_TOPIC, int(run.log_time_ns[i]), wrench))
+                out.append((CONTACT_POINT_TOPIC, int(run.log_time_ns[i]), point))
+            previous = link
+    out.sort(key=lambda m: m[1])
+    return out
+
+
+_TOPICS = (
+    (JOINT_TOPIC, JOINT_STATE),
+    (LABEL_TOPIC, BOOL),
+    (CONTACT_TOPIC, WRENCH),
+    (CONTACT_POINT_TOPIC, POINT),
+)
+
+
+def write_mcap(run: SynthRun, path: Path) -> Path:
+    """The run as a bare ros2 MCAP file (atomic)."""
+    from twincd.mcap_io import McapLogWriter
+
+    messages = run_messages(run)
+    used = {m[0] for m in messages}
+    with McapLogWriter(Path(path)) as out:
+        channels = {t: out.add_topic(t, typ) for t, typ in _TOPICS if t in used}
+        for topic, log_time, data in messages:
+            out.write(channels[topic], log_time, data)
+    return Path(path)
+
+
+def write_rosbag2(run: SynthRun, path: Path) -> Path:
+    """The run as a rosbag2 sqlite3 folder (written beside, renamed into place)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2.metadata import parse_qos
+
+    from twincd.mcap_io import DEFAULT_QOS
+
+    qos = parse_qos(DEFAULT_QOS)
+
+    path = Path(path)
+    tmp_parent = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    shutil.rmtree(tmp_parent, ignore_errors=True)
+    try:
+        tmp_parent.mkdir(parents=True)
+        messages = run_messages(run)
+        used = {m[0] for m in messages}
+        writer = Writer(tmp_parent / path.name, version=8, storage_plugin=StoragePlugin.SQLITE3)
+        writer.open()
+        try:
+            conns = {
+                t: writer.add_connection(t, typ, typestore=TYPESTORE, offered_qos_profiles=qos)
+                for t, typ in _TOPICS
+                if t in used
+            }
+            for topic, log_time, data in messages:
+                writer.write(conns[topic], log_time, data)
+        finally:
+            writer.close()
+        if path.exists():
+            shutil.rmtree(path)
+        os.replace(tmp_parent / path.name, path)
+    except OSError as exc:
+        raise OutputError(
+            f"cannot write rosbag2 folder: {exc}", str(path), "pick a writable OUTDIR"
+        ) from exc
+    finally:
+        shutil.rmtree(tmp_parent, ignore_errors=True)
+    return path
+
+
+# ---------------------------------------------------------------- a whole run set
+
+
+def log_name(split: str, index: int) -> str:
+    return f"{split}_{index:03d}"
+
+
+def _make_one(args: tuple[SynthConfig, int, str, int, Path]) -> Path:
+    config, seed, split, index, target = args
+    return write_mcap(simulate_path(config, seed, split, index), target)
+
+
+def write_dataset(
+    outdir: Path,
+    config: SynthConfig | None = None,
+    seed: int = 0,
+    counts: Sequence[int] = (30, 5, 5),
+    rosbag2_copy: bool = True,
+    jobs: int = 1,
+) -> list[Path]:
+    """The paper's protocol: ``outdir/{train,val,test}/<split>_NNN.mcap``.
+
+    Train and val paths are collision-free, test paths have presses. With ``rosbag2_copy``, the
+    first test path is also written as a rosbag2 sqlite3 folder ``outdir/rosbag2/test_000``
+    (outside ``test/``, so a folder argument does not read the same log twice).
+    Returns the paths written, in order.
+    """
+    config = config or SynthConfig()
+    _check_seed(seed)
+    if len(counts) != len(SPLITS) or any(c < 0 for c in counts):
+        raise UsageError("path counts must be three numbers ≥ 0", "--train/--val/--test")
+    if jobs < 1:
+        raise UsageError(f"jobs must be ≥ 1, got {jobs}", "--jobs")
+    outdir = Path(outdir)
+    if outdir.exists() and not outdir.is_dir():
+        raise OutputError("output exists and is not a folder", str(outdir), "give a folder name")
+    tasks: list[tuple[SynthConfig, int, str, int, Path]] = []
+    for split, count in zip(SPLITS, counts, strict=True):
+        for index in range(count):
+            tasks.append(
+                (config, seed, split, index, outdir / split / f"{log_name(split, index)}.mcap")
+            )
+    try:
+        for split, count in zip(SPLITS, counts, strict=True):
+            if count:
+                (outdir / split).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(
+            f"cannot create folder: {exc.strerror}", str(outdir), "pick a writable OUTDIR"
+        ) from exc
+    if jobs == 1 or len(tasks) < 2:
+        written = [_make_one(t) for t in tasks]
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            written = list(pool.map(_make_one, tasks))
+    if rosbag2_copy and counts[2] > 0:
+        run = simulate_path(config, seed, "test", 0)
+        (outdir / "rosbag2").mkdir(exist_ok=True)
+        written.append(write_rosbag2(run, outdir / "rosbag2" / log_name("test", 0)))
+    return written
