@@ -70,20 +70,23 @@ def twin_effort(
     robot: str | None,
     differentiator: Differentiator | None = None,
     force_simulate: bool = False,
+    fallback_robot: str | None = None,
 ) -> tuple[JointStates, FloatArray, RobotModel | None, bool]:
     """(states in twin joint order, τ̂, robot or None, simulated?) for one log.
 
     Uses the log's ``/twincd/sim_effort`` when present (unless ``force_simulate``), else
-    simulates with ``robot``.
+    simulates with ``robot`` (or ``fallback_robot`` when no robot was asked for: a default
+    model is only needed, and only loaded, for logs without a simulated effort).
     """
     if states.sim_effort is not None and not force_simulate:
-        have = np.isfinite(states.sim_effort).all(axis=0)
-        names = tuple(n for n, ok in zip(states.joint_names, have) if ok)
+        have: BoolArray = np.asarray(np.isfinite(states.sim_effort).all(axis=0))
+        names = tuple(n for n, ok in zip(states.joint_names, have.tolist(), strict=True) if ok)
         if names:
             sel = states.select(names)
             model = robot_for(robot, names) if robot else None
             assert sel.sim_effort is not None
             return sel, sel.sim_effort, model, False
+    robot = robot or fallback_robot
     if robot is None:
         raise JointMismatchError(
             "the log has no simulated effort and no robot model was given",
@@ -101,8 +104,12 @@ def prepare(
     robot: str | None,
     lowpass: LowPass,
     joint_names: Sequence[str] | None = None,
+    fallback_robot: str | None = None,
 ) -> PreparedLog:
-    """Read, twin and filter one log; ``joint_names`` pins the column order (a calibration's)."""
+    """Read, twin and filter one log; ``joint_names`` pins the column order (a calibration's).
+
+    ``fallback_robot`` simulates logs without ``/twincd/sim_effort`` when ``robot`` is None.
+    """
     states = read_log(path, options)
     if states.effort is None:
         raise DataError(
@@ -110,7 +117,7 @@ def prepare(
             f"{states.source}, {states.topic}",
             "record JointState.effort; twincd compares it with the twin",
         )
-    sel, sim, model, simulated = twin_effort(states, robot)
+    sel, sim, model, simulated = twin_effort(states, robot, fallback_robot=fallback_robot)
     if joint_names is not None:
         missing = [n for n in joint_names if n not in sel.joint_names]
         if missing:

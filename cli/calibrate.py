@@ -1,0 +1,216 @@
+"""``twincd fit`` and ``twincd threshold``: the paper's regression and its μ + kσ threshold.
+
+Also the option handling that detect and evaluate share: a calibration's recorded settings are
+the defaults, and an explicit option that contradicts them is an error (DESIGN §2).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from twincd.calibration import Calibration, Setup, fit_calibration
+from twincd.detection import DEFAULT_K_SIGMA, calibrate_threshold
+from twincd.errors import UsageError
+from twincd.filters import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT_ORDER, LowPass
+from twincd.logs import expand_logs, parse_joint_map
+
+from .common import (
+    Debug,
+    JointMap,
+    LabelTopic,
+    Logs,
+    Quiet,
+    Robot,
+    SimTopic,
+    Topic,
+    command,
+    log_options,
+    progress,
+    stdout,
+)
+
+log = logging.getLogger("twincd")
+
+CalibrationIn = Annotated[
+    Path, typer.Option("--calibration", "-c", help="Calibration JSON written by `twincd fit`.")
+]
+Cutoff = Annotated[
+    float | None,
+    typer.Option(
+        "--cutoff",
+        help=f"Low-pass cut-off in Hz (default {DEFAULT_CUTOFF_HZ:g}; "
+        f"{DEFAULT_CAUSAL_CUTOFF_HZ:g} with --causal).",
+        min=0.0,
+    ),
+]
+FilterOrder = Annotated[
+    int | None,
+    typer.Option(
+        "--filter-order", help=f"Butterworth filter order (default {DEFAULT_ORDER}).", min=1
+    ),
+]
+Causal = Annotated[
+    bool | None,
+    typer.Option(
+        "--causal/--zero-phase",
+        help="Filter forward only, as a live detector would (default: zero-phase).",
+    ),
+]
+
+
+def _contradiction(option: str, given: object, recorded: object, calibration: Calibration) -> None:
+    raise UsageError(
+        f"{option} {given} contradicts the calibration's {recorded}",
+        calibration.source or "calibration",
+        f"drop {option}, or re-run `twincd fit` with it",
+    )
+
+
+def resolve_setup(
+    calibration: Calibration | None,
+    robot: str | None,
+    topic: str | None,
+    label_topic: str | None,
+    sim_topic: str | None,
+    joint_map: str | None,
+    cutoff: float | None = None,
+    filter_order: int | None = None,
+    causal: bool | None = None,
+) -> Setup:
+    """Settings for reading logs: explicit options over the calibration's, never against them."""
+    if calibration is None:
+        default_cutoff = DEFAULT_CAUSAL_CUTOFF_HZ if causal else DEFAULT_CUTOFF_HZ
+        lowpass = LowPass(
+            cutoff_hz=default_cutoff if cutoff is None else cutoff,
+            order=DEFAULT_ORDER if filter_order is None else filter_order,
+            causal=bool(causal),
+        )
+        return Setup(log_options(topic, label_topic, sim_topic, joint_map), robot, lowpass)
+    cal = calibration
+    recorded = cal.options
+    for option, given, was in (
+        ("--topic", topic, recorded.topic),
+        ("--label-topic", label_topic, recorded.label_topic),
+        ("--sim-topic", sim_topic, recorded.sim_topic),
+    ):
+        if given is not None and given != was:
+            _contradiction(option, given, was, cal)
+    if joint_map is not None and parse_joint_map(joint_map) != dict(recorded.joint_map or {}):
+        _contradiction("--joint-map", joint_map, dict(recorded.joint_map or {}) or "none", cal)
+    if robot is not None and cal.robot is not None and not _same_robot(robot, cal.robot):
+        _contradiction("--robot", robot, cal.robot, cal)
+    lp = cal.lowpass
+    for option, given_f, was_f in (
+        ("--cutoff", cutoff, lp.cutoff_hz),
+        ("--filter-order", filter_order, lp.order),
+        ("--causal" if causal else "--zero-phase", causal, lp.causal),
+    ):
+        if given_f is not None and given_f != was_f:
+            _contradiction(option, given_f, was_f, cal)
+    setup = Setup.from_calibration(cal)
+    if robot is not None and cal.robot is None:
+        setup = replace(setup, robot=robot)
+    return setup
+
+
+def _same_robot(a: str, b: str) -> bool:
+    if a == b:
+        return True
+    pa, pb = Path(a), Path(b)
+    return pa.exists() and pb.exists() and pa.resolve() == pb.resolve()
+
+
+def fit_table(cal: Calibration) -> Table:
+    table = Table(title=f"affine twin calibration ({cal.fit_samples} samples)")
+    for col in ("joint", "a", "b", "R²", "RMSE (N·m)"):
+        table.add_column(col, justify="left" if col == "joint" else "right")
+    for i, name in enumerate(cal.joint_names):
+        r2 = "n/a" if cal.r2 is None else f"{cal.r2[i]:.3f}"
+        rmse = "n/a" if cal.rmse is None else f"{cal.rmse[i]:.3g}"
+        table.add_row(name, f"{cal.a[i]:.3f}", f"{cal.b[i]:+.3f}", r2, rmse)
+    return table
+
+
+@command
+def fit(
+    logs: Logs,
+    output: Annotated[
+        Path, typer.Option("--output", "-o", help="Calibration JSON to write.")
+    ] = Path("calibration.json"),
+    robot: Robot = None,
+    topic: Topic = None,
+    label_topic: LabelTopic = None,
+    sim_topic: SimTopic = None,
+    joint_map: JointMap = None,
+    cutoff: Cutoff = None,
+    filter_order: FilterOrder = None,
+    causal: Causal = None,
+    quiet: Quiet = False,
+    debug: Debug = False,
+) -> None:
+    """Fit the twin to the robot: per joint, measured ≈ a·twin + b (least squares).
+
+    Give collision-free logs; samples labelled as collisions are left out.
+
+    Writes a calibration JSON (a, b, filter, log options) for threshold, detect, evaluate.
+
+    Example: twincd fit logs/train/*.mcap -o calibration.json
+    """
+    paths = expand_logs(logs)
+    setup = resolve_setup(
+        None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
+    )
+    cal = fit_calibration(progress(paths, "fitting", quiet), setup)
+    cal.save(output)
+    stdout.print(fit_table(cal))
+    log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
+
+
+@command
+def threshold(
+    logs: Logs,
+    calibration: CalibrationIn,
+    sigma: Annotated[
+        float,
+        typer.Option("--sigma", "-k", help="k of the threshold μ + kσ (the paper uses 4).", min=0),
+    ] = DEFAULT_K_SIGMA,
+    output: Annotated[
+        Path | None,
+        typer.Option("--output", "-o", help="Write here instead of rewriting -c in place."),
+    ] = None,
+    robot: Robot = None,
+    topic: Topic = None,
+    label_topic: LabelTopic = None,
+    sim_topic: SimTopic = None,
+    joint_map: JointMap = None,
+    quiet: Quiet = False,
+    debug: Debug = False,
+) -> None:
+    """Set the detection threshold μ + kσ from the score on collision-free logs.
+
+    Give validation logs other than those given to fit.
+
+    The calibration file is rewritten atomically (or written to -o).
+
+    Example: twincd threshold logs/val/*.mcap -c calibration.json --sigma 4
+    """
+    cal = Calibration.load(calibration)
+    paths = expand_logs(logs)
+    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
+    prepared = setup.prepare_all(progress(paths, "scoring", quiet))
+    cal = calibrate_threshold(prepared, cal, sigma)
+    target = output or calibration
+    cal.save(target)
+    th = cal.require_threshold()
+    stdout.print(
+        f"μ = {th.mu:.6g}  σ = {th.sigma:.6g}  threshold = μ + {th.k_sigma:g}σ = {th.value:.6g}"
+        f"  ({th.samples} samples, {len(th.logs)} log(s))",
+        soft_wrap=True,
+    )
+    log.info("wrote %s", target)

@@ -1,0 +1,161 @@
+"""``twincd evaluate``: the seed paper's Table II on labelled test logs (DESIGN §6–§7)."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich import box
+from rich.table import Table
+
+from twincd.calibration import Calibration
+from twincd.evaluation import evaluate as run_evaluation
+from twincd.evaluation import parse_methods
+from twincd.logs import expand_logs
+from twincd.mcap_io import atomic_output
+from twincd.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
+
+from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
+from .common import (
+    Debug,
+    JointMap,
+    LabelTopic,
+    Logs,
+    Quiet,
+    Robot,
+    SimTopic,
+    Topic,
+    command,
+    progress,
+    stdout,
+)
+
+log = logging.getLogger("twincd")
+
+
+@command
+def evaluate(
+    logs: Logs,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            "--calibration",
+            "-c",
+            help="Calibration JSON (fit + threshold); optional when --train and --val are given.",
+        ),
+    ] = None,
+    methods: Annotated[
+        str,
+        typer.Option("--methods", "-m", help="Comma-separated method names, or all."),
+    ] = "proposed",
+    train: Annotated[
+        list[Path] | None,
+        typer.Option("--train", help="Collision-free logs methods fit on (repeatable)."),
+    ] = None,
+    val: Annotated[
+        list[Path] | None,
+        typer.Option("--val", help="Collision-free logs that set μ and σ (repeatable)."),
+    ] = None,
+    sigma: Annotated[
+        float | None,
+        typer.Option(
+            "--sigma",
+            "-k",
+            help="k of μ + kσ for the at-threshold figures (default: the calibration's, else 4).",
+            min=0,
+        ),
+    ] = None,
+    repeats: Annotated[
+        int, typer.Option("--repeats", help="Runs (seeds 0..N-1) of randomised methods.", min=1)
+    ] = 1,
+    json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
+    report: Annotated[
+        Path | None, typer.Option("--report", help="Also write a Markdown report here.")
+    ] = None,
+    min_f1: Annotated[
+        float | None, typer.Option("--min-f1", help="Exit 1 if a method's best F1 is lower.")
+    ] = None,
+    min_auc: Annotated[
+        float | None, typer.Option("--min-auc", help="Exit 1 if a method's AUC is lower.")
+    ] = None,
+    robot: Robot = None,
+    topic: Topic = None,
+    label_topic: LabelTopic = None,
+    sim_topic: SimTopic = None,
+    joint_map: JointMap = None,
+    cutoff: Cutoff = None,
+    filter_order: FilterOrder = None,
+    causal: Causal = None,
+    quiet: Quiet = False,
+    debug: Debug = False,
+) -> None:
+    """Score methods on labelled test logs: F1 over μ + iσ, F1 at threshold, ROC AUC, times.
+
+    The positional logs are the test set; they need collision labels.
+
+    With -c alone, proposed uses the calibration's a, b, μ and σ.
+
+    With --train and --val, every method (proposed too) fits on --train; μ, σ come from --val.
+
+    Example: twincd evaluate logs/test -c calibration.json --report report.md
+    """
+    cal = Calibration.load(calibration) if calibration is not None else None
+    names = parse_methods(methods)
+    test_paths = expand_logs(logs)
+    train_paths = expand_logs(train) if train else []
+    val_paths = expand_logs(val) if val else []
+    setup = resolve_setup(
+        cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
+    )
+
+    def bar(items: Sequence[Any], desc: str) -> Iterable[Any]:
+        return progress(items, desc, quiet)
+
+    result = run_evaluation(
+        test_paths,
+        names,
+        setup,
+        calibration=cal,
+        train_paths=train_paths,
+        val_paths=val_paths,
+        k_sigma=sigma,
+        repeats=repeats,
+        progress=bar,
+    )
+    missed = result.missed_gates(min_f1, min_auc)
+    if report is not None:
+        with atomic_output(report) as stream:
+            stream.write(evaluation_markdown(result, missed).encode("utf-8"))
+    if json_:
+        stdout.out(json.dumps(result.to_dict()), highlight=False)
+    else:
+        table = Table(
+            title=f"{result.samples} test samples, {result.positives} labelled as collision",
+            box=box.SIMPLE_HEAD,
+            show_edge=False,
+            padding=(0, 0),
+            pad_edge=False,
+            caption="* per time window"
+            if any(m.unit != "sample" for m in result.methods)
+            else None,
+        )
+        rows = [[c.replace(" + ", "+") for c in row] for row in evaluation_rows(result)]
+        for i, col in enumerate(SHORT_COLUMNS):
+            width = max([len(col)] + [len(r[i]) for r in rows])
+            table.add_column(
+                col, justify="left" if i == 0 else "right", no_wrap=True, min_width=width
+            )
+        for row in rows:
+            table.add_row(*row)
+        stdout.print(table)
+    for m in result.methods:
+        if m.skipped is not None:
+            log.warning("method %s skipped: %s", m.name, m.skipped)
+    if missed:
+        for line in missed:
+            log.warning("gate missed: %s", line)
+        raise typer.Exit(1)

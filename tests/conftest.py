@@ -1,0 +1,100 @@
+"""Shared fixtures. Append fixtures of your own below; keep each group's helpers together."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+# ---------------------------------------------------------------- twin logs (fit/detect/evaluate)
+# Tiny logs that carry their own /twincd/sim_effort, so no robot model is needed: the measured
+# effort is GAINS ⊙ twin + OFFSET + friction + noise, plus sin² bumps (labelled) for collisions.
+
+TWIN_JOINTS = ("j1", "j2", "j3")
+GAINS = np.array([1.3, 0.8, 1.1])
+OFFSET = np.array([0.2, -0.5, 0.05])
+T0_NS = 1_700_000_000_000_000_000
+# (start s, duration s, peak N·m) per bump
+Bump = tuple[float, float, float]
+DEFAULT_BUMPS: tuple[Bump, ...] = ((4.0, 0.8, 3.0), (11.0, 1.2, 2.5))
+
+
+def twin_signals(t: np.ndarray, seed: int, dof: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(position, velocity, twin effort) as smooth sums of sines."""
+    rng = np.random.default_rng(seed)
+    amp = rng.uniform(0.3, 0.8, (2, dof))
+    w = 2 * np.pi * rng.uniform(0.1, 0.4, (2, dof))
+    ph = rng.uniform(0, 2 * np.pi, (2, dof))
+    arg = w[None] * t[:, None, None] + ph[None]
+    q = (amp[None] * np.sin(arg)).sum(1)
+    qd = (amp[None] * w[None] * np.cos(arg)).sum(1)
+    twin = 3.0 * np.sin(q) + 0.5 * np.cos(2 * q)  # varies well on every joint
+    return q, qd, twin
+
+
+def build_twin_log(
+    path: Path,
+    seed: int = 0,
+    seconds: float = 16.0,
+    rate_hz: float = 100.0,
+    bumps: Sequence[Bump] = (),
+    labels: bool = True,
+    joints: Sequence[str] = TWIN_JOINTS,
+    noise: float = 0.05,
+    gains: np.ndarray | None = None,
+) -> Path:
+    """Write a bare MCAP log with /joint_states, /twincd/sim_effort and /collision_flag."""
+    from twincd.mcap_io import McapLogWriter
+    from twincd.messages import bool_cdr, joint_state_cdr
+
+    dof = len(joints)
+    n = round(seconds * rate_hz)
+    t = np.arange(n) / rate_hz
+    q, qd, twin = twin_signals(t, seed, dof)
+    rng = np.random.default_rng(seed + 1000)
+    g = GAINS[:dof] if gains is None else gains
+    friction = 0.3 * np.tanh(qd / 0.05)  # unmodelled by the twin: residual with structure
+    effort = g * twin + OFFSET[:dof] + friction + noise * rng.standard_normal((n, dof))
+    flag = np.zeros(n, dtype=bool)
+    for k, (start, duration, peak) in enumerate(bumps):
+        inside = (t >= start) & (t < start + duration)
+        shape = np.sin(np.pi * (t[inside] - start) / duration) ** 2
+        direction = np.roll(np.array([1.0, -0.6, 0.4][:dof]), k)
+        effort[inside] += peak * shape[:, None] * direction
+        flag |= inside
+    stamps = T0_NS + np.round(t * 1e9).astype(np.int64)
+    with McapLogWriter(path) as out:
+        js = out.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+        sim = out.add_topic("/twincd/sim_effort", "sensor_msgs/msg/JointState")
+        msgs = joint_state_cdr(stamps, joints, q, qd, effort)
+        sims = joint_state_cdr(stamps, joints, q, qd, twin)
+        for stamp, m, s in zip(stamps, msgs, sims, strict=True):
+            out.write(js, int(stamp), m)
+            out.write(sim, int(stamp), s)
+        if labels:
+            lab = out.add_topic("/collision_flag", "std_msgs/msg/Bool")
+            change = np.flatnonzero(np.diff(np.concatenate(([False], flag))) != 0)
+            out.write(lab, int(stamps[0]) - 1, bool_cdr(False))
+            for i in change:
+                out.write(lab, int(stamps[i]), bool_cdr(bool(flag[i])))
+    return path
+
+
+@pytest.fixture
+def twin_log() -> Callable[..., Path]:
+    """``twin_log(path, seed=..., bumps=..., labels=...)``: build one tiny twin log."""
+    return build_twin_log
+
+
+@pytest.fixture(scope="session")
+def twin_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """train/ (3 clean), val/ (2 clean), test/ (2 with labelled bumps) under one folder."""
+    root = tmp_path_factory.mktemp("twin_dataset")
+    for split, count, bumps in (("train", 3, ()), ("val", 2, ()), ("test", 2, DEFAULT_BUMPS)):
+        (root / split).mkdir()
+        for i in range(count):
+            seed = {"train": 0, "val": 100, "test": 200}[split] + i
+            build_twin_log(root / split / f"{split}_{i}.mcap", seed=seed, bumps=bumps)
+    return root

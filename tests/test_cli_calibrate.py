@@ -1,0 +1,110 @@
+"""``twincd fit`` and ``twincd threshold`` through typer's CliRunner."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from twincd_cli.main import app
+from typer.testing import CliRunner
+
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def assert_one_line_error(result, match: str = "", code: int = 2) -> None:
+    assert result.exit_code == code, (result.stdout, result.stderr)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("twincd: error: "), result.stderr
+    assert " — " in lines[0] and match in lines[0], lines[0]
+    assert "Traceback" not in result.output
+
+
+@pytest.fixture(scope="module")
+def fitted(twin_dataset, tmp_path_factory):
+    cal = tmp_path_factory.mktemp("cal") / "cal.json"
+    result = run("fit", twin_dataset / "train", "-o", cal, "--cutoff", "2", "--filter-order", "3")
+    assert result.exit_code == 0, result.output
+    return cal, result
+
+
+def test_fit_writes_the_calibration_and_prints_the_table(fitted):
+    cal, result = fitted
+    doc = json.loads(cal.read_text())
+    assert doc["schema"] == "twincd.calibration/1"
+    assert doc["filter"] == {
+        "cutoff_hz": 2.0,
+        "order": 3,
+        "causal": False,
+        "kind": "butterworth",
+        "zero_phase": True,
+    }
+    assert doc["log_options"]["topic"] == "/joint_states"
+    assert doc["threshold"] is None and len(doc["fit"]["logs"]) == 3
+    for joint in ("j1", "j2", "j3"):
+        assert joint in result.stdout
+    assert "wrote" in result.stderr
+
+
+def test_threshold_rewrites_in_place_or_to_output(fitted, twin_dataset, tmp_path):
+    cal, _ = fitted
+    copy = tmp_path / "c.json"
+    copy.write_text(cal.read_text())
+    result = run("threshold", twin_dataset / "val", "-c", copy, "--sigma", "3")
+    assert result.exit_code == 0, result.output
+    th = json.loads(copy.read_text())["threshold"]
+    assert th["k_sigma"] == 3.0 and th["value"] == pytest.approx(th["mu"] + 3 * th["sigma"])
+    assert "μ" in result.stdout
+    out = tmp_path / "other.json"
+    result = run("threshold", twin_dataset / "val", "-c", cal, "-o", out, "-q")
+    assert result.exit_code == 0 and result.stderr == ""
+    assert json.loads(out.read_text())["threshold"]["k_sigma"] == 4.0
+    assert json.loads(cal.read_text())["threshold"] is None  # -c untouched with -o
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "other.json"]
+
+
+def test_causal_defaults_and_is_recorded(twin_dataset, tmp_path):
+    cal = tmp_path / "causal.json"
+    result = run("fit", twin_dataset / "train" / "train_0.mcap", "-o", cal, "--causal", "-q")
+    assert result.exit_code == 0, result.output
+    f = json.loads(cal.read_text())["filter"]
+    assert f["causal"] is True and f["zero_phase"] is False and f["cutoff_hz"] == 3.0
+
+
+def test_contradicting_option_is_an_error(fitted, twin_dataset):
+    cal, _ = fitted
+    result = run("threshold", twin_dataset / "val", "-c", cal, "--topic", "/other")
+    assert_one_line_error(result, "--topic /other contradicts the calibration's /joint_states")
+    result = run("threshold", twin_dataset / "val", "-c", cal, "--topic", "/joint_states", "-q")
+    assert result.exit_code == 0  # agreeing is fine
+
+
+def test_bad_inputs(tmp_path, twin_log, fitted):
+    result = run("fit", tmp_path / "missing.mcap", "-o", tmp_path / "c.json")
+    assert_one_line_error(result, "no such file")
+    short = twin_log(tmp_path / "short.mcap", seconds=0.01)
+    result = run("fit", short, "-o", tmp_path / "c.json")
+    assert_one_line_error(result, "too short to filter")
+    (tmp_path / "v9.json").write_text('{"schema": "twincd.calibration/9"}')
+    result = run("threshold", short, "-c", tmp_path / "v9.json")
+    assert_one_line_error(result, "schema")
+    other = twin_log(tmp_path / "other.mcap", joints=("k1", "k2", "k3"))
+    result = run("threshold", other, "-c", fitted[0])
+    assert_one_line_error(result, "lacks calibrated joint(s) j1, j2, j3")
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_help_has_examples():
+    for cmd in ("fit", "threshold"):
+        result = run(cmd, "--help")
+        assert result.exit_code == 0 and "Example: twincd " + cmd in result.stdout
+
+
+def test_threshold_on_fit_logs_warns(fitted, twin_dataset, tmp_path):
+    out = tmp_path / "reused.json"
+    result = run("threshold", twin_dataset / "train" / "train_0.mcap", "-c", fitted[0], "-o", out)
+    assert result.exit_code == 0
+    assert "also used by fit" in result.stderr

@@ -1,0 +1,92 @@
+"""``twincd detect`` through typer's CliRunner: exit codes, --json shape, files written."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from test_cli_calibrate import assert_one_line_error, run
+
+
+@pytest.fixture(scope="module")
+def cal(twin_dataset, tmp_path_factory):
+    path = tmp_path_factory.mktemp("detect") / "cal.json"
+    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
+    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
+    return path
+
+
+def test_collision_found_exits_1_and_lists_events(cal, twin_dataset):
+    result = run("detect", twin_dataset / "test" / "test_0.mcap", "-c", cal)
+    assert result.exit_code == 1, result.output
+    assert "collision event(s)" in result.stdout and "test_0.mcap" in result.stdout
+    assert result.stderr == ""
+
+
+def test_clean_log_exits_0(cal, twin_dataset):
+    result = run("detect", twin_dataset / "val" / "val_0.mcap", "-c", cal)
+    assert result.exit_code == 0, result.output
+    assert "no collision" in result.stdout
+
+
+def test_json_shape(cal, twin_dataset):
+    result = run(
+        "detect", twin_dataset / "test", twin_dataset / "val" / "val_1.mcap", "-c", cal, "--json"
+    )
+    assert result.exit_code == 1
+    doc = json.loads(result.stdout)
+    assert doc["collision"] is True
+    assert [lg["path"].rsplit("/", 1)[1] for lg in doc["logs"]] == [
+        "test_0.mcap",
+        "test_1.mcap",
+        "val_1.mcap",
+    ]
+    first = doc["logs"][0]
+    assert first["samples"] == 1600 and first["collision_samples"] > 0
+    event = first["events"][0]
+    assert {"start_ns", "end_ns", "peak_score", "joint"} <= set(event)
+    assert isinstance(event["start_ns"], int) and event["joint"] in ("j1", "j2", "j3")
+    assert doc["logs"][2]["events"] == []
+
+
+@pytest.mark.parametrize("suffix", [".mcap", ".csv", ".jsonl"])
+def test_outputs_written(cal, twin_dataset, tmp_path, suffix):
+    out = tmp_path / f"out{suffix}"
+    result = run("detect", twin_dataset / "test" / "test_1.mcap", "-c", cal, "-o", out)
+    assert result.exit_code == 1, result.output
+    assert out.is_file() and out.stat().st_size > 0
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+def test_several_logs_into_a_folder(cal, twin_dataset, tmp_path):
+    result = run("detect", twin_dataset / "test", "-c", cal, "-o", tmp_path / "out", "-q")
+    assert result.exit_code == 1
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "test_0.detect.mcap",
+        "test_1.detect.mcap",
+    ]
+
+
+def test_errors(cal, twin_dataset, tmp_path, twin_log):
+    fitted_only = tmp_path / "fit.json"
+    assert run("fit", twin_dataset / "train", "-o", fitted_only, "-q").exit_code == 0
+    result = run("detect", twin_dataset / "val" / "val_0.mcap", "-c", fitted_only)
+    assert_one_line_error(result, "no threshold")
+    other = twin_log(tmp_path / "other.mcap", joints=("a1", "a2", "a3"))
+    assert_one_line_error(run("detect", other, "-c", cal), "lacks calibrated joint")
+    result = run("detect", twin_dataset / "val" / "val_0.mcap", "-c", cal, "-o", tmp_path / "x.txt")
+    assert_one_line_error(result, "unknown output type")
+    result = run("detect", twin_dataset / "val" / "val_0.mcap", "-c", cal, "--robot", "panda")
+    # the calibration recorded no robot (the logs carry the twin), so --robot is not a
+    # contradiction; but panda has none of the log's joints
+    assert_one_line_error(result, "no joint of the log is in the robot model")
+    result = run("detect", twin_dataset / "val" / "val_0.mcap", "-c", cal, "--label-topic", "/l")
+    assert_one_line_error(result, "contradicts")
+    (tmp_path / "broken.mcap").write_bytes(b"\x89MCAP0\r\n garbage")
+    assert_one_line_error(run("detect", tmp_path / "broken.mcap", "-c", cal), "cannot read")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.mcap", "fit.json", "other.mcap"]
+
+
+def test_help_has_an_example():
+    result = run("detect", "--help")
+    assert result.exit_code == 0 and "Example: twincd detect" in result.stdout

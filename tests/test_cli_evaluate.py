@@ -1,0 +1,105 @@
+"""``twincd evaluate`` through typer's CliRunner, and the whole method end to end."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from test_cli_calibrate import assert_one_line_error, run
+
+
+@pytest.fixture(scope="module")
+def cal(twin_dataset, tmp_path_factory):
+    path = tmp_path_factory.mktemp("evaluate") / "cal.json"
+    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
+    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
+    return path
+
+
+def test_end_to_end_fit_threshold_detect_evaluate(twin_dataset, tmp_path):
+    cal = tmp_path / "cal.json"
+    assert run("fit", twin_dataset / "train", "-o", cal).exit_code == 0
+    assert run("threshold", twin_dataset / "val", "-c", cal).exit_code == 0
+    assert run("detect", twin_dataset / "test" / "test_0.mcap", "-c", cal).exit_code == 1
+    assert run("detect", twin_dataset / "val" / "val_0.mcap", "-c", cal).exit_code == 0
+    result = run("evaluate", twin_dataset / "test", "-c", cal, "--json")
+    assert result.exit_code == 0, result.output
+    row = json.loads(result.stdout)["methods"][0]
+    assert row["name"] == "proposed" and row["f1_best"] > 0.8 and row["auc"] > 0.9
+
+
+def test_json_shape_and_report(cal, twin_dataset, tmp_path):
+    report = tmp_path / "report.md"
+    result = run("evaluate", twin_dataset / "test", "-c", cal, "--json", "--report", report)
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc["samples"] == 3200 and doc["positives"] > 0
+    (row,) = doc["methods"]
+    for key in (
+        "name",
+        "f1_best",
+        "best_k",
+        "f1_at_threshold",
+        "auc",
+        "precision_at_threshold",
+        "recall_at_threshold",
+        "train_s",
+        "test_s",
+    ):
+        assert key in row
+    text = report.read_text()
+    assert text.startswith("## twincd evaluate") and "| proposed |" in text
+
+
+def test_terminal_table(cal, twin_dataset):
+    result = run("evaluate", twin_dataset / "test", "-c", cal)
+    assert result.exit_code == 0
+    assert "proposed" in result.stdout and "AUC" in result.stdout
+
+
+def test_gates_exit_1(cal, twin_dataset):
+    result = run("evaluate", twin_dataset / "test", "-c", cal, "--min-f1", "0.999")
+    assert result.exit_code == 1
+    assert "gate missed: proposed: F1" in result.stderr
+    result = run(
+        "evaluate", twin_dataset / "test", "-c", cal, "--min-auc", "0.5", "--min-f1", "0.1"
+    )
+    assert result.exit_code == 0
+
+
+def test_train_val_and_methods(twin_dataset):
+    result = run(
+        "evaluate",
+        twin_dataset / "test",
+        "--train",
+        twin_dataset / "train",
+        "--val",
+        twin_dataset / "val" / "val_0.mcap",
+        "--val",
+        twin_dataset / "val" / "val_1.mcap",
+        "--methods",
+        "proposed",
+        "--json",
+    )
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert len(doc["logs"]["val"]) == 2 and len(doc["logs"]["train"]) == 3
+    assert_one_line_error(
+        run("evaluate", twin_dataset / "test", "--methods", "nope"), "unknown method"
+    )
+
+
+def test_errors(cal, twin_dataset, tmp_path, twin_log):
+    unlabelled = twin_log(tmp_path / "nolabels.mcap", labels=False)
+    assert_one_line_error(run("evaluate", unlabelled, "-c", cal), "no collision labels")
+    assert_one_line_error(
+        run("evaluate", twin_dataset / "test", "-c", cal, "--cutoff", "7"), "contradicts"
+    )
+    fitted_only = tmp_path / "fit.json"
+    assert run("fit", twin_dataset / "train", "-o", fitted_only, "-q").exit_code == 0
+    assert_one_line_error(run("evaluate", twin_dataset / "test", "-c", fitted_only), "no threshold")
+
+
+def test_help_has_an_example():
+    result = run("evaluate", "--help")
+    assert result.exit_code == 0 and "Example: twincd evaluate" in result.stdout

@@ -1,0 +1,171 @@
+"""twincd.detection: score (eq. 5), threshold (μ + kσ), events, outputs, the `proposed` method."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from conftest import DEFAULT_BUMPS, GAINS, TWIN_JOINTS
+
+from twincd.calibration import Calibration, Setup, Threshold, fit_calibration
+from twincd.detection import (
+    ProposedMethod,
+    ScoreStats,
+    affine_score,
+    calibrate_threshold,
+    detect,
+    find_events,
+    residual,
+    runs,
+    write_detection,
+)
+from twincd.errors import DataError, NotFittedError, OutputError
+from twincd.filters import LowPass
+from twincd.logs import expand_logs, read_log
+from twincd.methods import make_method
+
+
+def test_score_by_hand():
+    eff = np.array([[1.0, 2.0], [0.0, -1.0]])
+    sim = np.array([[0.5, 1.0], [1.0, 1.0]])
+    a, b = np.array([2.0, 1.0]), np.array([0.0, 0.5])
+    # row 0: 1 - (1 + 0) = 0, 2 - (1 + .5) = .5 → .25; row 1: 0 - 2 = -2, -1 - 1.5 = -2.5 → 10.25
+    np.testing.assert_allclose(residual(eff, sim, a, b), [[0.0, 0.5], [-2.0, -2.5]])
+    np.testing.assert_allclose(affine_score(eff, sim, a, b), [0.25, 10.25])
+
+
+def test_score_stats_merge_and_match_numpy():
+    s = np.array([1.0, 2.0, 4.0, 7.0, 3.0])
+    whole = ScoreStats.from_scores(s)
+    merged = ScoreStats.from_scores(s[:2]) + ScoreStats.from_scores(s[2:])
+    assert merged.mu == pytest.approx(s.mean()) == whole.mu
+    assert merged.sigma == pytest.approx(s.std())
+    th = merged.threshold(4.0, ["v"])
+    assert th.value == pytest.approx(s.mean() + 4 * s.std())
+    assert th.samples == 5 and th.logs == ("v",)
+    masked = ScoreStats.from_scores(s, np.array([True, True, False, False, True]))
+    assert masked.mu == pytest.approx(2.0)
+    with pytest.raises(DataError):
+        _ = ScoreStats().mu
+
+
+def test_runs_and_events_from_a_flag_vector():
+    flags = np.array([0, 1, 1, 0, 0, 1, 0, 1, 1, 1], dtype=bool)
+    assert runs(flags) == [(1, 2), (5, 5), (7, 9)]
+    assert runs(np.zeros(4, dtype=bool)) == []
+    scores = np.arange(10, dtype=float)
+    res = np.zeros((10, 2))
+    res[1:3, 1] = 3.0
+    res[5, 0] = 1.0
+    res[7:10, 0] = 2.0
+    res[7:10, 1] = 1.0
+    stamps = np.arange(10, dtype=np.int64) * 10_000_000 + 5
+    events = find_events(flags, scores, res, stamps, ["a", "b"])
+    assert [(e.first, e.last) for e in events] == [(1, 2), (5, 5), (7, 9)]
+    assert [e.joint for e in events] == ["b", "a", "a"]
+    assert events[2].start_ns == 70_000_005 and events[2].end_ns == 90_000_005
+    assert events[2].peak_score == 9.0 and events[2].samples == 3
+    assert events[2].duration_s == pytest.approx(0.02)
+
+
+@pytest.fixture(scope="module")
+def calibrated(twin_dataset):
+    setup = Setup(lowpass=LowPass(2.0))
+    cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup)
+    val = setup.prepare_all(expand_logs([twin_dataset / "val"]))
+    return calibrate_threshold(val, cal, 4.0)
+
+
+def test_threshold_streams_val_logs(calibrated, twin_dataset):
+    th = calibrated.threshold
+    assert th.k_sigma == 4.0 and th.samples == 2 * 1600 and len(th.logs) == 2
+    setup = Setup.from_calibration(calibrated)
+    scores = np.concatenate(
+        [
+            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.a, calibrated.b)
+            for lg in setup.prepare_all(expand_logs([twin_dataset / "val"]))
+        ]
+    )
+    assert th.mu == pytest.approx(scores.mean())
+    assert th.sigma == pytest.approx(scores.std())
+
+
+def test_detect_finds_the_bumps_and_not_the_clean_log(calibrated, twin_dataset):
+    setup = Setup.from_calibration(calibrated)
+    hit = detect(setup.prepare(twin_dataset / "test" / "test_0.mcap"), calibrated)
+    assert len(hit.events) == len(DEFAULT_BUMPS)
+    for event, (start, duration, _) in zip(hit.events, DEFAULT_BUMPS, strict=True):
+        t = (event.start_ns - int(hit.log.states.stamp_ns[0])) * 1e-9
+        assert start - 0.3 < t < start + duration
+    clean = detect(setup.prepare(twin_dataset / "val" / "val_0.mcap"), calibrated)
+    assert clean.events == [] and not clean.flags.any()
+    assert clean.to_dict()["collision_samples"] == 0
+
+
+def test_detect_needs_a_threshold(calibrated, twin_dataset):
+    from dataclasses import replace
+
+    bare: Calibration = replace(calibrated, threshold=None)
+    log = Setup.from_calibration(bare).prepare(twin_dataset / "val" / "val_0.mcap")
+    with pytest.raises(NotFittedError):
+        detect(log, bare)
+
+
+def test_outputs_csv_jsonl_mcap(calibrated, twin_dataset, tmp_path):
+    src = twin_dataset / "test" / "test_1.mcap"
+    result = detect(Setup.from_calibration(calibrated).prepare(src), calibrated)
+    write_detection(result, src, tmp_path / "out.csv")
+    rows = list(csv.DictReader((tmp_path / "out.csv").open()))
+    assert len(rows) == 1600
+    assert list(rows[0]) == ["stamp_ns", "score", "collision"] + [
+        f"residual_{j}" for j in TWIN_JOINTS
+    ]
+    assert float(rows[10]["score"]) == pytest.approx(result.scores[10])
+    write_detection(result, src, tmp_path / "out.jsonl")
+    lines = (tmp_path / "out.jsonl").read_text().splitlines()
+    assert len(lines) == 1600 and json.loads(lines[3])["stamp_ns"] == result.log.states.stamp_ns[3]
+
+    write_detection(result, src, tmp_path / "out.mcap")
+    states = read_log(tmp_path / "out.mcap")
+    assert len(states) == 1600
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "out.mcap", "rb") as f:
+        reader = make_reader(f)
+        by_topic: dict[str, list[int]] = {}
+        for _s, channel, message in reader.iter_messages():
+            by_topic.setdefault(channel.topic, []).append(message.log_time)
+    js = by_topic["/joint_states"]
+    for topic in ("/twincd/residual", "/twincd/score", "/twincd/collision"):
+        assert by_topic[topic] == js, topic
+    from twincd.logs import LogOptions
+
+    residual_log = read_log(tmp_path / "out.mcap", LogOptions(topic="/twincd/residual"))
+    np.testing.assert_array_equal(residual_log.stamp_ns, result.log.states.stamp_ns)
+    np.testing.assert_allclose(residual_log.effort, result.residual)
+    assert residual_log.joint_names == TWIN_JOINTS
+    with pytest.raises(OutputError):
+        write_detection(result, src, tmp_path / "out.txt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv", "out.jsonl", "out.mcap"]
+
+
+def test_proposed_method_is_registered_and_fits(twin_dataset):
+    setup = Setup(lowpass=LowPass(2.0))
+    train = list(setup.prepare_all(expand_logs([twin_dataset / "train"])))
+    method = make_method("proposed")
+    assert isinstance(method, ProposedMethod) and method.unit == "sample"
+    with pytest.raises(NotFittedError):
+        method.score(train[0])
+    method.fit(train)
+    np.testing.assert_allclose(method.a_, GAINS, rtol=0.02)
+    assert method.score(train[0]).shape == (1600,)
+    fixed = ProposedMethod(a=[1, 1, 1], b=[0, 0, 0])
+    np.testing.assert_allclose(
+        fixed.score(train[0]), ((train[0].effort_f - train[0].sim_effort_f) ** 2).sum(1)
+    )
+
+
+def test_threshold_dataclass_value():
+    assert Threshold(3.0, 1.0, 0.5).value == 2.5

@@ -1,0 +1,160 @@
+"""twincd.evaluation: methods judged alike on train/val/test (DESIGN §5–§7)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pytest
+
+from twincd.calibration import Setup, fit_calibration
+from twincd.detection import calibrate_threshold
+from twincd.errors import DataError, UsageError
+from twincd.evaluation import evaluate, parse_methods
+from twincd.filters import LowPass
+from twincd.logs import expand_logs
+from twincd.methods import MethodSkipped, ScoringMethod, register
+from twincd.pipeline import PreparedLog
+
+
+class SeededNoise(ScoringMethod):
+    """A randomised stand-in for a deep baseline: |residual| plus seed-dependent noise."""
+
+    name = "test-seeded"
+
+    def __init__(self, seed: int = 0) -> None:
+        self.seed = seed
+
+    def fit(self, train: Sequence[PreparedLog]) -> SeededNoise:
+        self.fitted_ = len(train)
+        return self
+
+    def score(self, log: PreparedLog) -> np.ndarray:
+        rng = np.random.default_rng(self.seed)
+        base = np.abs(log.effort_f - log.sim_effort_f).sum(1)
+        return base + rng.normal(0, 0.5, len(log))
+
+
+class AlwaysSkipped(ScoringMethod):
+    name = "test-skipped"
+    learns = False
+
+    def check(self, logs: Sequence[PreparedLog]) -> None:
+        raise MethodSkipped("needs a robot model whose joints match")
+
+    def fit(self, train: Sequence[PreparedLog]) -> AlwaysSkipped:
+        return self
+
+    def score(self, log: PreparedLog) -> np.ndarray:
+        raise AssertionError("never called")
+
+
+class Windowed(ScoringMethod):
+    name = "test-window"
+    unit = "window"
+    learns = False
+
+    def fit(self, train: Sequence[PreparedLog]) -> Windowed:
+        return self
+
+    def score(self, log: PreparedLog) -> np.ndarray:
+        s = ((log.effort_f - log.sim_effort_f) ** 2).sum(1)
+        return s[: len(s) // 16 * 16].reshape(-1, 16).max(1)
+
+    def unit_labels(self, log: PreparedLog) -> np.ndarray:
+        y = super().unit_labels(log)
+        return y[: len(y) // 16 * 16].reshape(-1, 16).any(1)
+
+
+register("test-seeded", "test_evaluation:SeededNoise")
+register("test-skipped", "test_evaluation:AlwaysSkipped")
+register("test-window", "test_evaluation:Windowed")
+
+
+@pytest.fixture(scope="module")
+def split(twin_dataset):
+    return {s: expand_logs([twin_dataset / s]) for s in ("train", "val", "test")}
+
+
+@pytest.fixture(scope="module")
+def calibration(split):
+    setup = Setup(lowpass=LowPass(2.0))
+    cal = fit_calibration(split["train"], setup)
+    return calibrate_threshold(setup.prepare_all(split["val"]), cal, 4.0)
+
+
+def test_proposed_from_the_calibration(calibration, split):
+    result = evaluate(split["test"], ["proposed"], Setup.from_calibration(calibration), calibration)
+    doc = result.to_dict()
+    assert doc["samples"] == 2 * 1600 and 0 < doc["positives"] < doc["samples"]
+    (row,) = doc["methods"]
+    for key in (
+        "f1_best",
+        "best_k",
+        "f1_at_threshold",
+        "auc",
+        "precision_at_threshold",
+        "recall_at_threshold",
+        "train_s",
+        "test_s",
+    ):
+        assert isinstance(row[key], float), key
+    assert row["name"] == "proposed" and "unit" not in row
+    assert row["auc"] > 0.9 and row["f1_best"] > 0.7
+    assert row["threshold"] == pytest.approx(calibration.threshold.value)
+    assert row["train_s"] == calibration.fit_s
+    assert row["best_k"] in [s["k"] for s in row["sweep"]]
+
+
+def test_refit_on_train_and_val_matches_the_calibration(calibration, split):
+    setup = Setup.from_calibration(calibration)
+    a = evaluate(split["test"], ["proposed"], setup, calibration).methods[0]
+    b = evaluate(split["test"], ["proposed"], setup, None, split["train"], split["val"]).methods[0]
+    assert b.auc == pytest.approx(a.auc) and b.f1_best == pytest.approx(a.f1_best)
+    assert b.mu == pytest.approx(a.mu)
+
+
+def test_skipped_window_and_repeats(calibration, split):
+    setup = Setup.from_calibration(calibration)
+    names = ["proposed", "test-skipped", "test-window", "test-seeded"]
+    result = evaluate(
+        split["test"], names, setup, calibration, split["train"], split["val"], repeats=3
+    )
+    rows = {r["name"]: r for r in result.to_dict()["methods"]}
+    assert rows["test-skipped"] == {
+        "name": "test-skipped",
+        "skipped": "needs a robot model whose joints match",
+    }
+    assert rows["test-window"]["unit"] == "window" and rows["test-window"]["units"] == 200
+    assert rows["test-window"]["train_s"] is None  # learns nothing, as in Table II
+    seeded = rows["test-seeded"]
+    assert seeded["repeats"] == 3
+    assert seeded["f1_best_std"] > 0 and seeded["auc_std"] > 0
+    assert "repeats" not in rows["proposed"]  # not randomised: runs once
+
+
+def test_methods_needing_data_are_skipped(calibration, split):
+    setup = Setup.from_calibration(calibration)
+    result = evaluate(split["test"], ["test-seeded"], setup, calibration)
+    assert result.methods[0].skipped == "needs --train collision-free logs"
+
+
+def test_test_logs_need_labels(calibration, twin_log, tmp_path):
+    path = twin_log(tmp_path / "nolabels.mcap", labels=False)
+    with pytest.raises(DataError, match="no collision labels"):
+        evaluate([path], ["proposed"], Setup.from_calibration(calibration), calibration)
+
+
+def test_gates(calibration, split):
+    result = evaluate(split["test"], ["proposed"], Setup.from_calibration(calibration), calibration)
+    assert result.missed_gates(0.1, 0.1) == []
+    missed = result.missed_gates(0.999, None)
+    assert len(missed) == 1 and missed[0].startswith("proposed: F1")
+
+
+def test_parse_methods():
+    assert parse_methods("proposed") == ["proposed"]
+    assert parse_methods(None) == ["proposed"]
+    assert parse_methods("all")[0] == "proposed"
+    with pytest.raises(UsageError, match="unknown method"):
+        parse_methods("proposed,nope")

@@ -1,0 +1,359 @@
+"""Judge scoring methods as the seed paper does (section IV-B/C, Table II; DESIGN §6–§7).
+
+Each method fits on the training logs, μ and σ of its score come from the validation logs, and
+its scores on the test logs give the F1 sweep over μ + iσ, F1/precision/recall at μ + kσ (k the
+calibration's) and the ROC AUC. Training time is the time of ``fit``; test time the time to
+score every test log. Randomised methods run ``repeats`` times (seeds 0..N-1): mean and std.
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twincd.calibration import Calibration, Setup
+from twincd.detection import DEFAULT_K_SIGMA, ProposedMethod, ScoreStats
+from twincd.errors import DataError, UsageError
+from twincd.methods import MethodSkipped, ScoringMethod, available, make_method
+from twincd.metrics import at_threshold, auc, best_of, f1_sweep
+from twincd.pipeline import PreparedLog
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+T = TypeVar("T")
+Progress = Callable[[Sequence[Any], str], Iterable[Any]]
+
+# figures averaged over repeats; each gets a ``<key>_std`` companion
+_AVERAGED = (
+    "f1_best",
+    "f1_at_threshold",
+    "precision_at_threshold",
+    "recall_at_threshold",
+    "auc",
+    "train_s",
+    "test_s",
+)
+
+
+def _no_progress(items: Sequence[Any], _desc: str) -> Iterable[Any]:
+    return items
+
+
+def parse_methods(text: str | None) -> list[str]:
+    """``--methods``: comma-separated names or ``all``; unknown names are a usage error."""
+    names = [n.strip() for n in (text or "proposed").split(",") if n.strip()]
+    known = available()
+    if "all" in names:
+        return known
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise UsageError(
+            f"unknown method(s) {', '.join(unknown)}",
+            "--methods",
+            f"choose from {', '.join(known)}, all",
+        )
+    return list(dict.fromkeys(names))
+
+
+@dataclass
+class MethodResult:
+    """One method's row of Table II (DESIGN §5 ``evaluate --json``)."""
+
+    name: str
+    unit: str = "sample"
+    skipped: str | None = None
+    f1_best: float | None = None
+    best_k: float | None = None
+    f1_at_threshold: float | None = None
+    precision_at_threshold: float | None = None
+    recall_at_threshold: float | None = None
+    auc: float | None = None
+    train_s: float | None = None
+    test_s: float | None = None
+    k_sigma: float | None = None
+    mu: float | None = None
+    sigma: float | None = None
+    threshold: float | None = None
+    units: int = 0
+    positives: int = 0
+    sweep: list[tuple[float, float]] = field(default_factory=list)
+    repeats: int = 1
+    std: dict[str, float | None] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        if self.skipped is not None:
+            return {"name": self.name, "skipped": self.skipped}
+        d: dict[str, Any] = {"name": self.name}
+        if self.unit != "sample":
+            d["unit"] = self.unit
+        for key in (
+            "f1_best",
+            "best_k",
+            "f1_at_threshold",
+            "auc",
+            "precision_at_threshold",
+            "recall_at_threshold",
+            "train_s",
+            "test_s",
+            "k_sigma",
+            "mu",
+            "sigma",
+            "threshold",
+            "units",
+            "positives",
+        ):
+            d[key] = getattr(self, key)
+        d["sweep"] = [{"k": k, "f1": f} for k, f in self.sweep]
+        if self.repeats > 1:
+            d["repeats"] = self.repeats
+            d.update({f"{k}_std": v for k, v in self.std.items()})
+        return d
+
+
+@dataclass
+class Evaluation:
+    """Results over one test set (per sample), one row per method."""
+
+    samples: int
+    positives: int
+    methods: list[MethodResult]
+    test_logs: list[str] = field(default_factory=list)
+    train_logs: list[str] = field(default_factory=list)
+    val_logs: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "samples": self.samples,
+            "positives": self.positives,
+            "methods": [m.to_dict() for m in self.methods],
+            "logs": {"test": self.test_logs, "train": self.train_logs, "val": self.val_logs},
+        }
+
+    def missed_gates(self, min_f1: float | None, min_auc: float | None) -> list[str]:
+        """Why the gates fail (empty: passed); a gate judges every method that ran."""
+        missed = []
+        for m in self.methods:
+            if m.skipped is not None:
+                continue
+            if min_f1 is not None and (m.f1_best or 0.0) < min_f1:
+                missed.append(f"{m.name}: F1 {m.f1_best or 0.0:.3f} < {min_f1}")
+            if min_auc is not None and (m.auc is None or m.auc < min_auc):
+                shown = "n/a" if m.auc is None else f"{m.auc:.3f}"
+                missed.append(f"{m.name}: AUC {shown} < {min_auc}")
+        return missed
+
+
+def require_labels(logs: Sequence[PreparedLog], option: str) -> None:
+    for lg in logs:
+        if lg.labels is None:
+            raise DataError(
+                "the log has no collision labels",
+                f"{lg.source}, {option}",
+                "evaluate needs ground truth: record std_msgs/Bool on --label-topic",
+            )
+
+
+def _has_seed(method: ScoringMethod) -> bool:
+    return "seed" in inspect.signature(type(method)).parameters
+
+
+def _val_stats(method: ScoringMethod, val: Sequence[PreparedLog]) -> ScoreStats:
+    total = ScoreStats()
+    for lg in val:
+        scores = method.score(lg)
+        mask = ~method.unit_labels(lg) if lg.labels is not None else None
+        total = total + ScoreStats.from_scores(scores, mask)
+    return total
+
+
+@dataclass(frozen=True)
+class _Run:
+    sweep: list[tuple[float, float]]
+    figures: dict[str, float | None]
+    mu: float
+    sigma: float
+    threshold: float
+    units: int
+    positives: int
+
+
+def _run_once(
+    method: ScoringMethod,
+    train: Sequence[PreparedLog],
+    val: Sequence[PreparedLog],
+    test: Sequence[PreparedLog],
+    calibration: Calibration | None,
+    k_sigma: float,
+) -> _Run:
+    from_calibration = isinstance(method, ProposedMethod) and not train
+    train_s: float | None = None
+    if from_calibration:
+        assert calibration is not None
+        train_s = calibration.fit_s
+    elif method.learns:
+        start = time.perf_counter()
+        method.fit(train)
+        train_s = time.perf_counter() - start
+    else:
+        method.fit(train)
+    if from_calibration and not val:
+        assert calibration is not None
+        th = calibration.require_threshold()
+        mu, sigma = th.mu, th.sigma
+    else:
+        stats = _val_stats(method, val)
+        mu, sigma = stats.mu, stats.sigma
+    start = time.perf_counter()
+    scores = [method.score(lg) for lg in test]
+    test_s = time.perf_counter() - start
+    y_score = np.concatenate(scores) if scores else np.zeros(0)
+    y_true = np.concatenate([method.unit_labels(lg) for lg in test])
+    if len(y_score) != len(y_true) or not np.isfinite(y_score).all():
+        raise DataError(
+            f"method {method.name!r} gave {len(y_score)} scores for {len(y_true)} units, "
+            "or non-finite ones",
+            ", ".join(lg.source for lg in test[:3]),
+            "report this as a bug in the method",
+        )
+    sweep = f1_sweep(y_true, y_score, mu, sigma)
+    best_k, f1_best = best_of(sweep)
+    threshold = mu + k_sigma * sigma
+    at = at_threshold(y_true, y_score, threshold)
+    figures: dict[str, float | None] = {
+        "f1_best": f1_best,
+        "best_k": best_k,
+        "f1_at_threshold": at.f1,
+        "precision_at_threshold": at.precision,
+        "recall_at_threshold": at.recall,
+        "auc": auc(y_true, y_score),
+        "train_s": train_s,
+        "test_s": test_s,
+    }
+    return _Run(sweep, figures, mu, sigma, threshold, len(y_true), int(y_true.sum()))
+
+
+def _mean_std(values: list[float | None]) -> tuple[float | None, float | None]:
+    vals = [v for v in values if v is not None]
+    if not vals:
+        return None, None
+    return float(np.mean(vals)), float(np.std(vals))
+
+
+def _combine(name: str, unit: str, k_sigma: float, runs: list[_Run]) -> MethodResult:
+    first = runs[0]
+    result = MethodResult(
+        name=name,
+        unit=unit,
+        k_sigma=k_sigma,
+        units=first.units,
+        positives=first.positives,
+        repeats=len(runs),
+    )
+    # best_k: where the mean F1 curve peaks; f1_best: mean of each run's own best
+    ks = [k for k, _ in first.sweep]
+    mean_curve = [float(np.mean([r.sweep[i][1] for r in runs])) for i in range(len(ks))]
+    result.sweep = list(zip(ks, mean_curve, strict=True))
+    result.best_k = best_of(result.sweep)[0]
+    for key in _AVERAGED:
+        mean, std = _mean_std([r.figures[key] for r in runs])
+        setattr(result, key, mean)
+        result.std[key] = std
+    result.mu = float(np.mean([r.mu for r in runs]))
+    result.sigma = float(np.mean([r.sigma for r in runs]))
+    result.threshold = float(np.mean([r.threshold for r in runs]))
+    return result
+
+
+def evaluate_method(
+    name: str,
+    train: Sequence[PreparedLog],
+    val: Sequence[PreparedLog],
+    test: Sequence[PreparedLog],
+    calibration: Calibration | None = None,
+    k_sigma: float = DEFAULT_K_SIGMA,
+    repeats: int = 1,
+) -> MethodResult:
+    """One method's figures; a method that cannot run comes back with ``skipped`` set."""
+    probe: ScoringMethod
+    if name == "proposed" and not train and calibration is not None:
+        probe = ProposedMethod.from_calibration(calibration)
+    else:
+        probe = make_method(name)
+    unit = probe.unit
+    try:
+        probe.check([*train, *val, *test])
+        if isinstance(probe, ProposedMethod) and not train and calibration is None:
+            raise MethodSkipped("needs a calibration (-c) or --train and --val logs")
+        if probe.learns and not train and not isinstance(probe, ProposedMethod):
+            raise MethodSkipped("needs --train collision-free logs")
+        if not val and not (isinstance(probe, ProposedMethod) and not train):
+            raise MethodSkipped("needs --val collision-free logs to set its threshold")
+        if isinstance(probe, ProposedMethod) and not train and calibration is not None and not val:
+            calibration.require_threshold()
+        seeded = _has_seed(probe)
+        runs = []
+        for seed in range(repeats if seeded else 1):
+            method = make_method(name, seed=seed) if seeded else probe
+            runs.append(_run_once(method, train, val, test, calibration, k_sigma))
+    except MethodSkipped as exc:
+        return MethodResult(name=name, unit=unit, skipped=str(exc) or "cannot run on these logs")
+    return _combine(name, unit, k_sigma, runs)
+
+
+def load_logs(
+    paths: Sequence[Path], setup: Setup, progress: Progress = _no_progress, desc: str = "reading"
+) -> list[PreparedLog]:
+    return list(progress_iter(setup.prepare_all(paths), len(paths), desc, progress))
+
+
+def progress_iter(items: Iterable[T], total: int, desc: str, progress: Progress) -> Iterable[T]:
+    """Drive a lazy iterable through a progress callback that wants a sized sequence."""
+    iterator = iter(items)
+    for _ in progress(range(total), desc):
+        yield next(iterator)
+
+
+def evaluate(
+    test_paths: Sequence[Path],
+    methods: Sequence[str],
+    setup: Setup,
+    calibration: Calibration | None = None,
+    train_paths: Sequence[Path] = (),
+    val_paths: Sequence[Path] = (),
+    k_sigma: float | None = None,
+    repeats: int = 1,
+    progress: Progress = _no_progress,
+) -> Evaluation:
+    """Every method in ``methods`` over the same prepared logs."""
+    if not test_paths:
+        raise UsageError("no test logs given", "evaluate", "pass labelled logs with collisions")
+    if repeats < 1:
+        raise UsageError("--repeats must be at least 1", f"--repeats {repeats}", "pass 1 or more")
+    if k_sigma is None:
+        th = calibration.threshold if calibration is not None else None
+        k_sigma = th.k_sigma if th is not None else DEFAULT_K_SIGMA
+    test = load_logs(test_paths, setup, progress, "reading test logs")
+    require_labels(test, "test")
+    # train/val share the test logs' joint order so that every method sees the same columns
+    pinned = replace(setup, joint_names=test[0].joint_names)
+    train = load_logs(train_paths, pinned, progress, "reading train logs")
+    val = load_logs(val_paths, pinned, progress, "reading val logs")
+    results = [
+        evaluate_method(name, train, val, test, calibration, k_sigma, repeats)
+        for name in progress(list(methods), "evaluating")
+    ]
+    return Evaluation(
+        samples=sum(len(lg) for lg in test),
+        positives=sum(int(np.sum(lg.labels)) for lg in test if lg.labels is not None),
+        methods=results,
+        test_logs=[lg.source for lg in test],
+        train_logs=[lg.source for lg in train],
+        val_logs=[lg.source for lg in val],
+    )

@@ -1,0 +1,124 @@
+"""Markdown renderings of results (e.g. for a CI job summary); plain strings, no terminal code."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from twincd.detection import LogDetection
+from twincd.evaluation import Evaluation, MethodResult
+
+
+def fmt(value: float | None, digits: int = 3) -> str:
+    """A figure for people; n/a when missing."""
+    if value is None:
+        return "n/a"
+    return f"{value:.{digits}f}"
+
+
+def seconds(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.2g}"
+
+
+def with_std(m: MethodResult, key: str) -> str:
+    show = seconds if key.endswith("_s") else fmt
+    text = show(getattr(m, key))
+    std = m.std.get(key)
+    if m.repeats > 1 and std is not None:
+        text += f" ± {show(std)}"
+    return text
+
+
+def threshold_text(k: float | None) -> str:
+    if k is None:
+        return "n/a"
+    if k == 0:
+        return "μ"
+    return f"μ + {k:g}σ"
+
+
+EVALUATION_COLUMNS = (
+    "method",
+    "best threshold",
+    "F1 (best)",
+    "AUC",
+    "F1 @ threshold",
+    "precision",
+    "recall",
+    "train (s)",
+    "test (s)",
+)
+# the same columns, narrow enough for an 80-column terminal
+SHORT_COLUMNS = ("method", "best", "F1", "AUC", "F1@thr", "prec.", "recall", "train s", "test s")
+
+
+def evaluation_rows(result: Evaluation) -> list[list[str]]:
+    """Table II rows as text cells (shared by the Markdown report and the terminal table)."""
+    rows = []
+    for m in result.methods:
+        name = m.name if m.unit == "sample" else f"{m.name}*"
+        if m.skipped is not None:
+            rows.append([name, f"skipped: {m.skipped}"] + [""] * (len(EVALUATION_COLUMNS) - 2))
+            continue
+        rows.append(
+            [
+                name,
+                threshold_text(m.best_k),
+                with_std(m, "f1_best"),
+                with_std(m, "auc"),
+                with_std(m, "f1_at_threshold"),
+                with_std(m, "precision_at_threshold"),
+                with_std(m, "recall_at_threshold"),
+                with_std(m, "train_s"),
+                with_std(m, "test_s"),
+            ]
+        )
+    return rows
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def evaluation_markdown(result: Evaluation, missed: Sequence[str] = ()) -> str:
+    """The evaluation as Markdown: summary, Table II, and any missed gates."""
+    k = next((m.k_sigma for m in result.methods if m.skipped is None), None)
+    parts = [
+        "## twincd evaluate",
+        "",
+        f"{len(result.test_logs)} test log(s), {result.samples} samples, "
+        f"{result.positives} labelled as collision. "
+        f"Threshold: {threshold_text(k)}; F1 (best) over μ + iσ, i = 0, 0.1, …, 1, 2, 3, 4, 5.",
+        "",
+        _table(EVALUATION_COLUMNS, evaluation_rows(result)),
+        "",
+    ]
+    if any(m.unit != "sample" for m in result.methods):
+        parts += ["\\* judged per time window, not per sample.", ""]
+    if missed:
+        parts += ["**Gates missed:**", ""] + [f"- {m}" for m in missed] + [""]
+    return "\n".join(parts)
+
+
+def detection_markdown(results: Sequence[LogDetection]) -> str:
+    """Collision events per log as Markdown."""
+    parts = ["## twincd detect", ""]
+    for r in results:
+        parts.append(
+            f"**{r.source}**: {len(r.scores)} samples, {int(r.flags.sum())} flagged, "
+            f"{len(r.events)} event(s)"
+        )
+        if r.events:
+            rows = [
+                [
+                    f"{(e.start_ns - int(r.log.states.stamp_ns[0])) * 1e-9:.3f}",
+                    f"{e.duration_s:.3f}",
+                    f"{e.peak_score:.4g}",
+                    e.joint,
+                ]
+                for e in r.events
+            ]
+            parts += ["", _table(("start (s)", "duration (s)", "peak score", "joint"), rows)]
+        parts.append("")
+    return "\n".join(parts)
