@@ -13,8 +13,8 @@ from rich import box
 from rich.table import Table
 
 from twincd.calibration import Calibration
+from twincd.evaluation import DEFAULT_REPEATS, parse_methods
 from twincd.evaluation import evaluate as run_evaluation
-from twincd.evaluation import parse_methods
 from twincd.logs import expand_logs
 from twincd.mcap_io import atomic_output
 from twincd.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
@@ -70,8 +70,13 @@ def evaluate(
         ),
     ] = None,
     repeats: Annotated[
-        int, typer.Option("--repeats", help="Runs (seeds 0..N-1) of randomised methods.", min=1)
-    ] = 1,
+        int,
+        typer.Option(
+            "--repeats",
+            help="Runs (seeds 0..N-1) of randomised (deep) methods; mean ± std as Table II.",
+            min=1,
+        ),
+    ] = DEFAULT_REPEATS,
     json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
     report: Annotated[
         Path | None, typer.Option("--report", help="Also write a Markdown report here.")
@@ -152,6 +157,9 @@ def evaluate(
         for row in rows:
             table.add_row(*row)
         stdout.print(table)
+        for m in result.methods:
+            if m.note:
+                stdout.print(f"note: {m.name}: {m.note}")
     for m in result.methods:
         if m.skipped is not None:
             log.warning("method %s skipped: %s", m.name, m.skipped)

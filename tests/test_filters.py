@@ -56,3 +56,12 @@ def test_round_trip_through_dict():
     assert d["zero_phase"] is False and d["cutoff_hz"] == 3.5
     assert LowPass.from_dict(d) == lp
     assert LowPass().cutoff_hz == DEFAULT_CUTOFF_HZ
+
+
+def test_zero_phase_edges_follow_a_signal_that_starts_moving():
+    # a log that starts mid-motion: slow trend plus a slow sine, well below the cut-off
+    t = np.arange(0, 10, 0.01)
+    x = 1 + 0.5 * t + np.sin(2 * np.pi * 0.2 * t)
+    y = LowPass(cutoff_hz=1.0).apply(t, x)
+    assert np.abs(y - x)[:100].max() < 0.01
+    assert np.abs(y - x)[-100:].max() < 0.01

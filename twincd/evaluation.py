@@ -30,6 +30,9 @@ BoolArray = NDArray[np.bool_]
 T = TypeVar("T")
 Progress = Callable[[Sequence[Any], str], Iterable[Any]]
 
+# the paper's Table II reports its deep methods as mean ± std over five runs
+DEFAULT_REPEATS = 5
+
 # figures averaged over repeats; each gets a ``<key>_std`` companion
 _AVERAGED = (
     "f1_best",
@@ -86,6 +89,7 @@ class MethodResult:
     sweep: list[tuple[float, float]] = field(default_factory=list)
     repeats: int = 1
     std: dict[str, float | None] = field(default_factory=dict)
+    note: str | None = None  # what the method had to do differently (e.g. subsampling)
 
     def to_dict(self) -> dict[str, Any]:
         if self.skipped is not None:
@@ -111,6 +115,8 @@ class MethodResult:
         ):
             d[key] = getattr(self, key)
         d["sweep"] = [{"k": k, "f1": f} for k, f in self.sweep]
+        if self.note:
+            d["note"] = self.note
         if self.repeats > 1:
             d["repeats"] = self.repeats
             d.update({f"{k}_std": v for k, v in self.std.items()})
@@ -182,6 +188,7 @@ class _Run:
     threshold: float
     units: int
     positives: int
+    note: str | None
 
 
 def _run_once(
@@ -236,7 +243,8 @@ def _run_once(
         "train_s": train_s,
         "test_s": test_s,
     }
-    return _Run(sweep, figures, mu, sigma, threshold, len(y_true), int(y_true.sum()))
+    note = getattr(method, "note", None)
+    return _Run(sweep, figures, mu, sigma, threshold, len(y_true), int(y_true.sum()), note)
 
 
 def _mean_std(values: list[float | None]) -> tuple[float | None, float | None]:
@@ -255,6 +263,7 @@ def _combine(name: str, unit: str, k_sigma: float, runs: list[_Run]) -> MethodRe
         units=first.units,
         positives=first.positives,
         repeats=len(runs),
+        note=first.note,
     )
     # best_k: where the mean F1 curve peaks; f1_best: mean of each run's own best
     ks = [k for k, _ in first.sweep]
@@ -278,7 +287,7 @@ def evaluate_method(
     test: Sequence[PreparedLog],
     calibration: Calibration | None = None,
     k_sigma: float = DEFAULT_K_SIGMA,
-    repeats: int = 1,
+    repeats: int = DEFAULT_REPEATS,
 ) -> MethodResult:
     """One method's figures; a method that cannot run comes back with ``skipped`` set."""
     probe: ScoringMethod
@@ -328,7 +337,7 @@ def evaluate(
     train_paths: Sequence[Path] = (),
     val_paths: Sequence[Path] = (),
     k_sigma: float | None = None,
-    repeats: int = 1,
+    repeats: int = DEFAULT_REPEATS,
     progress: Progress = _no_progress,
 ) -> Evaluation:
     """Every method in ``methods`` over the same prepared logs."""

@@ -65,12 +65,15 @@ class LowPass:
             raise DataError("log too short to filter", source, "record at least a few seconds")
         fs = 1.0 / float(np.median(np.diff(t_s)))
         sos = self.sos(fs)
+        # zero-phase edges: pad over about one period of the cut-off (scipy's default of a few
+        # samples leaves start-up transients on logs that begin with the arm moving)
+        padlen = max(3 * (2 * len(sos) + 1), int(np.ceil(fs / self.cutoff_hz)))
         out = np.empty_like(x)
         for a, b in segment_bounds(t_s):
-            out[a:b] = self._segment(sos, x[a:b])
+            out[a:b] = self._segment(sos, x[a:b], padlen)
         return out
 
-    def _segment(self, sos: FloatArray, x: FloatArray) -> FloatArray:
+    def _segment(self, sos: FloatArray, x: FloatArray, padlen: int) -> FloatArray:
         if len(x) == 1:
             single: FloatArray = x.copy()
             return single
@@ -80,8 +83,7 @@ class LowPass:
             y: FloatArray = signal.sosfilt(sos, x, axis=0, zi=zi)[0]
             return y
         # short segments after a gap get a shorter pad instead of an error
-        padlen = min(3 * (2 * len(sos) + 1), len(x) - 1)
-        filtered: FloatArray = signal.sosfiltfilt(sos, x, axis=0, padlen=padlen)
+        filtered: FloatArray = signal.sosfiltfilt(sos, x, axis=0, padlen=min(padlen, len(x) - 1))
         return filtered
 
     def to_dict(self) -> dict[str, Any]:

@@ -6,7 +6,7 @@ the read-only robot model cache.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
@@ -37,6 +37,8 @@ class PreparedLog:
     sim_effort_f: FloatArray
     robot: RobotModel | None
     simulated: bool  # False: the log carried /twincd/sim_effort
+    # the filter behind effort_f: methods that filter other inputs do it alike
+    lowpass: LowPass = field(default_factory=LowPass)
 
     @property
     def source(self) -> str:
@@ -138,4 +140,5 @@ def prepare(
         sim_effort_f=lowpass.apply(t_s, sim, sel.source),
         robot=model,
         simulated=simulated,
+        lowpass=lowpass,
     )

@@ -96,6 +96,9 @@ def evaluation_markdown(result: Evaluation, missed: Sequence[str] = ()) -> str:
     ]
     if any(m.unit != "sample" for m in result.methods):
         parts += ["\\* judged per time window, not per sample.", ""]
+    notes = [f"- {m.name}: {m.note}" for m in result.methods if m.note]
+    if notes:
+        parts += ["**Notes:**", "", *notes, ""]
     if missed:
         parts += ["**Gates missed:**", ""] + [f"- {m}" for m in missed] + [""]
     return "\n".join(parts)

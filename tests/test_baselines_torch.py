@@ -1,0 +1,69 @@
+"""The deep baselines (PyTorch): each trains on tiny logs in seconds and scores pushes higher."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from test_baselines_learning import auc, data  # noqa: E402
+from test_baselines_mob import pushed_log  # noqa: E402
+
+from twincd.baselines.autoencoder import PointAE, WindowAE  # noqa: E402
+from twincd.baselines.lstm import LstmMob  # noqa: E402
+from twincd.errors import NotFittedError  # noqa: E402
+from twincd.methods import make_method  # noqa: E402
+
+pytestmark = pytest.mark.torch
+
+
+@pytest.mark.parametrize(("name", "epochs"), [("point-ae", 40), ("window-ae", 40)])
+def test_autoencoders_score_pushes_higher(name: str, epochs: int) -> None:
+    train, test = data()
+    method = make_method(name, seed=0, epochs=epochs)
+    assert isinstance(method, PointAE | WindowAE)
+    with pytest.raises(NotFittedError):
+        method.score(test)
+    method.check([*train, test])
+    state = torch.random.get_rng_state()
+    method.fit(train)
+    assert torch.equal(state, torch.random.get_rng_state())  # caller's RNG untouched
+    assert len(method.loss_history_) == epochs
+    assert method.loss_history_[-1] < method.loss_history_[0]
+    assert auc(method, test) > 0.8
+    # same seed, same model; another seed, another model
+    again = make_method(name, seed=0, epochs=epochs).fit(train)
+    np.testing.assert_array_equal(again.score(test), method.score(test))
+    other = make_method(name, seed=1, epochs=epochs).fit(train)
+    assert not np.array_equal(other.score(test), method.score(test))
+
+
+def test_autoencoder_layer_sizes() -> None:
+    train, _ = data()
+    point = PointAE(epochs=1).fit(train)
+    window = WindowAE(epochs=1).fit(train)
+    sizes = [m.in_features for m in point.net_ if isinstance(m, torch.nn.Linear)]
+    assert sizes == [7, 5, 3, 5]
+    sizes = [m.out_features for m in window.net_ if isinstance(m, torch.nn.Linear)]
+    assert sizes == [32, 11, 32, 112]
+    drops = [m.p for m in window.net_ if isinstance(m, torch.nn.Dropout)]
+    assert drops == [0.1, 0.1, 0.1]
+
+
+def test_lstm_mob_learns_the_model_error() -> None:
+    train, test = data()
+    method = make_method("lstm-mob", seed=0, epochs=15, lr=3e-3)
+    assert isinstance(method, LstmMob)
+    method.check(train)
+    method.fit(train)
+    assert method.loss_history_[-1] < method.loss_history_[0]
+    pred = method.predict(test)
+    assert pred.shape == (len(test), 7)
+    score = method.score(test)
+    assert score.shape == (len(test),)
+    assert auc(method, test) > 0.8
+    # scoring does not depend on other logs, and short logs (< one sequence) work
+    short = pushed_log(30, seconds=0.5)
+    assert method.score(short).shape == (len(short),)
+    np.testing.assert_array_equal(method.score(test), score)
