@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import importlib
 from typing import Annotated
 
 import typer
 
 from twincd import __version__
+
+from . import calibrate, detect, evaluate, simulate, synth
 
 app = typer.Typer(
     name="twincd",
@@ -16,16 +17,6 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-
-# (module in cli/, function, command name); a module that is not there yet is skipped
-_COMMANDS = [
-    ("simulate", "simulate", "simulate"),
-    ("calibrate", "fit", "fit"),
-    ("calibrate", "threshold", "threshold"),
-    ("detect", "detect", "detect"),
-    ("evaluate", "evaluate", "evaluate"),
-    ("synth", "synth", "synth"),
-]
 
 
 def _version(value: bool) -> None:
@@ -44,14 +35,12 @@ def _root(
     """Find robot-arm collisions in recorded ROS 2 logs with a digital twin."""
 
 
-for _module, _func, _name in _COMMANDS:
-    try:
-        mod = importlib.import_module(f"{__package__}.{_module}")
-    except ModuleNotFoundError as exc:
-        if exc.name != f"{__package__}.{_module}":
-            raise
-        continue
-    app.command(_name)(getattr(mod, _func))
+app.command("simulate")(simulate.simulate)
+app.command("fit")(calibrate.fit)
+app.command("threshold")(calibrate.threshold)
+app.command("detect")(detect.detect)
+app.command("evaluate")(evaluate.evaluate)
+app.command("synth")(synth.synth)
 
 
 def main() -> None:
