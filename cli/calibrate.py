@@ -19,6 +19,7 @@ from twincd.detection import DEFAULT_K_SIGMA, calibrate_threshold
 from twincd.errors import UsageError
 from twincd.filters import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT_ORDER, LowPass
 from twincd.logs import expand_logs, parse_joint_map
+from twincd.mcap_io import check_writable
 
 from .common import (
     Debug,
@@ -102,17 +103,24 @@ def resolve_setup(
         if given is not None and given != was:
             _contradiction(option, given, was, cal)
     if joint_map is not None and parse_joint_map(joint_map) != dict(recorded.joint_map or {}):
-        _contradiction("--joint-map", joint_map, dict(recorded.joint_map or {}) or "none", cal)
+        was_map = ",".join(f"{k}={v}" for k, v in (recorded.joint_map or {}).items())
+        _contradiction("--joint-map", joint_map, was_map or "empty map", cal)
     if robot is not None and cal.robot is not None and not _same_robot(robot, cal.robot):
         _contradiction("--robot", robot, cal.robot, cal)
     lp = cal.lowpass
+    if causal is not None and causal != lp.causal:
+        raise UsageError(
+            f"{'--causal' if causal else '--zero-phase'} contradicts the calibration's "
+            f"{'causal' if lp.causal else 'zero-phase'} filter",
+            cal.source or "calibration",
+            "drop the option, or re-run `twincd fit` with it",
+        )
     for option, given_f, was_f in (
         ("--cutoff", cutoff, lp.cutoff_hz),
         ("--filter-order", filter_order, lp.order),
-        ("--causal" if causal else "--zero-phase", causal, lp.causal),
     ):
         if given_f is not None and given_f != was_f:
-            _contradiction(option, given_f, was_f, cal)
+            _contradiction(option, f"{given_f:g}", f"{was_f:g}", cal)
     setup = Setup.from_calibration(cal)
     if robot is not None and cal.robot is None:
         setup = replace(setup, robot=robot)
@@ -162,6 +170,7 @@ def fit(
 
     Example: twincd fit logs/train/*.mcap -o calibration.json
     """
+    check_writable(output)
     paths = expand_logs(logs)
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
@@ -201,11 +210,12 @@ def threshold(
     Example: twincd threshold logs/val/*.mcap -c calibration.json --sigma 4
     """
     cal = Calibration.load(calibration)
+    target = output or calibration
+    check_writable(target)
     paths = expand_logs(logs)
     setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
     prepared = setup.prepare_all(progress(paths, "scoring", quiet))
     cal = calibrate_threshold(prepared, cal, sigma)
-    target = output or calibration
     cal.save(target)
     th = cal.require_threshold()
     stdout.print(

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import os
 import sys
 import traceback
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -128,5 +129,15 @@ def progress(items: Sequence[T], description: str, quiet: bool) -> Iterator[T]:
     yield from track(items, description=description, console=stderr, transient=True)
 
 
-def paths_text(paths: Iterable[Path]) -> str:
-    return ", ".join(str(p) for p in paths)
+@contextlib.contextmanager
+def all_or_nothing() -> Iterator[list[Path]]:
+    """Collects the files a multi-log run writes; if the run fails, they are removed again,
+    so a failed run leaves nothing behind (DESIGN §5)."""
+    written: list[Path] = []
+    try:
+        yield written
+    except BaseException:
+        for path in written:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        raise

@@ -14,6 +14,7 @@ from twincd.detection import OUTPUT_SUFFIXES, LogDetection, write_detection
 from twincd.detection import detect as detect_log
 from twincd.errors import UsageError
 from twincd.logs import expand_logs
+from twincd.mcap_io import check_writable
 
 from .calibrate import CalibrationIn, resolve_setup
 from .common import (
@@ -25,6 +26,7 @@ from .common import (
     Robot,
     SimTopic,
     Topic,
+    all_or_nothing,
     command,
     progress,
     stdout,
@@ -105,18 +107,23 @@ def detect(
     setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
     targets = _targets(paths, output)
     # one log at a time: only the small summaries are kept, so memory stays flat
-    summaries = []
-    for path, target in progress(list(zip(paths, targets, strict=True)), "detecting", quiet):
-        result = detect_log(setup.prepare(path), cal)
+    for target in targets:
         if target is not None:
-            write_detection(result, path, target)
-        summaries.append(result.to_dict())
-        if json_:
-            continue
-        if result.events:
-            stdout.print(events_table(result))
-        else:
-            stdout.print(f"{result.source}: no collision ({len(result.scores)} samples)")
+            check_writable(target)
+    summaries = []
+    with all_or_nothing() as written:
+        for path, target in progress(list(zip(paths, targets, strict=True)), "detecting", quiet):
+            result = detect_log(setup.prepare(path), cal)
+            if target is not None:
+                write_detection(result, path, target)
+                written.append(target)
+            summaries.append(result.to_dict())
+            if json_:
+                continue
+            if result.events:
+                stdout.print(events_table(result))
+            else:
+                stdout.print(f"{result.source}: no collision ({len(result.scores)} samples)")
     found = any(s["events"] for s in summaries)
     if json_:
         doc = {

@@ -16,7 +16,7 @@ from twincd.calibration import Calibration
 from twincd.evaluation import DEFAULT_REPEATS, parse_methods
 from twincd.evaluation import evaluate as run_evaluation
 from twincd.logs import expand_logs
-from twincd.mcap_io import atomic_output
+from twincd.mcap_io import atomic_output, check_writable
 from twincd.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
 
 from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
@@ -110,6 +110,8 @@ def evaluate(
     """
     cal = Calibration.load(calibration) if calibration is not None else None
     names = parse_methods(methods)
+    if report is not None:
+        check_writable(report)
     test_paths = expand_logs(logs)
     train_paths = expand_logs(train) if train else []
     val_paths = expand_logs(val) if val else []
@@ -131,6 +133,12 @@ def evaluate(
         repeats=repeats,
         progress=bar,
     )
+    if result.positives == 0:
+        log.warning(
+            "no test sample is labelled as a collision: F1 is 0 and AUC undefined "
+            "(evaluate wants logs with collisions and their %s labels)",
+            setup.options.label_topic,
+        )
     missed = result.missed_gates(min_f1, min_auc)
     if report is not None:
         with atomic_output(report) as stream:

@@ -9,6 +9,7 @@ import typer
 
 from twincd.errors import UsageError
 from twincd.logs import expand_logs
+from twincd.mcap_io import check_writable
 from twincd.robot import DEFAULT_ROBOT, list_robots
 from twincd.simulate import default_output, simulate_log
 
@@ -20,6 +21,7 @@ from .common import (
     Robot,
     SimTopic,
     Topic,
+    all_or_nothing,
     command,
     log_options,
     progress,
@@ -72,9 +74,14 @@ def simulate(
             raise UsageError("several logs need an output folder", str(output), "give -o a folder")
         output.mkdir(parents=True, exist_ok=True)
     options = log_options(topic, label_topic, sim_topic, joint_map)
-    for path in progress(paths, "simulating", quiet):
-        target = None
-        if output is not None:
-            target = output / default_output(path).name if several else output
-        result = simulate_log(path, target, robot or DEFAULT_ROBOT, options, in_place=in_place)
-        stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")
+    targets: list[Path | None] = [None] * len(paths)
+    if output is not None:
+        targets = [output / default_output(p).name if several else output for p in paths]
+    for path, target in zip(paths, targets):
+        check_writable(target if target is not None else default_output(path))
+    with all_or_nothing() as written:
+        for path, target in progress(list(zip(paths, targets)), "simulating", quiet):
+            result = simulate_log(path, target, robot or DEFAULT_ROBOT, options, in_place=in_place)
+            if not in_place:
+                written.append(result.output)
+            stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")

@@ -57,7 +57,7 @@ def synth(
     if not 1.0 <= rate_hz <= 10_000.0:
         raise UsageError(f"rate {rate_hz} Hz out of range", "--rate-hz", "use 1–10000 Hz")
     if min(train, val, test) < 0:
-        raise UsageError("path counts must be ≥ 0", "--train/--val/--test")
+        raise UsageError("path counts must be ≥ 0", "--train/--val/--test", "pass 0 or more each")
     base = SynthConfig()
     config = replace(
         base,

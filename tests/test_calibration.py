@@ -178,8 +178,14 @@ def test_other_schema_and_broken_files_are_calibration_errors(tmp_path):
     doc = cal.to_dict()
     del doc["model"]["joints"]["j2"]
     (tmp_path / "partial.json").write_text(json.dumps(doc))
-    with pytest.raises(CalibrationError, match="malformed"):
+    with pytest.raises(CalibrationError, match="lacks the field 'j2'"):
         Calibration.load(tmp_path / "partial.json")
+    (tmp_path / "binary.json").write_bytes(b"\x89MCAP0\r\n\xff\xfe")
+    with pytest.raises(CalibrationError, match="not JSON text"):
+        Calibration.load(tmp_path / "binary.json")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(CalibrationError, match="a JSON list, not an object"):
+        Calibration.load(tmp_path / "list.json")
     with pytest.raises(CalibrationError, match="cannot read"):
         Calibration.load(tmp_path / "missing.json")
 

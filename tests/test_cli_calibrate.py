@@ -5,22 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from twincd_cli.main import app
-from typer.testing import CliRunner
-
-runner = CliRunner()
-
-
-def run(*args):
-    return runner.invoke(app, [str(a) for a in args])
-
-
-def assert_one_line_error(result, match: str = "", code: int = 2) -> None:
-    assert result.exit_code == code, (result.stdout, result.stderr)
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("twincd: error: "), result.stderr
-    assert " — " in lines[0] and match in lines[0], lines[0]
-    assert "Traceback" not in result.output
+from clitools import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")

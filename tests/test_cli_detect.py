@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from test_cli_calibrate import assert_one_line_error, run
+from clitools import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")
@@ -90,3 +90,26 @@ def test_errors(cal, twin_dataset, tmp_path, twin_log):
 def test_help_has_an_example():
     result = run("detect", "--help")
     assert result.exit_code == 0 and "Example: twincd detect" in result.stdout
+
+
+def test_a_failing_log_removes_the_run_outputs(cal, twin_dataset, tmp_path):
+    # one good log, then a truncated one: the run fails and leaves no output behind
+    good = twin_dataset / "test" / "test_0.mcap"
+    cut = tmp_path / "logs" / "z_cut.mcap"
+    cut.parent.mkdir()
+    data = good.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    out = tmp_path / "out"
+    result = run("detect", good, cut, "-c", cal, "-o", out, "--json")
+    assert_one_line_error(result)
+    assert list(out.iterdir()) == []
+
+
+def test_unwritable_output_fails_before_any_work(cal, twin_dataset, tmp_path):
+    result = run(
+        "detect", twin_dataset / "test" / "test_0.mcap", "-c", cal, "-o", tmp_path / "no" / "x.csv"
+    )
+    assert_one_line_error(result, match="folder does not exist")
+    result = run("fit", twin_dataset / "train", "-o", tmp_path / "no" / "cal.json")
+    assert_one_line_error(result, match="folder does not exist")
+    assert result.stdout == ""  # no fit table: nothing was fitted

@@ -7,26 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from builders import Message, String, joint_recording, write
-from twincd_cli.main import app
-from typer.testing import CliRunner
-
-runner = CliRunner()
-
-
-def run(*args: str):
-    return runner.invoke(app, [str(a) for a in args])
+from clitools import assert_one_line_error, run
 
 
 def files(folder: Path) -> set[str]:
     return {p.name for p in folder.rglob("*")}
-
-
-def assert_one_line_error(result, code: int = 2, match: str = "") -> None:
-    assert result.exit_code == code, result.output
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("twincd: error: "), result.stderr
-    assert match in lines[0]
-    assert "Traceback" not in result.output
 
 
 def test_list_robots():
@@ -116,7 +101,14 @@ def test_unknown_robot_and_broken_urdf(tmp_path):
     urdf = tmp_path / "broken.urdf"
     urdf.write_text("<robot name='x'><joint")
     assert_one_line_error(run("simulate", src, "--robot", urdf), match="URDF")
-    assert files(tmp_path) == {"a.mcap", "broken.urdf"}
+    # valid XML, invalid URDF: urdfdom's own stderr lines must not leak through
+    dangling = tmp_path / "dangling.urdf"
+    dangling.write_text(
+        '<robot name="x"><link name="a"/><joint name="j" type="revolute">'
+        '<parent link="a"/><child link="missing"/></joint></robot>'
+    )
+    assert_one_line_error(run("simulate", src, "--robot", dangling), match="URDF")
+    assert files(tmp_path) == {"a.mcap", "broken.urdf", "dangling.urdf"}
 
 
 def test_unwritable_output(tmp_path):
@@ -150,3 +142,34 @@ def test_debug_shows_the_traceback(tmp_path):
 
 def test_no_logs_is_a_usage_error():
     assert_one_line_error(run("simulate"), match="no logs")
+
+
+def test_native_urdf_errors_do_not_reach_the_real_stderr(tmp_path):
+    # CliRunner sees only Python's sys.stderr; urdfdom writes to file descriptor 2 directly
+    import subprocess
+    import sys
+
+    src = write(tmp_path / "a.mcap", "mcap", joint_recording(n=10))
+    dangling = tmp_path / "dangling.urdf"
+    dangling.write_text(
+        '<robot name="x"><link name="a"/><joint name="j" type="revolute">'
+        '<parent link="a"/><child link="missing"/></joint></robot>'
+    )
+    done = subprocess.run(
+        [sys.executable, "-m", "twincd_cli.main", "simulate", str(src), "--robot", str(dangling)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("twincd: error: cannot load URDF"), lines
+
+
+def test_simulating_a_folder_twice_does_not_stack_twins(tmp_path):
+    write(tmp_path / "a.mcap", "mcap", joint_recording(n=20))
+    assert run("simulate", tmp_path, "-q").exit_code == 0
+    assert run("simulate", tmp_path, "-q").exit_code == 0
+    assert files(tmp_path) == {"a.mcap", "a.twin.mcap"}
+    # a twin file named on its own is not overwritten by accident
+    assert_one_line_error(run("simulate", tmp_path / "a.twin.mcap"), match="overwrite")

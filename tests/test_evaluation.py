@@ -135,8 +135,15 @@ def test_skipped_window_and_repeats(calibration, split):
 
 def test_methods_needing_data_are_skipped(calibration, split):
     setup = Setup.from_calibration(calibration)
-    result = evaluate(split["test"], ["test-seeded"], setup, calibration)
-    assert result.methods[0].skipped == "needs --train collision-free logs"
+    result = evaluate(split["test"], ["proposed", "test-seeded"], setup, calibration)
+    assert result.methods[1].skipped == "needs --train collision-free logs"
+
+
+def test_nothing_to_evaluate_is_an_error_not_a_pass(calibration, split):
+    # a CI gate must not pass when no method ran
+    setup = Setup.from_calibration(calibration)
+    with pytest.raises(UsageError, match="no method could run"):
+        evaluate(split["test"], ["test-seeded"], setup, calibration)
 
 
 def test_test_logs_need_labels(calibration, twin_log, tmp_path):

@@ -179,3 +179,13 @@ def test_truncated_mcap_is_an_error(tmp_path, recording):
     bad.write_bytes(data[: len(data) * 2 // 3])
     with pytest.raises(LogReadError):
         read_log(bad)
+
+
+def test_folders_skip_twin_copies_of_their_logs(tmp_path):
+    msgs = joint_recording(n=10)
+    write(tmp_path / "a.mcap", "mcap", msgs)
+    write(tmp_path / "a.twin.mcap", "mcap", msgs)  # simulate's output of a.mcap
+    write(tmp_path / "b.twin.mcap", "mcap", msgs)  # a twin file whose source is elsewhere
+    assert [p.name for p in expand_logs([tmp_path])] == ["a.mcap", "b.twin.mcap"]
+    # named explicitly, a twin file is used
+    assert expand_logs([tmp_path / "a.twin.mcap"]) == [tmp_path / "a.twin.mcap"]

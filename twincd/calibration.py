@@ -315,7 +315,13 @@ class Calibration:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str = "") -> Calibration:
         where = source or "calibration"
-        schema = d.get("schema") if isinstance(d, Mapping) else None
+        if not isinstance(d, Mapping):
+            raise CalibrationError(
+                f"calibration is a JSON {type(d).__name__}, not an object",
+                where,
+                "pass the JSON file written by `twincd fit`",
+            )
+        schema = d.get("schema")
         if schema != SCHEMA:
             raise CalibrationError(
                 f"unsupported calibration schema {schema!r} (this twincd reads {SCHEMA})",
@@ -379,9 +385,15 @@ class Calibration:
             )
         except CalibrationError:
             raise
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        except KeyError as exc:
             raise CalibrationError(
-                f"malformed calibration: {type(exc).__name__} {exc}",
+                f"calibration lacks the field {exc.args[0]!r}",
+                where,
+                "re-run `twincd fit` to write a new one",
+            ) from exc
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise CalibrationError(
+                f"malformed calibration: {exc}",
                 where,
                 "re-run `twincd fit` to write a new one",
             ) from exc
@@ -391,6 +403,12 @@ class Calibration:
         path = Path(path)
         try:
             text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise CalibrationError(
+                "calibration is not JSON text (binary content)",
+                str(path),
+                "pass the JSON file written by `twincd fit` to -c",
+            ) from exc
         except OSError as exc:
             raise CalibrationError(
                 f"cannot read calibration: {exc.strerror or exc}",

@@ -157,7 +157,7 @@ class Event:
 
     @property
     def duration_s(self) -> float:
-        return (self.end_ns - self.start_ns) * 1e-9
+        return (self.end_ns - self.start_ns) / 1e9  # integer ns first: no float noise
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -304,7 +304,7 @@ def _write_csv(
     writer = csv.DictWriter(text, fieldnames=fields, lineterminator="\n")
     writer.writeheader()
     for row in rows:
-        writer.writerow(row)
+        writer.writerow({**row, "collision": int(bool(row["collision"]))})  # 0/1 for any tool
 
 
 def _write_mcap(result: LogDetection, source: Path, target: Path) -> None:

@@ -12,7 +12,7 @@ class TwincdError(Exception):
 
     exit_code: int = 2
 
-    def __init__(self, what: str, where: str = "", hint: str = "") -> None:
+    def __init__(self, what: str, where: str, hint: str) -> None:
         self.what = what
         self.where = where
         self.hint = hint

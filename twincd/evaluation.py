@@ -358,6 +358,13 @@ def evaluate(
         evaluate_method(name, train, val, test, calibration, k_sigma, repeats)
         for name in progress(list(methods), "evaluating")
     ]
+    if all(r.skipped is not None for r in results):
+        reasons = "; ".join(f"{r.name}: {r.skipped}" for r in results)
+        raise UsageError(
+            f"no method could run ({reasons})",
+            "evaluate",
+            "give -c CALIBRATION, or --train and --val collision-free logs",
+        )
     return Evaluation(
         samples=sum(len(lg) for lg in test),
         positives=sum(int(np.sum(lg.labels)) for lg in test if lg.labels is not None),

@@ -33,6 +33,7 @@ DEFAULT_TOPIC = "/joint_states"
 DEFAULT_LABEL_TOPIC = "/collision_flag"
 DEFAULT_SIM_TOPIC = "/twincd/sim_effort"
 OWN_PREFIX = "/twincd/"
+TWIN_SUFFIX = ".twin.mcap"  # what `simulate` writes beside a log
 
 
 @dataclass(frozen=True)
@@ -130,7 +131,7 @@ def expand_logs(paths: Iterable[str | Path]) -> list[Path]:
         if path.is_file() or _is_rosbag2_dir(path):
             found.append(path)
             continue
-        below = sorted(_logs_below(path))
+        below = _without_twin_copies(sorted(_logs_below(path)))
         if not below:
             raise LogReadError(
                 "no logs in folder", str(path), "give .mcap, .bag or rosbag2 folders"
@@ -147,6 +148,20 @@ def _logs_below(folder: Path) -> Iterator[Path]:
             yield from _logs_below(sub)
         elif sub.suffix in (".mcap", ".bag"):
             yield sub
+
+
+def _without_twin_copies(paths: list[Path]) -> list[Path]:
+    """Drop ``x.twin.mcap`` files (``simulate`` outputs) whose source log ``x`` is also here,
+    so a folder does not count the same run twice; name a twin file to use it."""
+    names = {p.name for p in paths}
+    kept = []
+    for p in paths:
+        stem = p.name.removesuffix(TWIN_SUFFIX)
+        if p.name.endswith(TWIN_SUFFIX) and {stem, f"{stem}.mcap", f"{stem}.bag"} & names:
+            log.info("skipping %s: the simulate output of a log in the same folder", p)
+            continue
+        kept.append(p)
+    return kept
 
 
 # ---------------------------------------------------------------- reading

@@ -51,18 +51,34 @@ class NewTopic:
     messages: Iterable[tuple[int, int, bytes]]
 
 
+def check_writable(target: Path) -> None:
+    """Fail early, before any work, when ``target`` cannot be written."""
+    target = Path(target)
+    if target.is_dir():
+        raise OutputError("output is a folder", str(target), "give a file name")
+    folder = target.parent
+    if not folder.is_dir():
+        raise OutputError(
+            "cannot write output: its folder does not exist", str(target), "create the folder first"
+        )
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(
+            "cannot write output: its folder is not writable", str(target), "pick another path"
+        )
+
+
 @contextlib.contextmanager
 def atomic_output(target: Path) -> Iterator[IO[bytes]]:
     """A binary stream that becomes ``target`` only if the block finishes without error."""
     target = Path(target)
     if target.is_dir():
-        raise OutputError("output is a folder", str(target), "give a file name ending in .mcap")
+        raise OutputError("output is a folder", str(target), "give a file name")
     tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
     try:
         stream = open(tmp, "wb")  # noqa: SIM115 - closed below, before the rename
     except OSError as exc:
         raise OutputError(
-            f"cannot write output: {exc.strerror}", str(target), "pick a writable -o path"
+            f"cannot write output: {exc.strerror}", str(target), "pick a writable output path"
         ) from exc
     try:
         with stream:

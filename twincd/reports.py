@@ -57,7 +57,8 @@ def evaluation_rows(result: Evaluation) -> list[list[str]]:
     for m in result.methods:
         name = m.name if m.unit == "sample" else f"{m.name}*"
         if m.skipped is not None:
-            rows.append([name, f"skipped: {m.skipped}"] + [""] * (len(EVALUATION_COLUMNS) - 2))
+            # the reason goes below the table: a long cell would squeeze every column
+            rows.append([name, "skipped"] + [""] * (len(EVALUATION_COLUMNS) - 2))
             continue
         rows.append(
             [
@@ -97,6 +98,7 @@ def evaluation_markdown(result: Evaluation, missed: Sequence[str] = ()) -> str:
     if any(m.unit != "sample" for m in result.methods):
         parts += ["\\* judged per time window, not per sample.", ""]
     notes = [f"- {m.name}: {m.note}" for m in result.methods if m.note]
+    notes += [f"- {m.name} skipped: {m.skipped}" for m in result.methods if m.skipped]
     if notes:
         parts += ["**Notes:**", "", *notes, ""]
     if missed:

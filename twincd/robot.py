@@ -8,13 +8,17 @@ matched to log joints; joints the log lacks are locked at their neutral value wi
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.metadata
 import logging
-from collections.abc import Sequence
+import os
+import tempfile
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 import pinocchio as pin
@@ -149,15 +153,52 @@ def _joint_specs(model: pin.Model) -> tuple[JointSpec, ...]:
     return tuple(specs)
 
 
+@contextlib.contextmanager
+def _native_stderr_captured() -> Iterator[list[str]]:
+    """Capture what C++ code (urdfdom) writes to file descriptor 2 into the yielded list.
+
+    urdfdom prints parse errors straight to stderr; twincd reports one line of its own instead.
+    """
+    lines: list[str] = []
+    try:
+        saved = os.dup(2)
+    except OSError:  # no usable stderr: nothing to protect
+        yield lines
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            lines.extend(sink.read().decode("utf-8", "replace").splitlines())
+
+
 @lru_cache(maxsize=16)
 def _full_model(urdf_path: Path) -> pin.Model:
     try:
-        return pin.buildModelFromUrdf(str(urdf_path))
-    except (RuntimeError, ValueError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        ElementTree.parse(urdf_path)  # malformed XML: a clear message before Pinocchio sees it
+    except ElementTree.ParseError as exc:
         raise RobotModelError(
-            f"cannot load URDF: {first}", str(urdf_path), "check that the file is a valid URDF"
+            f"cannot load URDF: not valid XML ({exc})",
+            str(urdf_path),
+            "check that the file is a valid URDF",
         ) from exc
+    with _native_stderr_captured() as native:
+        try:
+            model = pin.buildModelFromUrdf(str(urdf_path))
+        except (RuntimeError, ValueError) as exc:
+            text = str(exc).strip() or (native[-1] if native else type(exc).__name__)
+            raise RobotModelError(
+                f"cannot load URDF: {text.splitlines()[0]}",
+                str(urdf_path),
+                "check that the file is a valid URDF",
+            ) from exc
+    for line in native:
+        log.debug("urdfdom: %s", line)
+    return model
 
 
 def full_joint_names(name_or_path: str) -> tuple[str, ...]:

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from twincd.errors import UsageError
-from twincd.logs import JOINT_STATE, LogOptions, read_log
+from twincd.logs import JOINT_STATE, TWIN_SUFFIX, LogOptions, read_log
 from twincd.mcap_io import NewTopic, write_augmented
 from twincd.messages import joint_state_cdr
 from twincd.pipeline import twin_effort
@@ -23,9 +23,12 @@ class SimulateResult:
 
 
 def default_output(source: Path) -> Path:
-    """``<input name>.twin.mcap`` beside the input (a folder's name, a file's stem)."""
+    """``<input name>.twin.mcap`` beside the input (a folder's name, a file's stem); a twin
+    file stays itself rather than becoming ``x.twin.twin.mcap``."""
+    if source.name.endswith(TWIN_SUFFIX):
+        return source
     stem = source.name if source.is_dir() else source.stem
-    return source.with_name(f"{stem}.twin.mcap")
+    return source.with_name(f"{stem}{TWIN_SUFFIX}")
 
 
 def simulate_log(
@@ -49,7 +52,9 @@ def simulate_log(
         target = Path(output) if output is not None else default_output(source)
         if target.resolve() == source.resolve():
             raise UsageError(
-                "output would overwrite the input", str(target), "pass --in-place to mean it"
+                "output would overwrite the input",
+                str(target),
+                "pass --in-place to simulate it again, or -o another file",
             )
     states = read_log(source, options)
     sel, tau_hat, model, _ = twin_effort(states, robot, differentiator, force_simulate=True)

@@ -548,7 +548,7 @@ def simulate_path(
     """
     _check_seed(seed)
     if index < 0:
-        raise UsageError(f"path index must be ≥ 0, got {index}", "twincd.synth")
+        raise UsageError(f"path index must be ≥ 0, got {index}", "twincd.synth", "pass 0 or more")
     split_no = SPLITS.index(split) if split in SPLITS else len(SPLITS)
     collisions = split == "test" if collisions is None else collisions
     plant = make_plant(config.plant, seed)
@@ -762,9 +762,11 @@ def write_dataset(
     config = config or SynthConfig()
     _check_seed(seed)
     if len(counts) != len(SPLITS) or any(c < 0 for c in counts):
-        raise UsageError("path counts must be three numbers ≥ 0", "--train/--val/--test")
+        raise UsageError(
+            "path counts must be three numbers ≥ 0", "--train/--val/--test", "pass 0 or more each"
+        )
     if jobs < 1:
-        raise UsageError(f"jobs must be ≥ 1, got {jobs}", "--jobs")
+        raise UsageError(f"jobs must be ≥ 1, got {jobs}", "--jobs", "pass 1 or more")
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise OutputError("output exists and is not a folder", str(outdir), "give a folder name")

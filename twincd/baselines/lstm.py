@@ -110,7 +110,9 @@ class LstmMob(ScoringMethod):
         ys = [mob_features(log, names, self.gain, self.lowpass) for log in train]
         lengths = np.array([len(x) for x in xs])
         if lengths.max() < 2:
-            raise DataError("the training logs are too short for lstm-mob", "--train", "")
+            raise DataError(
+                "the training logs are too short for lstm-mob", "--train", "give longer logs"
+            )
         in_scaler = MinMaxScaler().fit(np.concatenate(xs))
         out_scaler = MinMaxScaler().fit(np.concatenate(ys))
         x_all = torch.from_numpy(

@@ -258,7 +258,9 @@ class MobFeatureMethod(ScoringMethod):
         x = np.concatenate([self.features(log, names) for log in train])
         if len(x) == 0:
             raise DataError(
-                f"the training logs are too short for {self.window}-sample windows", "--train", ""
+                f"the training logs are too short for {self.window}-sample windows",
+                "--train",
+                "give longer logs",
             )
         self.note = None
         scaler = MinMaxScaler().fit(x)

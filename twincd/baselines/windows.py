@@ -38,9 +38,15 @@ class MinMaxScaler:
     def fit(self, x: FloatArray) -> MinMaxScaler:
         x = np.asarray(x, dtype=np.float64)
         if x.ndim != 2 or len(x) == 0:
-            raise DataError("no training data to normalise", f"shape {x.shape}", "")
+            raise DataError(
+                "no training data to normalise", f"shape {x.shape}", "give longer --train logs"
+            )
         if not np.isfinite(x).all():
-            raise DataError("training data has NaN or infinite values", "min-max normalisation", "")
+            raise DataError(
+                "training data has NaN or infinite values",
+                "min-max normalisation",
+                "check the --train logs for gaps in effort or velocity",
+            )
         lo = x.min(axis=0)
         span = x.max(axis=0) - lo
         self.min_ = lo

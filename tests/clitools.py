@@ -1,0 +1,23 @@
+"""Running the CLI in tests: typer's CliRunner and the one-line error check (DESIGN §5)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from twincd_cli.main import app
+from typer.testing import CliRunner
+
+runner = CliRunner()
+
+
+def run(*args: Any) -> Any:
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def assert_one_line_error(result: Any, match: str = "", code: int = 2) -> None:
+    """Exit ``code``, one ``twincd: error: <what> (<where>) — <hint>`` line, no traceback."""
+    assert result.exit_code == code, (result.stdout, result.stderr)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("twincd: error: "), result.stderr
+    assert " — " in lines[0] and match in lines[0], lines[0]
+    assert "Traceback" not in result.output
