@@ -227,13 +227,31 @@ def choose_topic(reader: Any, wanted: str, source: str) -> str:
 
 @dataclass
 class _Rows:
-    """Per-message values gathered while reading one JointState topic."""
+    """Values gathered while reading one JointState topic, as the messages hold them.
+
+    Per message only references are kept (rosbags already decodes arrays to numpy); the
+    (N, joints) matrices are assembled once per name layout at the end (``matrix``).
+    """
 
     stamp: list[int]
     log_time: list[int]
+    layout: list[int]  # index into ``columns`` per message
     position: list[FloatArray]
     velocity: list[FloatArray]
     effort: list[FloatArray]
+    columns: list[NDArray[np.intp]]  # per layout: the union column of each message name
+
+    def matrix(self, field: str, width: int) -> FloatArray:
+        """(N, width) values of ``field``; NaN where a message lacks a joint or the array."""
+        values: list[FloatArray] = getattr(self, field)
+        out = np.full((len(values), width), np.nan)
+        layout = np.asarray(self.layout)
+        filled = np.fromiter((len(v) > 0 for v in values), dtype=bool, count=len(values))
+        for k, cols in enumerate(self.columns):
+            rows = np.flatnonzero((layout == k) & filled)
+            if len(rows):
+                out[rows[:, None], cols[None, :]] = np.stack([values[i] for i in rows])
+        return out
 
 
 def _iter_messages(
@@ -256,55 +274,37 @@ def _read_joint_topic(
     conns = [c for c in reader.connections if c.topic == topic]
     names: list[str] = []
     column: dict[str, int] = {}
-    layout: dict[tuple[str, ...], NDArray[np.intp]] = {}
-    rows = _Rows([], [], [], [], [])
+    rows = _Rows([], [], [], [], [], [], [])
+    layout_of: dict[tuple[str, ...], int] = {}
+    where = f"{source}, {topic}"
     for _conn, log_time, msg in _iter_messages(reader, conns, source):
         key = tuple(msg.name)
-        cols = layout.get(key)
-        if cols is None:
+        k = layout_of.get(key)
+        if k is None:
             for n in key:
                 mapped = joint_map.get(n, n)
                 if mapped not in column:
                     column[mapped] = len(names)
                     names.append(mapped)
-            cols = np.array([column[joint_map.get(n, n)] for n in key], dtype=np.intp)
-            layout[key] = cols
+            k = layout_of[key] = len(rows.columns)
+            rows.columns.append(np.array([column[joint_map.get(n, n)] for n in key], np.intp))
         n = len(key)
-        pos = np.asarray(msg.position, dtype=np.float64)
-        vel = np.asarray(msg.velocity, dtype=np.float64)
-        eff = np.asarray(msg.effort, dtype=np.float64)
-        for label, arr, optional in (
-            ("position", pos, False),
-            ("velocity", vel, True),
-            ("effort", eff, True),
-        ):
-            if len(arr) != n and not (optional and len(arr) == 0):
-                raise LogReadError(
-                    f"ragged JointState: {n} names but {len(arr)} {label} values",
-                    f"{source}, {topic} at log time {log_time}",
-                    "fix the publisher; every filled array must match `name`",
-                )
+        pos, vel, eff = msg.position, msg.velocity, msg.effort
+        if len(pos) != n or len(vel) not in (0, n) or len(eff) not in (0, n):
+            raise LogReadError(
+                f"ragged JointState: {n} names but {len(pos)} position, {len(vel)} velocity "
+                f"and {len(eff)} effort values",
+                f"{where} at log time {log_time}",
+                "fix the publisher; every filled array must match `name`",
+            )
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         rows.stamp.append(stamp if stamp != 0 else log_time)
         rows.log_time.append(log_time)
-        rows.position.append(_scatter(pos, cols, len(names)))
-        rows.velocity.append(_scatter(vel, cols, len(names)))
-        rows.effort.append(_scatter(eff, cols, len(names)))
+        rows.layout.append(k)
+        rows.position.append(pos)
+        rows.velocity.append(vel)
+        rows.effort.append(eff)
     return tuple(names), rows
-
-
-def _scatter(values: FloatArray, cols: NDArray[np.intp], width: int) -> FloatArray:
-    out = np.full(width, np.nan)
-    if len(values):
-        out[cols] = values
-    return out
-
-
-def _stack(rows: list[FloatArray], width: int) -> FloatArray:
-    out = np.full((len(rows), width), np.nan)
-    for i, row in enumerate(rows):
-        out[i, : len(row)] = row
-    return out
 
 
 def _zero_order_hold(event_ns: IntArray, event_values: BoolArray, sample_ns: IntArray) -> BoolArray:
@@ -340,9 +340,9 @@ def read_log(path: str | Path, options: LogOptions | None = None) -> JointStates
         sel = order[keep]
         stamp = stamp[keep]
         log_time = log_time[sel]
-        position = _stack(rows.position, width)[sel]
-        velocity = _stack(rows.velocity, width)[sel]
-        effort = _stack(rows.effort, width)[sel]
+        position = rows.matrix("position", width)[sel]
+        velocity = rows.matrix("velocity", width)[sel]
+        effort = rows.matrix("effort", width)[sel]
         # samples missing a joint (another publisher on the topic) cannot be used
         complete = np.isfinite(position).all(axis=1)
         if not complete.all():
