@@ -121,7 +121,7 @@ def show_progress(quiet: bool) -> bool:
 
 def progress(items: Sequence[T], description: str, quiet: bool) -> Iterator[T]:
     """Iterate with a progress bar on stderr, only when stderr is a terminal."""
-    if not show_progress(quiet) or len(items) < 2:
+    if not show_progress(quiet) or not items:
         yield from items
         return
     from rich.progress import track
