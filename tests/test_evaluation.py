@@ -165,3 +165,10 @@ def test_parse_methods():
     assert parse_methods("all")[0] == "proposed"
     with pytest.raises(UsageError, match="unknown method"):
         parse_methods("proposed,nope")
+
+
+def test_test_logs_used_for_thresholds_are_flagged(calibration, split, caplog):
+    setup = Setup.from_calibration(calibration)
+    with caplog.at_level("WARNING", logger="twincd"):
+        evaluate(split["test"], ["proposed"], setup, calibration, val_paths=split["test"][:1])
+    assert "also used for fitting or thresholds" in caplog.text

@@ -189,3 +189,17 @@ def test_folders_skip_twin_copies_of_their_logs(tmp_path):
     assert [p.name for p in expand_logs([tmp_path])] == ["a.mcap", "b.twin.mcap"]
     # named explicitly, a twin file is used
     assert expand_logs([tmp_path / "a.twin.mcap"]) == [tmp_path / "a.twin.mcap"]
+
+
+def test_partial_messages_never_displace_complete_ones(tmp_path):
+    # a gripper driver publishing its own joint on /joint_states with the arm's stamps, first
+    msgs = []
+    for m in joint_recording(n=20):
+        msgs.append(
+            Message(m.topic, m.msgtype, m.log_time, joint_state(m.log_time, ["grip"], [0.01]))
+        )
+        grip = joint_state(m.log_time, [*XARM, "grip"], [*m.msg.position, 0.01])
+        msgs.append(Message(m.topic, m.msgtype, m.log_time + 1, grip))
+    states = read_log(write(tmp_path / "a.mcap", "mcap", msgs))
+    assert len(states) == 20
+    assert np.isfinite(states.position).all()

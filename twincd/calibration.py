@@ -47,14 +47,18 @@ def clean_mask(log_: PreparedLog) -> BoolArray:
 
 @dataclass(frozen=True)
 class AffineStats:
-    """Mergeable sufficient statistics of a per-joint regression y ≈ a·x + b."""
+    """Mergeable sufficient statistics of a per-joint regression y ≈ a·x + b.
+
+    Means and *centred* sums of squares and products, merged with Chan et al.'s pairwise
+    update: raw Σx² − (Σx)²/n would cancel the signal of efforts with large constant offsets.
+    """
 
     n: int
-    sx: FloatArray
-    sy: FloatArray
-    sxx: FloatArray
-    sxy: FloatArray
-    syy: FloatArray
+    mean_x: FloatArray
+    mean_y: FloatArray
+    cxx: FloatArray  # Σ (x − x̄)²
+    cyy: FloatArray  # Σ (y − ȳ)²
+    cxy: FloatArray  # Σ (x − x̄)(y − ȳ)
 
     @classmethod
     def zeros(cls, joints: int) -> AffineStats:
@@ -70,13 +74,17 @@ class AffineStats:
         y = np.asarray(y, dtype=np.float64)
         if mask is not None:
             x, y = x[mask], y[mask]
+        if len(x) == 0:
+            return cls.zeros(x.shape[1] if x.ndim == 2 else 0)
+        mx, my = x.mean(axis=0), y.mean(axis=0)
+        dx, dy = x - mx, y - my
         return cls(
             n=len(x),
-            sx=x.sum(axis=0),
-            sy=y.sum(axis=0),
-            sxx=(x * x).sum(axis=0),
-            sxy=(x * y).sum(axis=0),
-            syy=(y * y).sum(axis=0),
+            mean_x=mx,
+            mean_y=my,
+            cxx=(dx * dx).sum(axis=0),
+            cyy=(dy * dy).sum(axis=0),
+            cxy=(dx * dy).sum(axis=0),
         )
 
     @classmethod
@@ -89,28 +97,32 @@ class AffineStats:
             return other
         if other.n == 0:
             return self
-        if self.sx.shape != other.sx.shape:
+        if self.mean_x.shape != other.mean_x.shape:
             raise DataError(
                 "logs with different joint counts cannot be fitted together",
-                f"{self.sx.shape[0]} vs {other.sx.shape[0]} joints",
+                f"{self.mean_x.shape[0]} vs {other.mean_x.shape[0]} joints",
                 "fit logs of one robot",
             )
+        n = self.n + other.n
+        dx = other.mean_x - self.mean_x
+        dy = other.mean_y - self.mean_y
+        w = self.n * other.n / n
         return AffineStats(
-            self.n + other.n,
-            self.sx + other.sx,
-            self.sy + other.sy,
-            self.sxx + other.sxx,
-            self.sxy + other.sxy,
-            self.syy + other.syy,
+            n,
+            self.mean_x + dx * (other.n / n),
+            self.mean_y + dy * (other.n / n),
+            self.cxx + other.cxx + dx * dx * w,
+            self.cyy + other.cyy + dy * dy * w,
+            self.cxy + other.cxy + dx * dy * w,
         )
 
     @property
     def var_x(self) -> FloatArray:
-        return np.maximum(self.sxx / self.n - (self.sx / self.n) ** 2, 0.0)
+        return self.cxx / self.n
 
     @property
     def var_y(self) -> FloatArray:
-        return np.maximum(self.syy / self.n - (self.sy / self.n) ** 2, 0.0)
+        return self.cyy / self.n
 
 
 @dataclass(frozen=True)
@@ -131,12 +143,10 @@ def solve(stats: AffineStats) -> AffineSolution:
             "give longer logs, or logs with collision-free parts",
         )
     n = stats.n
-    cxx = stats.var_x * n
-    cyy = stats.var_y * n
-    cxy = stats.sxy - stats.sx * stats.sy / n
+    cxx, cyy, cxy = stats.cxx, stats.cyy, stats.cxy
     degenerate = cxx <= 1e-12 * np.maximum(cyy, 1e-300)
     a = np.where(degenerate, 0.0, cxy / np.where(degenerate, 1.0, cxx))
-    b = (stats.sy - a * stats.sx) / n
+    b = stats.mean_y - a * stats.mean_x
     sse = np.maximum(cyy - a * cxy, 0.0)
     r2 = np.where(cyy > 0, 1.0 - sse / np.where(cyy > 0, cyy, 1.0), 1.0)
     rmse = np.sqrt(sse / n)

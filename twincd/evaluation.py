@@ -9,6 +9,7 @@ score every test log. Randomised methods run ``repeats`` times (seeds 0..N-1): m
 from __future__ import annotations
 
 import inspect
+import logging
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
@@ -29,6 +30,8 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 T = TypeVar("T")
 Progress = Callable[[Sequence[Any], str], Iterable[Any]]
+
+log = logging.getLogger("twincd")
 
 # the paper's Table II reports its deep methods as mean ± std over five runs
 DEFAULT_REPEATS = 5
@@ -329,6 +332,23 @@ def progress_iter(items: Iterable[T], total: int, desc: str, progress: Progress)
         yield next(iterator)
 
 
+def _warn_on_overlap(
+    test_paths: Sequence[Path], learn_paths: Sequence[Path], calibration: Calibration | None
+) -> None:
+    """Test logs that also trained or thresholded a method make its figures optimistic."""
+    learned = {Path(p).resolve() for p in learn_paths}
+    if calibration is not None:
+        learned |= {Path(p).resolve() for p in calibration.fit_logs}
+        if calibration.threshold is not None:
+            learned |= {Path(p).resolve() for p in calibration.threshold.logs}
+    shared = [str(p) for p in test_paths if Path(p).resolve() in learned]
+    if shared:
+        log.warning(
+            "test log(s) also used for fitting or thresholds: %s; the figures are optimistic",
+            ", ".join(shared),
+        )
+
+
 def evaluate(
     test_paths: Sequence[Path],
     methods: Sequence[str],
@@ -348,6 +368,7 @@ def evaluate(
     if k_sigma is None:
         th = calibration.threshold if calibration is not None else None
         k_sigma = th.k_sigma if th is not None else DEFAULT_K_SIGMA
+    _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
     test = load_logs(test_paths, setup, progress, "reading test logs")
     require_labels(test, "test")
     # train/val share the test logs' joint order so that every method sees the same columns

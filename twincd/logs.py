@@ -333,17 +333,9 @@ def read_log(path: str | Path, options: LogOptions | None = None) -> JointStates
         width = len(names)
         stamp = np.asarray(rows.stamp, dtype=np.int64)
         log_time = np.asarray(rows.log_time, dtype=np.int64)
-        order = np.argsort(stamp, kind="stable")
-        stamp = stamp[order]
-        keep = np.ones(len(stamp), dtype=bool)
-        keep[1:] = np.diff(stamp) != 0  # exact duplicate stamps: keep the first
-        sel = order[keep]
-        stamp = stamp[keep]
-        log_time = log_time[sel]
-        position = rows.matrix("position", width)[sel]
-        velocity = rows.matrix("velocity", width)[sel]
-        effort = rows.matrix("effort", width)[sel]
-        # samples missing a joint (another publisher on the topic) cannot be used
+        position = rows.matrix("position", width)
+        # samples missing a joint (another publisher on the topic) cannot be used; they go
+        # before duplicate stamps are resolved, so they never displace a complete sample
         complete = np.isfinite(position).all(axis=1)
         if not complete.all():
             log.warning(
@@ -351,8 +343,14 @@ def read_log(path: str | Path, options: LogOptions | None = None) -> JointStates
                 source,
                 int((~complete).sum()),
             )
-            stamp, log_time = stamp[complete], log_time[complete]
-            position, velocity, effort = position[complete], velocity[complete], effort[complete]
+        candidates = np.flatnonzero(complete)
+        order = candidates[np.argsort(stamp[candidates], kind="stable")]
+        keep = np.ones(len(order), dtype=bool)
+        keep[1:] = np.diff(stamp[order]) != 0  # exact duplicate stamps: keep the first
+        sel = order[keep]
+        stamp, log_time, position = stamp[sel], log_time[sel], position[sel]
+        velocity = rows.matrix("velocity", width)[sel]
+        effort = rows.matrix("effort", width)[sel]
         if len(stamp) == 0:
             raise LogReadError("no sample carries every joint", source, "pick --topic")
         t_s = (stamp - stamp[0]).astype(np.float64) * 1e-9
