@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from twincd.detection import LogDetection
 from twincd.evaluation import Evaluation, MethodResult
 
 
@@ -103,27 +102,4 @@ def evaluation_markdown(result: Evaluation, missed: Sequence[str] = ()) -> str:
         parts += ["**Notes:**", "", *notes, ""]
     if missed:
         parts += ["**Gates missed:**", ""] + [f"- {m}" for m in missed] + [""]
-    return "\n".join(parts)
-
-
-def detection_markdown(results: Sequence[LogDetection]) -> str:
-    """Collision events per log as Markdown."""
-    parts = ["## twincd detect", ""]
-    for r in results:
-        parts.append(
-            f"**{r.source}**: {len(r.scores)} samples, {int(r.flags.sum())} flagged, "
-            f"{len(r.events)} event(s)"
-        )
-        if r.events:
-            rows = [
-                [
-                    f"{(e.start_ns - int(r.log.states.stamp_ns[0])) * 1e-9:.3f}",
-                    f"{e.duration_s:.3f}",
-                    f"{e.peak_score:.4g}",
-                    e.joint,
-                ]
-                for e in r.events
-            ]
-            parts += ["", _table(("start (s)", "duration (s)", "peak score", "joint"), rows)]
-        parts.append("")
     return "\n".join(parts)

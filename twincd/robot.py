@@ -201,11 +201,6 @@ def _full_model(urdf_path: Path) -> pin.Model:
     return model
 
 
-def full_joint_names(name_or_path: str) -> tuple[str, ...]:
-    """The 1-DoF joint names of the unreduced model."""
-    return tuple(j.name for j in _joint_specs(_full_model(resolve_urdf(name_or_path))))
-
-
 def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = None) -> RobotModel:
     """Load a robot; with ``keep``, lock every model joint not listed (at its neutral value).
 

@@ -65,9 +65,6 @@ class MinMaxScaler:
         out: FloatArray = np.asarray(x, dtype=np.float64) * self.range_ + self.min_
         return out
 
-    def fit_transform(self, x: FloatArray) -> FloatArray:
-        return self.fit(x).transform(x)
-
 
 def window_starts(t_s: FloatArray, size: int = WINDOW_SIZE, stride: int = WINDOW_SIZE) -> IntArray:
     """First-sample indices of the windows of one log: every ``stride`` samples within each
