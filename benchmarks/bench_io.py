@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
-from twincd.logs import JOINT_STATE, open_reader, read_log
-from twincd.mcap_io import McapLogWriter
-from twincd.messages import joint_state_cdr
-from twincd.robot import load_robot
+from twincd.io.cdr import joint_state_cdr
+from twincd.io.logs import JOINT_STATE, open_reader, read_log
+from twincd.io.mcap_write import McapLogWriter
 from twincd.simulate import simulate_log
-from twincd.twin import simulate_effort
+from twincd.twin.dynamics import simulate_effort
+from twincd.twin.robot import load_robot
 
 
 def build_log(path: Path, seconds: float, rate_hz: float) -> int:

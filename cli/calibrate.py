@@ -15,11 +15,16 @@ import typer
 from rich.table import Table
 
 from twincd.calibration import Calibration, Setup, fit_calibration
-from twincd.detection import DEFAULT_K_SIGMA, calibrate_threshold
 from twincd.errors import UsageError
-from twincd.filters import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT_ORDER, LowPass
-from twincd.logs import expand_logs, parse_joint_map
-from twincd.mcap_io import check_writable
+from twincd.io.logs import expand_logs, parse_joint_map
+from twincd.io.mcap_write import check_writable
+from twincd.signal.filters import (
+    DEFAULT_CAUSAL_CUTOFF_HZ,
+    DEFAULT_CUTOFF_HZ,
+    DEFAULT_ORDER,
+    LowPass,
+)
+from twincd.threshold import DEFAULT_K_SIGMA, calibrate_threshold
 
 from .common import (
     Debug,

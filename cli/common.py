@@ -16,14 +16,14 @@ import typer
 from rich.console import Console
 
 from twincd.errors import TwincdError
-from twincd.logs import (
+from twincd.io.logs import (
     DEFAULT_LABEL_TOPIC,
     DEFAULT_SIM_TOPIC,
     DEFAULT_TOPIC,
     LogOptions,
     parse_joint_map,
 )
-from twincd.robot import DEFAULT_ROBOT
+from twincd.twin.robot import DEFAULT_ROBOT
 
 T = TypeVar("T")
 

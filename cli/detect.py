@@ -10,11 +10,12 @@ import typer
 from rich.table import Table
 
 from twincd.calibration import Calibration
-from twincd.detection import OUTPUT_SUFFIXES, LogDetection, write_detection
+from twincd.detection import LogDetection
 from twincd.detection import detect as detect_log
 from twincd.errors import UsageError
-from twincd.logs import expand_logs
-from twincd.mcap_io import check_writable
+from twincd.io.logs import expand_logs
+from twincd.io.mcap_write import check_writable
+from twincd.outputs import OUTPUT_SUFFIXES, write_detection
 
 from .calibrate import CalibrationIn, resolve_setup
 from .common import (

@@ -13,11 +13,11 @@ from rich import box
 from rich.table import Table
 
 from twincd.calibration import Calibration
-from twincd.evaluation import DEFAULT_REPEATS, parse_methods
-from twincd.evaluation import evaluate as run_evaluation
-from twincd.logs import expand_logs
-from twincd.mcap_io import atomic_output, check_writable
-from twincd.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
+from twincd.evaluation.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
+from twincd.evaluation.runner import DEFAULT_REPEATS, parse_methods
+from twincd.evaluation.runner import evaluate as run_evaluation
+from twincd.io.logs import expand_logs
+from twincd.io.mcap_write import atomic_output, check_writable
 
 from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
 from .common import (

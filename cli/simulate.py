@@ -8,10 +8,10 @@ from typing import Annotated
 import typer
 
 from twincd.errors import UsageError
-from twincd.logs import expand_logs
-from twincd.mcap_io import check_writable
-from twincd.robot import DEFAULT_ROBOT, list_robots
+from twincd.io.logs import expand_logs
+from twincd.io.mcap_write import check_writable
 from twincd.simulate import default_output, simulate_log
+from twincd.twin.robot import DEFAULT_ROBOT, list_robots
 
 from .common import (
     Debug,

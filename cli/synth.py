@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 
 from twincd.errors import UsageError
-from twincd.synth import SynthConfig, write_dataset
+from twincd.synth.plant import SynthConfig, write_dataset
 
 from .common import Debug, Quiet, command, stdout
 

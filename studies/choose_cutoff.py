@@ -17,11 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from twincd.calibration import AffineStats, Setup, solve
-from twincd.detection import ScoreStats, affine_score
-from twincd.filters import LowPass
-from twincd.logs import expand_logs
-from twincd.metrics import at_threshold, auc, best_of, f1_sweep
+from twincd.detection import affine_score
+from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
+from twincd.io.logs import expand_logs
 from twincd.pipeline import PreparedLog
+from twincd.signal.filters import LowPass
+from twincd.threshold import ScoreStats
 
 CUTOFFS_HZ = (0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 5.0)
 

@@ -46,8 +46,8 @@ def build_twin_log(
     gains: np.ndarray | None = None,
 ) -> Path:
     """Write a bare MCAP log with /joint_states, /twincd/sim_effort and /collision_flag."""
-    from twincd.mcap_io import McapLogWriter
-    from twincd.messages import bool_cdr, joint_state_cdr
+    from twincd.io.cdr import bool_cdr, joint_state_cdr
+    from twincd.io.mcap_write import McapLogWriter
 
     dof = len(joints)
     n = round(seconds * rate_hz)

@@ -11,17 +11,17 @@ import pytest
 from sklearn.metrics import roc_auc_score
 from test_baselines_mob import make_log, pushed_log
 
-from twincd.baselines.mob import mob_tau_ext
-from twincd.baselines.ocsvm import PointOcsvm, WindowOcsvm
-from twincd.baselines.windows import (
+from twincd.errors import NotFittedError
+from twincd.evaluation.baselines.mob import mob_tau_ext
+from twincd.evaluation.baselines.ocsvm import PointOcsvm, WindowOcsvm
+from twincd.evaluation.baselines.windows import (
     MinMaxScaler,
     subsample,
     window_labels,
     window_starts,
     windows,
 )
-from twincd.errors import NotFittedError
-from twincd.methods import MethodSkipped, ScoringMethod, make_method
+from twincd.evaluation.methods import MethodSkipped, ScoringMethod, make_method
 from twincd.pipeline import PreparedLog
 
 

@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from builders import trajectory
 
-from twincd.baselines.mob import NaiveMob, check_mob, mob_tau_ext, momentum_observer
-from twincd.filters import LowPass
-from twincd.logs import JointStates
-from twincd.methods import MethodSkipped, make_method
+from twincd.evaluation.baselines.mob import NaiveMob, check_mob, mob_tau_ext, momentum_observer
+from twincd.evaluation.methods import MethodSkipped, make_method
+from twincd.io.logs import JointStates
 from twincd.pipeline import PreparedLog
-from twincd.robot import RobotModel, load_robot
-from twincd.twin import inverse_dynamics
+from twincd.signal.filters import LowPass
+from twincd.twin.dynamics import inverse_dynamics
+from twincd.twin.robot import RobotModel, load_robot
 
 T0_NS = 1_700_000_000_000_000_000
 
@@ -236,7 +236,7 @@ def test_all_seven_registered_lazily() -> None:
     import sys
 
     code = (
-        "import sys, twincd.methods as m; names = m.available(); "
+        "import sys, twincd.evaluation.methods as m; names = m.available(); "
         "assert all(n in names for n in ('naive-diff','naive-mob','point-ocsvm','point-ae',"
         "'lstm-mob','window-ocsvm','window-ae')), names; "
         "assert 'torch' not in sys.modules and 'sklearn' not in sys.modules"
@@ -247,7 +247,7 @@ def test_all_seven_registered_lazily() -> None:
 def test_observer_output_is_filtered_like_the_logs_efforts() -> None:
     import dataclasses
 
-    from twincd.filters import LowPass
+    from twincd.signal.filters import LowPass
 
     log = pushed_log(3, seconds=2.0)
     sharp = dataclasses.replace(log, lowpass=LowPass(cutoff_hz=5.0))

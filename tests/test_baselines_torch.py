@@ -10,10 +10,10 @@ torch = pytest.importorskip("torch")
 from test_baselines_learning import auc, data  # noqa: E402
 from test_baselines_mob import pushed_log  # noqa: E402
 
-from twincd.baselines.autoencoder import PointAE, WindowAE  # noqa: E402
-from twincd.baselines.lstm import LstmMob  # noqa: E402
 from twincd.errors import NotFittedError  # noqa: E402
-from twincd.methods import make_method  # noqa: E402
+from twincd.evaluation.baselines.autoencoder import PointAE, WindowAE  # noqa: E402
+from twincd.evaluation.baselines.lstm import LstmMob  # noqa: E402
+from twincd.evaluation.methods import make_method  # noqa: E402
 
 pytestmark = pytest.mark.torch
 

@@ -20,8 +20,8 @@ from twincd.calibration import (
     solve,
 )
 from twincd.errors import CalibrationError, DataError, NotFittedError
-from twincd.filters import LowPass
-from twincd.logs import LogOptions, expand_logs
+from twincd.io.logs import LogOptions, expand_logs
+from twincd.signal.filters import LowPass
 
 A = np.array([1.39, 1.17, 21.7])
 B = np.array([0.24, -1.27, 0.18])

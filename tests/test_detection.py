@@ -10,21 +10,14 @@ import pytest
 from conftest import DEFAULT_BUMPS, GAINS, TWIN_JOINTS
 
 from twincd.calibration import Calibration, Setup, Threshold, fit_calibration
-from twincd.detection import (
-    ProposedMethod,
-    ScoreStats,
-    affine_score,
-    calibrate_threshold,
-    detect,
-    find_events,
-    residual,
-    runs,
-    write_detection,
-)
+from twincd.detection import affine_score, detect, find_events, residual, runs
 from twincd.errors import DataError, NotFittedError, OutputError
-from twincd.filters import LowPass
-from twincd.logs import expand_logs, read_log
-from twincd.methods import make_method
+from twincd.evaluation.methods import make_method
+from twincd.evaluation.proposed import ProposedMethod
+from twincd.io.logs import expand_logs, read_log
+from twincd.outputs import write_detection
+from twincd.signal.filters import LowPass
+from twincd.threshold import ScoreStats, calibrate_threshold
 
 
 def test_score_by_hand():
@@ -140,7 +133,7 @@ def test_outputs_csv_jsonl_mcap(calibrated, twin_dataset, tmp_path):
     js = by_topic["/joint_states"]
     for topic in ("/twincd/residual", "/twincd/score", "/twincd/collision"):
         assert by_topic[topic] == js, topic
-    from twincd.logs import LogOptions
+    from twincd.io.logs import LogOptions
 
     residual_log = read_log(tmp_path / "out.mcap", LogOptions(topic="/twincd/residual"))
     np.testing.assert_array_equal(residual_log.stamp_ns, result.log.states.stamp_ns)

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from twincd.calibration import Setup, fit_calibration
-from twincd.detection import calibrate_threshold
 from twincd.errors import DataError, UsageError
-from twincd.evaluation import evaluate, parse_methods
-from twincd.filters import LowPass
-from twincd.logs import expand_logs
-from twincd.methods import MethodSkipped, ScoringMethod, register
+from twincd.evaluation.methods import MethodSkipped, ScoringMethod, register
+from twincd.evaluation.runner import evaluate, parse_methods
+from twincd.io.logs import expand_logs
 from twincd.pipeline import PreparedLog
+from twincd.signal.filters import LowPass
+from twincd.threshold import calibrate_threshold
 
 
 class SeededNoise(ScoringMethod):

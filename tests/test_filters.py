@@ -1,4 +1,4 @@
-"""twincd.filters: the Butterworth low-pass applied to both efforts."""
+"""twincd.signal.filters: the Butterworth low-pass applied to both efforts."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from twincd.errors import DataError, UsageError
-from twincd.filters import DEFAULT_CUTOFF_HZ, LowPass
+from twincd.signal.filters import DEFAULT_CUTOFF_HZ, LowPass
 
 FS = 100.0
 T = np.arange(0, 20, 1 / FS)

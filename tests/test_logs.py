@@ -9,7 +9,7 @@ import pytest
 from builders import FORMS, SUFFIX, XARM, Bool, Message, String, joint_recording, joint_state, write
 
 from twincd.errors import LogReadError, TopicError, UsageError
-from twincd.logs import LogOptions, expand_logs, parse_joint_map, read_log
+from twincd.io.logs import LogOptions, expand_logs, parse_joint_map, read_log
 
 
 @pytest.fixture

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from twincd import messages
-from twincd.messages import TYPESTORE, joint_state_cdr
+from twincd.io import cdr as messages
+from twincd.io.cdr import TYPESTORE, joint_state_cdr
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,4 @@
-"""twincd.metrics against scikit-learn on small arrays (DESIGN §6)."""
+"""twincd.evaluation.metrics against scikit-learn on small arrays (DESIGN §6)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from sklearn.metrics import f1_score, precision_score, recall_score, roc_auc_score
 
-from twincd.metrics import SWEEP_K, at_threshold, auc, best_of, f1_sweep
+from twincd.evaluation.metrics import SWEEP_K, at_threshold, auc, best_of, f1_sweep
 
 Y = np.array([0, 0, 1, 1, 0, 1, 0, 1, 1, 0], dtype=bool)
 S = np.array([0.1, 0.4, 0.35, 0.8, 0.2, 0.9, 0.7, 0.3, 0.95, 0.05])

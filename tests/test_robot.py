@@ -9,7 +9,7 @@ import pinocchio as pin
 import pytest
 
 from twincd.errors import JointMismatchError, RobotModelError
-from twincd.robot import list_robots, load_robot, resolve_urdf
+from twincd.twin.robot import list_robots, load_robot, resolve_urdf
 
 
 def test_example_robot_data_names():

@@ -20,9 +20,9 @@ from builders import (
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from twincd.filters import LowPass
-from twincd.logs import read_log
-from twincd.mcap_io import QOS_KEY
+from twincd.io.logs import read_log
+from twincd.io.mcap_write import QOS_KEY
+from twincd.signal.filters import LowPass
 from twincd.simulate import default_output, simulate_log
 
 

@@ -13,10 +13,10 @@ import pinocchio as pin
 import pytest
 from typer.testing import CliRunner
 
-from twincd import synth
-from twincd.logs import read_log
-from twincd.messages import TYPESTORE
-from twincd.twin import simulate_effort
+from twincd.io.cdr import TYPESTORE
+from twincd.io.logs import read_log
+from twincd.synth import plant as synth
+from twincd.twin.dynamics import simulate_effort
 
 SAMPLE_LOGS = Path(__file__).resolve().parent.parent / "sample_logs"
 

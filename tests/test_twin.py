@@ -7,11 +7,11 @@ import pinocchio as pin
 import pytest
 from builders import trajectory
 
-from twincd.derivatives import differentiate
-from twincd.filters import LowPass
-from twincd.logs import JointStates
-from twincd.robot import load_robot
-from twincd.twin import Differentiator, gravity, inverse_dynamics, simulate_effort
+from twincd.io.logs import JointStates
+from twincd.signal.derivatives import differentiate
+from twincd.signal.filters import LowPass
+from twincd.twin.dynamics import Differentiator, gravity, inverse_dynamics, simulate_effort
+from twincd.twin.robot import load_robot
 
 TWO_LINK = """<robot name="two_link">
   <link name="base"/>

@@ -14,10 +14,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.errors import DataError, JointMismatchError
-from twincd.filters import LowPass
-from twincd.logs import JointStates, LogOptions, read_log
-from twincd.robot import RobotModel, load_robot
-from twincd.twin import Differentiator, simulate_effort
+from twincd.io.logs import JointStates, LogOptions, read_log
+from twincd.signal.filters import LowPass
+from twincd.twin.dynamics import Differentiator, simulate_effort
+from twincd.twin.robot import RobotModel, load_robot
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]

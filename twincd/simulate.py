@@ -6,11 +6,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from twincd.errors import UsageError
-from twincd.logs import JOINT_STATE, TWIN_SUFFIX, LogOptions, read_log
-from twincd.mcap_io import NewTopic, write_augmented
-from twincd.messages import joint_state_cdr
+from twincd.io.cdr import joint_state_cdr
+from twincd.io.logs import JOINT_STATE, TWIN_SUFFIX, LogOptions, read_log
+from twincd.io.mcap_write import NewTopic, write_augmented
 from twincd.pipeline import twin_effort
-from twincd.twin import Differentiator
+from twincd.twin.dynamics import Differentiator
 
 
 @dataclass(frozen=True)

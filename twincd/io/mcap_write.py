@@ -28,7 +28,7 @@ from rosbags.convert.converter import migrate_bytes
 
 from twincd import __version__
 from twincd.errors import LogReadError, OutputError, TwincdError
-from twincd.messages import TYPESTORE
+from twincd.io.cdr import TYPESTORE
 
 # What `ros2 bag record` offers for a default publisher (reliable, volatile, keep-last).
 DEFAULT_QOS = (
@@ -216,7 +216,7 @@ def _copy_mcap(path: Path, out: _McapOut, replaced: frozenset[str]) -> None:
 def _copy_via_rosbags(source: Path, out: _McapOut, replaced: frozenset[str]) -> None:
     from rosbags.rosbag2.metadata import dump_qos_v8
 
-    from twincd.logs import open_reader
+    from twincd.io.logs import open_reader
 
     reader = open_reader(source)
     try:

@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.derivatives import differentiate
 from twincd.errors import JointMismatchError, LogReadError, TopicError, UsageError
-from twincd.messages import TYPESTORE
+from twincd.io.cdr import TYPESTORE
+from twincd.signal.derivatives import differentiate
 
 log = logging.getLogger("twincd")
 

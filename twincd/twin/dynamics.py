@@ -1,7 +1,8 @@
 """The digital twin: the effort each joint should need for the logged motion.
 
 τ̂ = M(q) q̈ + C(q, q̇) q̇ + g(q), computed by Pinocchio's RNEA per sample. q̈ comes from the
-logged velocity through the real-time Savitzky–Golay differentiator (twincd.derivatives), which
+logged velocity through the real-time Savitzky–Golay differentiator (twincd.signal.derivatives),
+which
 restarts across gaps, so jitter and dropouts do not become effort spikes.
 """
 
@@ -13,9 +14,14 @@ import numpy as np
 import pinocchio as pin
 from numpy.typing import NDArray
 
-from twincd.derivatives import DEFAULT_GAP_FACTOR, DEFAULT_POLYORDER, DEFAULT_WINDOW, differentiate
-from twincd.logs import JointStates
-from twincd.robot import RobotModel
+from twincd.io.logs import JointStates
+from twincd.signal.derivatives import (
+    DEFAULT_GAP_FACTOR,
+    DEFAULT_POLYORDER,
+    DEFAULT_WINDOW,
+    differentiate,
+)
+from twincd.twin.robot import RobotModel
 
 FloatArray = NDArray[np.float64]
 

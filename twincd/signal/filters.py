@@ -2,7 +2,8 @@
 
 A Butterworth filter as second-order sections, run zero-phase (``sosfiltfilt``, the default for
 offline logs) or causal (``sosfilt`` forward only, started in steady state: what a live detector
-sees). Logs are cut at gaps (twincd.derivatives.segment_bounds) and each segment is filtered on
+sees). Logs are cut at gaps (twincd.signal.derivatives.segment_bounds) and each segment is
+filtered on
 its own; the sampling rate is the median rate of the log.
 """
 
@@ -15,8 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
-from twincd.derivatives import segment_bounds
 from twincd.errors import DataError, UsageError
+from twincd.signal.derivatives import segment_bounds
 
 FloatArray = NDArray[np.float64]
 

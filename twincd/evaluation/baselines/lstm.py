@@ -29,19 +29,19 @@ from typing import Any
 
 import numpy as np
 
-from twincd.baselines.autoencoder import DEFAULT_LR, adam, import_torch, run_epoch
-from twincd.baselines.mob import (
+from twincd.errors import DataError, NotFittedError
+from twincd.evaluation.baselines.autoencoder import DEFAULT_LR, adam, import_torch, run_epoch
+from twincd.evaluation.baselines.mob import (
     DEFAULT_GAIN,
     FloatArray,
     check_mob,
     filtered_velocity,
     mob_features,
 )
-from twincd.baselines.windows import MinMaxScaler
-from twincd.errors import DataError, NotFittedError
-from twincd.filters import LowPass
-from twincd.methods import MethodSkipped, ScoringMethod
+from twincd.evaluation.baselines.windows import MinMaxScaler
+from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.pipeline import PreparedLog
+from twincd.signal.filters import LowPass
 
 DEFAULT_EPOCHS = 60
 SEQ_LEN = 100

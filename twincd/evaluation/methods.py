@@ -65,22 +65,33 @@ class ScoringMethod(ABC):
         return log.labels
 
 
-# name -> "module:attribute" of a factory; modules are imported only when a method is asked for
-_REGISTRY: dict[str, str] = {}
+# The built-in methods, name -> "module:attribute" of a factory, written out here so the
+# registry never depends on which modules happen to be imported; a module is imported only
+# when its method is asked for (scikit-learn and PyTorch load lazily).
+BUILTIN: dict[str, str] = {
+    "proposed": "twincd.evaluation.proposed:ProposedMethod",
+    "naive-diff": "twincd.evaluation.baselines.naive:NaiveDiff",
+    "naive-mob": "twincd.evaluation.baselines.mob:NaiveMob",
+    "point-ocsvm": "twincd.evaluation.baselines.ocsvm:PointOcsvm",
+    "point-ae": "twincd.evaluation.baselines.autoencoder:PointAE",
+    "lstm-mob": "twincd.evaluation.baselines.lstm:LstmMob",
+    "window-ocsvm": "twincd.evaluation.baselines.ocsvm:WindowOcsvm",
+    "window-ae": "twincd.evaluation.baselines.autoencoder:WindowAE",
+}
+_REGISTRY: dict[str, str] = dict(BUILTIN)
 
 
 def register(name: str, target: str) -> None:
+    """Add a method of one's own (``"module:attribute"`` of a factory) under ``name``."""
     _REGISTRY[name] = target
 
 
 def make_method(name: str, **params: Any) -> ScoringMethod:
     """A fresh, unfitted method by its DESIGN §7 name."""
-    if name not in _REGISTRY:
-        _load_builtin()
     target = _REGISTRY.get(name)
     if target is None:
         raise UsageError(
-            f"unknown method {name!r}", "--methods", f"choose from {', '.join(available())}, all"
+            f"unknown method {name!r}", "methods", f"choose from {', '.join(available())}, all"
         )
     module, attr = target.split(":")
     factory: Callable[..., ScoringMethod] = getattr(importlib.import_module(module), attr)
@@ -88,16 +99,5 @@ def make_method(name: str, **params: Any) -> ScoringMethod:
 
 
 def available() -> list[str]:
-    _load_builtin()
     known = [n for n in METHOD_NAMES if n in _REGISTRY]
     return known + sorted(n for n in _REGISTRY if n not in METHOD_NAMES)
-
-
-def _load_builtin() -> None:
-    # each module registers its own names on import
-    for module in ("twincd.detection", "twincd.baselines"):
-        try:
-            importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name != module:
-                raise

@@ -31,18 +31,18 @@ import numpy as np
 import pinocchio as pin
 from numpy.typing import NDArray
 
-from twincd.baselines.windows import (
+from twincd.errors import DataError, NotFittedError
+from twincd.evaluation.baselines.windows import (
     WINDOW_SIZE,
     MinMaxScaler,
     window_labels,
     window_starts,
     windows,
 )
-from twincd.errors import DataError, NotFittedError
-from twincd.filters import LowPass
-from twincd.methods import BoolArray, MethodSkipped, ScoringMethod
+from twincd.evaluation.methods import BoolArray, MethodSkipped, ScoringMethod
 from twincd.pipeline import PreparedLog
-from twincd.robot import RobotModel
+from twincd.signal.filters import LowPass
+from twincd.twin.robot import RobotModel
 
 FloatArray = NDArray[np.float64]
 

@@ -71,9 +71,9 @@ from numpy.typing import NDArray
 from scipy.interpolate import make_interp_spline
 
 from twincd.errors import DataError, OutputError, UsageError
-from twincd.messages import TYPESTORE, bool_cdr, header, joint_state_cdr, serialize
-from twincd.robot import RobotModel, load_robot
-from twincd.twin import inverse_dynamics
+from twincd.io.cdr import TYPESTORE, bool_cdr, header, joint_state_cdr, serialize
+from twincd.twin.dynamics import inverse_dynamics
+from twincd.twin.robot import RobotModel, load_robot
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -681,7 +681,7 @@ _TOPICS = (
 
 def write_mcap(run: SynthRun, path: Path) -> Path:
     """The run as a bare ros2 MCAP file (atomic)."""
-    from twincd.mcap_io import McapLogWriter
+    from twincd.io.mcap_write import McapLogWriter
 
     messages = run_messages(run)
     used = {m[0] for m in messages}
@@ -697,7 +697,7 @@ def write_rosbag2(run: SynthRun, path: Path) -> Path:
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.metadata import parse_qos
 
-    from twincd.mcap_io import DEFAULT_QOS
+    from twincd.io.mcap_write import DEFAULT_QOS
 
     qos = parse_qos(DEFAULT_QOS)
 

@@ -20,11 +20,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.calibration import Calibration, Setup
-from twincd.detection import DEFAULT_K_SIGMA, ProposedMethod, ScoreStats
 from twincd.errors import DataError, UsageError
-from twincd.methods import MethodSkipped, ScoringMethod, available, make_method
-from twincd.metrics import at_threshold, auc, best_of, f1_sweep
+from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
+from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
+from twincd.evaluation.proposed import ProposedMethod
 from twincd.pipeline import PreparedLog
+from twincd.threshold import DEFAULT_K_SIGMA, ScoreStats
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from twincd.evaluation import Evaluation, MethodResult
+from twincd.evaluation.runner import Evaluation, MethodResult
 
 
 def fmt(value: float | None, digits: int = 3) -> str:

@@ -5,7 +5,7 @@ The scaler learns x_min and x_max on training data only; transforming other data
 them (values outside the training range map outside [0, 1], as eq. (8) implies).
 
 A window is ``size`` consecutive samples of one gap-free segment of a log (the segments of
-``twincd.derivatives.segment_bounds``), flattened time-major into ``size × channels`` inputs:
+``twincd.signal.derivatives.segment_bounds``), flattened time-major into ``size × channels`` inputs:
 τ(t−15), …, τ(t) for the paper's size 16. Windows never span a gap. The same start indices
 serve the scores and the labels, so both always have one entry per window.
 """
@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.derivatives import segment_bounds
 from twincd.errors import DataError, NotFittedError
+from twincd.signal.derivatives import segment_bounds
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]

@@ -11,8 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from twincd.detection import affine_score
-from twincd.methods import FloatArray, ScoringMethod
+from twincd.detection.score import affine_score
+from twincd.evaluation.methods import FloatArray, ScoringMethod
 from twincd.pipeline import PreparedLog
 
 

@@ -1,0 +1,212 @@
+"""The paper's regression τ̃ ≈ a⊙τ̂̃ + b (eq. 3–4) as mergeable statistics and an estimator.
+
+Fitting is split into a pure per-log step (``AffineStats.from_arrays``: sufficient statistics of
+one log or block) and a merge (``+``), so memory stays flat for any number of logs and the
+per-log work can run in other processes or on a cluster.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twincd.errors import DataError, NotFittedError
+
+if TYPE_CHECKING:
+    from twincd.pipeline import PreparedLog
+
+log = logging.getLogger("twincd")
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+# a joint whose twin effort varies less than this fraction of the measured effort's spread gives
+# a slope that mostly amplifies noise (the paper's joint 7: a = 21.7)
+CONDITION_RATIO = 0.1
+
+
+def clean_mask(log_: PreparedLog) -> BoolArray:
+    """Samples usable for fitting and thresholds: all, or those labelled collision-free."""
+    if log_.labels is None:
+        return np.ones(len(log_), dtype=bool)
+    return ~log_.labels
+
+
+@dataclass(frozen=True)
+class AffineStats:
+    """Mergeable sufficient statistics of a per-joint regression y ≈ a·x + b.
+
+    Means and *centred* sums of squares and products, merged with Chan et al.'s pairwise
+    update: raw Σx² − (Σx)²/n would cancel the signal of efforts with large constant offsets.
+    """
+
+    n: int
+    mean_x: FloatArray
+    mean_y: FloatArray
+    cxx: FloatArray  # Σ (x − x̄)²
+    cyy: FloatArray  # Σ (y − ȳ)²
+    cxy: FloatArray  # Σ (x − x̄)(y − ȳ)
+
+    @classmethod
+    def zeros(cls, joints: int) -> AffineStats:
+        z = np.zeros(joints)
+        return cls(0, z, z, z, z, z)
+
+    @classmethod
+    def from_arrays(
+        cls, x: FloatArray, y: FloatArray, mask: BoolArray | None = None
+    ) -> AffineStats:
+        """Statistics of (N, D) arrays x = τ̂̃ and y = τ̃, rows where ``mask`` holds."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        if mask is not None:
+            x, y = x[mask], y[mask]
+        if len(x) == 0:
+            return cls.zeros(x.shape[1] if x.ndim == 2 else 0)
+        mx, my = x.mean(axis=0), y.mean(axis=0)
+        dx, dy = x - mx, y - my
+        return cls(
+            n=len(x),
+            mean_x=mx,
+            mean_y=my,
+            cxx=(dx * dx).sum(axis=0),
+            cyy=(dy * dy).sum(axis=0),
+            cxy=(dx * dy).sum(axis=0),
+        )
+
+    @classmethod
+    def from_log(cls, log_: PreparedLog) -> AffineStats:
+        """One log's statistics over its collision-free samples (the pure per-log step)."""
+        return cls.from_arrays(log_.sim_effort_f, log_.effort_f, clean_mask(log_))
+
+    def __add__(self, other: AffineStats) -> AffineStats:
+        if self.n == 0:
+            return other
+        if other.n == 0:
+            return self
+        if self.mean_x.shape != other.mean_x.shape:
+            raise DataError(
+                "logs with different joint counts cannot be fitted together",
+                f"{self.mean_x.shape[0]} vs {other.mean_x.shape[0]} joints",
+                "fit logs of one robot",
+            )
+        n = self.n + other.n
+        dx = other.mean_x - self.mean_x
+        dy = other.mean_y - self.mean_y
+        w = self.n * other.n / n
+        return AffineStats(
+            n,
+            self.mean_x + dx * (other.n / n),
+            self.mean_y + dy * (other.n / n),
+            self.cxx + other.cxx + dx * dx * w,
+            self.cyy + other.cyy + dy * dy * w,
+            self.cxy + other.cxy + dx * dy * w,
+        )
+
+    @property
+    def var_x(self) -> FloatArray:
+        return self.cxx / self.n
+
+    @property
+    def var_y(self) -> FloatArray:
+        return self.cyy / self.n
+
+
+@dataclass(frozen=True)
+class AffineSolution:
+    a: FloatArray
+    b: FloatArray
+    r2: FloatArray
+    rmse: FloatArray
+    ill_conditioned: BoolArray
+
+
+def solve(stats: AffineStats) -> AffineSolution:
+    """Least squares per joint from merged statistics (closed form of eq. 3)."""
+    if stats.n < 2:
+        raise DataError(
+            "too few collision-free samples to fit",
+            f"{stats.n} sample(s)",
+            "give longer logs, or logs with collision-free parts",
+        )
+    n = stats.n
+    cxx, cyy, cxy = stats.cxx, stats.cyy, stats.cxy
+    degenerate = cxx <= 1e-12 * np.maximum(cyy, 1e-300)
+    a = np.where(degenerate, 0.0, cxy / np.where(degenerate, 1.0, cxx))
+    b = stats.mean_y - a * stats.mean_x
+    sse = np.maximum(cyy - a * cxy, 0.0)
+    r2 = np.where(cyy > 0, 1.0 - sse / np.where(cyy > 0, cyy, 1.0), 1.0)
+    rmse = np.sqrt(sse / n)
+    ill = degenerate | (np.sqrt(cxx) < CONDITION_RATIO * np.sqrt(cyy))
+    return AffineSolution(a, b, r2, rmse, ill)
+
+
+class AffineCalibration:
+    """Estimator of the paper's a, b (scikit-learn style: ``fit`` returns self).
+
+    Learned attributes: ``a_``, ``b_``, ``r2_``, ``rmse_`` (per joint), ``n_samples_``,
+    ``stats_`` (the merged AffineStats, for further merging) and ``fit_s_`` (fit time).
+    """
+
+    def __init__(self, joint_names: Sequence[str] | None = None) -> None:
+        self.joint_names = joint_names
+
+    def fit(self, logs: Iterable[PreparedLog]) -> AffineCalibration:
+        """Fit on collision-free samples of ``logs``, consumed one at a time (may be lazy)."""
+        # timed like the paper's training time: the regression, not reading or simulating logs
+        elapsed = 0.0
+        total: AffineStats | None = None
+        for log_ in logs:
+            start = time.perf_counter()
+            part = AffineStats.from_log(log_)
+            total = part if total is None else total + part
+            elapsed += time.perf_counter() - start
+            if self.joint_names is None:
+                self.joint_names = log_.joint_names
+        if total is None:
+            raise DataError("no logs to fit", "fit", "give at least one collision-free log")
+        start = time.perf_counter()
+        self.fit_stats(total)
+        self.fit_s_ = elapsed + time.perf_counter() - start
+        return self
+
+    def fit_arrays(
+        self, effort_f: FloatArray, sim_effort_f: FloatArray, mask: BoolArray | None = None
+    ) -> AffineCalibration:
+        return self.fit_stats(AffineStats.from_arrays(sim_effort_f, effort_f, mask))
+
+    def fit_stats(self, stats: AffineStats) -> AffineCalibration:
+        """Fit from statistics merged elsewhere (e.g. computed per log on workers)."""
+        sol = solve(stats)
+        self.stats_ = stats
+        self.a_, self.b_, self.r2_, self.rmse_ = sol.a, sol.b, sol.r2, sol.rmse
+        self.n_samples_ = stats.n
+        self.fit_s_ = 0.0
+        names = list(self.joint_names or [f"#{i}" for i in range(len(sol.a))])
+        for i in np.flatnonzero(sol.ill_conditioned):
+            log.warning(
+                "joint %s is badly conditioned: its twin effort barely varies "
+                "(std %.3g vs measured %.3g), so a = %.3g is unreliable",
+                names[i],
+                math.sqrt(float(stats.var_x[i])),
+                math.sqrt(float(stats.var_y[i])),
+                float(sol.a[i]),
+            )
+        return self
+
+    def _check(self) -> None:
+        if not hasattr(self, "a_"):
+            raise NotFittedError("the calibration is not fitted", "AffineCalibration", "call fit()")
+
+    def predict(self, sim_effort_f: FloatArray) -> FloatArray:
+        """a⊙τ̂̃ + b: the twin's effort adjusted to the real robot."""
+        self._check()
+        out: FloatArray = self.a_ * sim_effort_f + self.b_
+        return out

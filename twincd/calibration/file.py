@@ -1,0 +1,280 @@
+"""The calibration file (DESIGN §4): everything detection needs, as JSON."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twincd import __version__
+from twincd.calibration.affine import AffineCalibration
+from twincd.errors import CalibrationError, NotFittedError
+from twincd.io.logs import LogOptions
+from twincd.signal.filters import LowPass
+
+FloatArray = NDArray[np.float64]
+
+SCHEMA = "twincd.calibration/1"
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """μ + kσ of the score on collision-free logs (DESIGN §4 ``threshold``)."""
+
+    k_sigma: float
+    mu: float
+    sigma: float
+    logs: tuple[str, ...] = ()
+    samples: int = 0
+
+    @property
+    def value(self) -> float:
+        return self.mu + self.k_sigma * self.sigma
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "k_sigma": self.k_sigma,
+            "mu": self.mu,
+            "sigma": self.sigma,
+            "value": self.value,
+            "logs": list(self.logs),
+            "samples": self.samples,
+        }
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything detection needs, as stored in calibration JSON (DESIGN §4)."""
+
+    joint_names: tuple[str, ...]
+    a: FloatArray
+    b: FloatArray
+    lowpass: LowPass
+    options: LogOptions = field(default_factory=LogOptions)
+    robot: str | None = None
+    urdf_sha256: str | None = None
+    simulated: bool = True
+    fit_logs: tuple[str, ...] = ()
+    fit_samples: int = 0
+    r2: FloatArray | None = None
+    rmse: FloatArray | None = None
+    fit_s: float = 0.0
+    threshold: Threshold | None = None
+    created: str = ""
+    twincd_version: str = __version__
+    source: str = ""  # the file it was loaded from, for messages
+
+    def require_threshold(self) -> Threshold:
+        if self.threshold is None:
+            where = self.source or "calibration"
+            raise NotFittedError(
+                "the calibration has no threshold",
+                where,
+                f"run `twincd threshold VAL_LOGS -c {where}` on collision-free logs first",
+            )
+        return self.threshold
+
+    def with_threshold(self, threshold: Threshold) -> Calibration:
+        return replace(self, threshold=threshold)
+
+    def to_dict(self) -> dict[str, Any]:
+        names = list(self.joint_names)
+        fit: dict[str, Any] = {
+            "logs": list(self.fit_logs),
+            "samples": self.fit_samples,
+            "seconds": self.fit_s,
+            "joints": {
+                n: {
+                    "r2": None if self.r2 is None else float(self.r2[i]),
+                    "rmse": None if self.rmse is None else float(self.rmse[i]),
+                }
+                for i, n in enumerate(names)
+            },
+        }
+        return {
+            "schema": SCHEMA,
+            "twincd_version": self.twincd_version,
+            "created": self.created or _now(),
+            "robot": {
+                "name": self.robot,
+                "urdf_sha256": self.urdf_sha256,
+                "joint_names": names,
+                "simulated": self.simulated,
+            },
+            "log_options": {
+                "topic": self.options.topic,
+                "label_topic": self.options.label_topic,
+                "sim_topic": self.options.sim_topic,
+                "joint_map": dict(self.options.joint_map or {}),
+            },
+            "filter": self.lowpass.to_dict(),
+            "model": {
+                "kind": "affine",
+                "joints": {
+                    n: {"a": float(self.a[i]), "b": float(self.b[i])} for i, n in enumerate(names)
+                },
+            },
+            "fit": fit,
+            "threshold": None if self.threshold is None else self.threshold.to_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str = "") -> Calibration:
+        where = source or "calibration"
+        if not isinstance(d, Mapping):
+            raise CalibrationError(
+                f"calibration is a JSON {type(d).__name__}, not an object",
+                where,
+                "pass the JSON file written by `twincd fit`",
+            )
+        schema = d.get("schema")
+        if schema != SCHEMA:
+            raise CalibrationError(
+                f"unsupported calibration schema {schema!r} (this twincd reads {SCHEMA})",
+                where,
+                "re-run `twincd fit` with this version",
+            )
+        try:
+            robot = d["robot"]
+            names = tuple(str(n) for n in robot["joint_names"])
+            model = d["model"]
+            if model.get("kind") != "affine":
+                raise CalibrationError(
+                    f"unknown model kind {model.get('kind')!r}", where, "re-run `twincd fit`"
+                )
+            coeff = model["joints"]
+            a = np.array([float(coeff[n]["a"]) for n in names])
+            b = np.array([float(coeff[n]["b"]) for n in names])
+            fit = d.get("fit") or {}
+            per_joint = fit.get("joints") or {}
+
+            def column(key: str) -> FloatArray | None:
+                vals = [per_joint.get(n, {}).get(key) for n in names]
+                return None if any(v is None for v in vals) else np.array(vals, dtype=float)
+
+            opts = d.get("log_options") or {}
+            defaults = LogOptions()
+            options = LogOptions(
+                topic=str(opts.get("topic", defaults.topic)),
+                label_topic=str(opts.get("label_topic", defaults.label_topic)),
+                sim_topic=str(opts.get("sim_topic", defaults.sim_topic)),
+                joint_map=dict(opts.get("joint_map") or {}) or None,
+            )
+            th = d.get("threshold")
+            threshold = None
+            if th is not None:
+                threshold = Threshold(
+                    k_sigma=float(th["k_sigma"]),
+                    mu=float(th["mu"]),
+                    sigma=float(th["sigma"]),
+                    logs=tuple(th.get("logs", ())),
+                    samples=int(th.get("samples", 0)),
+                )
+            return cls(
+                joint_names=names,
+                a=a,
+                b=b,
+                lowpass=LowPass.from_dict(d["filter"]),
+                options=options,
+                robot=robot.get("name"),
+                urdf_sha256=robot.get("urdf_sha256"),
+                simulated=bool(robot.get("simulated", True)),
+                fit_logs=tuple(fit.get("logs", ())),
+                fit_samples=int(fit.get("samples", 0)),
+                r2=column("r2"),
+                rmse=column("rmse"),
+                fit_s=float(fit.get("seconds", 0.0)),
+                threshold=threshold,
+                created=str(d.get("created", "")),
+                twincd_version=str(d.get("twincd_version", "")),
+                source=source,
+            )
+        except CalibrationError:
+            raise
+        except KeyError as exc:
+            raise CalibrationError(
+                f"calibration lacks the field {exc.args[0]!r}",
+                where,
+                "re-run `twincd fit` to write a new one",
+            ) from exc
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise CalibrationError(
+                f"malformed calibration: {exc}",
+                where,
+                "re-run `twincd fit` to write a new one",
+            ) from exc
+
+    @classmethod
+    def load(cls, path: str | Path) -> Calibration:
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise CalibrationError(
+                "calibration is not JSON text (binary content)",
+                str(path),
+                "pass the JSON file written by `twincd fit` to -c",
+            ) from exc
+        except OSError as exc:
+            raise CalibrationError(
+                f"cannot read calibration: {exc.strerror or exc}",
+                str(path),
+                "run `twincd fit LOGS -o FILE` first or check -c",
+            ) from exc
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise CalibrationError(
+                f"calibration is not JSON: {exc.msg} at line {exc.lineno}",
+                str(path),
+                "re-run `twincd fit`",
+            ) from exc
+        return cls.from_dict(data, str(path))
+
+    def save(self, path: str | Path) -> None:
+        """Write atomically (a temporary file renamed into place)."""
+        from twincd.io.mcap_write import atomic_output
+
+        text = json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
+        with atomic_output(Path(path)) as stream:
+            stream.write(text.encode("utf-8"))
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def calibration_from_fit(
+    estimator: AffineCalibration,
+    lowpass: LowPass,
+    options: LogOptions,
+    robot: str | None,
+    urdf_sha256: str | None,
+    simulated: bool,
+    logs: Sequence[str],
+) -> Calibration:
+    """The calibration file's content from a fitted estimator."""
+    estimator._check()
+    assert estimator.joint_names is not None
+    return Calibration(
+        joint_names=tuple(estimator.joint_names),
+        a=estimator.a_,
+        b=estimator.b_,
+        lowpass=lowpass,
+        options=options,
+        robot=robot,
+        urdf_sha256=urdf_sha256,
+        simulated=simulated,
+        fit_logs=tuple(logs),
+        fit_samples=estimator.n_samples_,
+        r2=estimator.r2_,
+        rmse=estimator.rmse_,
+        fit_s=estimator.fit_s_,
+        created=_now(),
+    )

@@ -1,0 +1,45 @@
+"""The seed paper's method as a scoring method for ``evaluate`` (DESIGN §7 ``proposed``)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twincd.calibration import AffineCalibration, Calibration
+from twincd.detection.score import affine_score
+from twincd.errors import NotFittedError
+from twincd.evaluation.methods import ScoringMethod
+from twincd.pipeline import PreparedLog
+
+FloatArray = NDArray[np.float64]
+
+
+class ProposedMethod(ScoringMethod):
+    """The seed paper's method: affine regression of the twin's effort, squared residual."""
+
+    name = "proposed"
+    unit = "sample"
+    learns = True
+
+    def __init__(self, a: Sequence[float] | None = None, b: Sequence[float] | None = None):
+        self.a = a
+        self.b = b
+        if a is not None and b is not None:
+            self.a_: FloatArray = np.asarray(a, dtype=np.float64)
+            self.b_: FloatArray = np.asarray(b, dtype=np.float64)
+
+    @classmethod
+    def from_calibration(cls, calibration: Calibration) -> ProposedMethod:
+        return cls(list(calibration.a), list(calibration.b))
+
+    def fit(self, train: Sequence[PreparedLog]) -> ProposedMethod:
+        est = AffineCalibration().fit(train)
+        self.a_, self.b_ = est.a_, est.b_
+        return self
+
+    def score(self, log: PreparedLog) -> FloatArray:
+        if not hasattr(self, "a_"):
+            raise NotFittedError("method 'proposed' is not fitted", "proposed", "call fit()")
+        return affine_score(log.effort_f, log.sim_effort_f, self.a_, self.b_)

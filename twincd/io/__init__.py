@@ -1,0 +1,1 @@
+"""Read and write logs: finding logs, reading joint states, CDR, MCAP output, atomic files."""

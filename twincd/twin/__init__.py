@@ -1,0 +1,1 @@
+"""The digital twin: robot models (Pinocchio, example-robot-data) and inverse dynamics."""
