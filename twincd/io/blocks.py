@@ -1,0 +1,564 @@
+"""Time-ordered sample blocks of one log's joint states, with labels and the twin's effort.
+
+``iter_blocks(path, options)`` streams a log of any length at flat memory: topic batches
+(``twincd.io.batches``) go through a reorder buffer that sorts the newest samples by stamp and
+emits the older ones in blocks. Rules (DESIGN §1):
+
+- time is ``header.stamp``, the log time where the stamp is 0;
+- samples missing a stream joint (or with a non-finite position) are dropped first, then exact
+  duplicate stamps (the first read — earliest log time — is kept);
+- a sample older than one already emitted is *late*: dropped and counted. A log that fits in
+  the reorder buffer is therefore sorted exactly like a whole-log sort;
+- labels (Bool) are held from each message onto the samples' log times; a sample is emitted
+  only once every label message at or before its log time has been read;
+- the twin's effort is joined by exact stamp (NaN where missing). Its messages are expected no
+  later in log time than their samples (``simulate`` writes them at the same log time).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twincd.errors import JointMismatchError, LogReadError, TopicError
+from twincd.io.batches import (
+    DEFAULT_BATCH,
+    Batch,
+    BoolBatch,
+    JointStateBatch,
+    TopicReader,
+)
+from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
+
+if TYPE_CHECKING:
+    from twincd.io.logs import LogOptions
+
+log = logging.getLogger("twincd")
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's joint states
+DEFAULT_BLOCK = 65536
+DEFAULT_REORDER = 10_000
+_END = 2**63 - 1
+_T = TypeVar("_T", bound=np.generic)
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """Consecutive samples of one log, in strictly increasing stamp order.
+
+    Columns follow the stream's ``joint_names``. ``velocity`` is NaN where a message had none;
+    ``effort`` is None when the log has no effort (decided from its first message), else NaN
+    where a message lacked it. ``labels`` and ``sim_effort`` are None when their topic is
+    absent.
+    """
+
+    stamp_ns: IntArray
+    log_time_ns: IntArray
+    position: FloatArray
+    velocity: FloatArray
+    effort: FloatArray | None
+    labels: BoolArray | None
+    sim_effort: FloatArray | None
+
+    def __len__(self) -> int:
+        return len(self.stamp_ns)
+
+
+@dataclass
+class StreamCounts:
+    """What happened to the JointState messages of a stream."""
+
+    read: int = 0  # messages read on the topic
+    incomplete: int = 0  # dropped: a stream joint missing, or a non-finite position
+    duplicates: int = 0  # dropped: the exact stamp of an earlier sample
+    late: int = 0  # dropped: older than a sample already emitted
+    ragged: int = 0  # filled arrays whose length differs from the names
+    samples: int = 0  # emitted
+
+
+def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
+    """The JointState topic to read (DESIGN §1: fall back to the only JointState topic)."""
+    if wanted in topics:
+        if topics[wanted] != JOINT_STATE:
+            raise TopicError(
+                f"topic {wanted} is {topics[wanted]}, not {JOINT_STATE}",
+                source,
+                "pick a JointState topic with the topic option",
+            )
+        return wanted
+    candidates = sorted(
+        t for t, m in topics.items() if m == JOINT_STATE and not t.startswith(OWN_PREFIX)
+    )
+    if len(candidates) == 1:
+        log.warning(
+            "topic %s not in %s; using its only JointState topic %s", wanted, source, candidates[0]
+        )
+        return candidates[0]
+    if not candidates:
+        raise TopicError(
+            f"no {JOINT_STATE} topic (wanted {wanted})",
+            source,
+            "record joint states or pick another topic with the topic option",
+        )
+    raise TopicError(
+        f"topic {wanted} not found and several JointState topics exist: {', '.join(candidates)}",
+        source,
+        "pick one with the topic option",
+    )
+
+
+# ---------------------------------------------------------------- the parts
+
+
+@dataclass
+class _Rows:
+    """Samples, sorted by (stamp, log time, read order) and free of duplicate stamps."""
+
+    stamp: IntArray
+    log_time: IntArray
+    seq: IntArray
+    position: FloatArray
+    velocity: FloatArray
+    effort: FloatArray | None
+
+    def __len__(self) -> int:
+        return len(self.stamp)
+
+    def select(self, idx: NDArray[np.intp] | slice) -> _Rows:
+        eff = None if self.effort is None else self.effort[idx]
+        return _Rows(
+            self.stamp[idx],
+            self.log_time[idx],
+            self.seq[idx],
+            self.position[idx],
+            self.velocity[idx],
+            eff,
+        )
+
+    @staticmethod
+    def join(a: _Rows, b: _Rows) -> _Rows:
+        eff = None if a.effort is None or b.effort is None else np.concatenate([a.effort, b.effort])
+        return _Rows(
+            np.concatenate([a.stamp, b.stamp]),
+            np.concatenate([a.log_time, b.log_time]),
+            np.concatenate([a.seq, b.seq]),
+            np.concatenate([a.position, b.position]),
+            np.concatenate([a.velocity, b.velocity]),
+            eff,
+        )
+
+    def sorted_unique(self) -> tuple[_Rows, int]:
+        """These rows sorted, exact duplicate stamps dropped (first kept); (rows, dropped)."""
+        if len(self.stamp) < 2 or bool((self.stamp[1:] > self.stamp[:-1]).all()):
+            return self, 0  # already in order: the usual case
+        order = np.lexsort((self.seq, self.log_time, self.stamp))
+        stamp = self.stamp[order]
+        keep = np.ones(len(order), dtype=bool)
+        keep[1:] = stamp[1:] != stamp[:-1]
+        return self.select(order[keep]), int((~keep).sum())
+
+
+def _empty_rows(width: int, effort: bool) -> _Rows:
+    none = np.zeros(0, np.int64)
+    return _Rows(
+        none,
+        none,
+        none,
+        np.zeros((0, width)),
+        np.zeros((0, width)),
+        np.zeros((0, width)) if effort else None,
+    )
+
+
+class _Labels:
+    """Label messages as (log time, value), kept to the transitions once final."""
+
+    def __init__(self) -> None:
+        self.t = np.zeros(0, np.int64)
+        self.v = np.zeros(0, bool)
+
+    def add(self, batch: BoolBatch) -> None:
+        t = np.concatenate([self.t, batch.log_time_ns])
+        v = np.concatenate([self.v, batch.value])
+        order = np.argsort(t, kind="stable")  # equal times: the later read wins the hold
+        self.t, self.v = t[order], v[order]
+
+    def hold(self, times: IntArray) -> BoolArray:
+        """Each time takes the value of the latest message at or before it (False before any)."""
+        idx = np.searchsorted(self.t, times, side="right") - 1
+        held = np.zeros(len(times), dtype=bool)
+        ok = idx >= 0
+        held[ok] = self.v[idx[ok]]
+        return held
+
+    def settle(self, mark: int, needed_from: int) -> None:
+        """Keep only transitions among messages before ``mark`` (no more can come there), and
+        drop those that no sample at or after ``needed_from`` can see."""
+        final = int(np.searchsorted(self.t, mark, side="left"))
+        keep = np.ones(len(self.t), dtype=bool)
+        if final > 1:  # v[: final - 1] would wrap around at final = 0
+            keep[1:final] = self.v[1:final] != self.v[: final - 1]
+        self.t, self.v = self.t[keep], self.v[keep]
+        first = int(np.searchsorted(self.t, needed_from, side="right")) - 1
+        if first > 0:
+            self.t, self.v = self.t[first:], self.v[first:]
+
+
+class _Sim:
+    """The twin's effort by stamp, waiting for the samples it belongs to."""
+
+    def __init__(self, width: int) -> None:
+        self.stamp = np.zeros(0, np.int64)
+        self.effort = np.zeros((0, width))
+
+    def add(self, stamp: IntArray, effort: FloatArray) -> None:
+        stamp = np.concatenate([self.stamp, stamp])
+        effort = np.concatenate([self.effort, effort])
+        order = np.argsort(stamp, kind="stable")
+        stamp, effort = stamp[order], effort[order]
+        same = np.flatnonzero(stamp[1:] == stamp[:-1]) + 1
+        for i in same.tolist():  # rare: a later message on the same stamp fills in or wins
+            effort[i] = np.where(np.isnan(effort[i]), effort[i - 1], effort[i])
+        last = np.ones(len(stamp), dtype=bool)
+        last[:-1] = stamp[1:] != stamp[:-1]
+        self.stamp, self.effort = stamp[last], effort[last]
+
+    def take(self, stamps: IntArray) -> FloatArray:
+        out = np.full((len(stamps), self.effort.shape[1]), np.nan)
+        if len(self.stamp):
+            idx = np.minimum(np.searchsorted(self.stamp, stamps), len(self.stamp) - 1)
+            ok = self.stamp[idx] == stamps
+            out[ok] = self.effort[idx[ok]]
+        return out
+
+    def drop_through(self, stamp: int) -> None:
+        first = int(np.searchsorted(self.stamp, stamp, side="right"))
+        self.stamp, self.effort = self.stamp[first:], self.effort[first:]
+
+
+# ---------------------------------------------------------------- the stream
+
+
+class LogStream:
+    """One log's joint states as ``SampleBlock``s (a context manager and an iterable).
+
+    Opening reads the first messages (up to the reorder window) to fix ``joint_names``: the
+    given ``joints``, else every joint those messages name, in first-seen order, after the
+    joint map. Iterate once.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        options: LogOptions,
+        joints: Sequence[str] | None = None,
+        block_size: int = DEFAULT_BLOCK,
+        strict: bool = True,
+        reorder: int = DEFAULT_REORDER,
+        batch_size: int = DEFAULT_BATCH,
+    ) -> None:
+        if block_size < 1 or reorder < 0:
+            raise ValueError("block_size must be ≥ 1 and reorder ≥ 0")
+        self.path = Path(path)
+        self.source = str(self.path)
+        self.block_size = block_size
+        self.reorder = reorder
+        self.counts = StreamCounts()
+        self._joint_map = dict(options.joint_map or {})
+        self._reader = TopicReader(self.path, strict=strict, batch_size=batch_size)
+        try:
+            self._open(options, joints)
+        except BaseException:
+            self._reader.close()
+            raise
+
+    def _open(self, options: LogOptions, joints: Sequence[str] | None) -> None:
+        topics = self._reader.topics
+        self.topic = choose_topic(topics, options.topic, self.source)
+        self.label_topic = options.label_topic
+        self.has_labels = self.label_topic in topics
+        if self.has_labels and topics[self.label_topic] != BOOL:
+            raise TopicError(
+                f"label topic {self.label_topic} is {topics[self.label_topic]}, not {BOOL}",
+                self.source,
+                "pick another label topic",
+            )
+        self.sim_topic = options.sim_topic
+        self.has_sim = topics.get(self.sim_topic) == JOINT_STATE
+        wanted = [self.topic]
+        wanted += [self.label_topic] if self.has_labels else []
+        wanted += [self.sim_topic] if self.has_sim else []
+        self._items = self._reader.batches(wanted)
+        # read ahead to learn the joints; the watermark of the moment goes with each batch
+        self._head: list[tuple[str, Batch, int]] = []
+        seen = 0
+        for topic, batch in self._items:
+            self._head.append((topic, batch, self._reader.watermark_ns))
+            if topic == self.topic:
+                seen += len(batch)
+                if seen >= max(self.reorder, 1):
+                    break
+        first = [b for t, b, _ in self._head if t == self.topic and isinstance(b, JointStateBatch)]
+        if not first:
+            raise LogReadError(
+                f"topic {self.topic} has no messages", self.source, "record joint states"
+            )
+        named = list(dict.fromkeys(self._joint_map.get(n, n) for b in first for n in b.names))
+        if joints is None:
+            self.joint_names = tuple(named)
+        else:
+            self.joint_names = tuple(joints)
+            missing = [j for j in self.joint_names if j not in named]
+            if missing:
+                raise JointMismatchError(
+                    f"joints {', '.join(missing)} are not in the log",
+                    f"{self.source}, {self.topic}",
+                    "check the robot model, the topic and the joint map",
+                )
+        self.has_effort = first[0].effort.shape[1] > 0
+        width = len(self.joint_names)
+        self._pending = _empty_rows(width, self.has_effort)
+        self._labels = _Labels() if self.has_labels else None
+        self._sim = _Sim(width) if self.has_sim else None
+        self._columns: dict[tuple[str, ...], NDArray[np.intp]] = {}
+        self._seq = 0
+        self._last: int | None = None  # stamp of the last emitted sample
+        self._out: list[_Rows] = []
+        self._out_n = 0
+        self._labels_out: list[BoolArray] = []
+        self._sim_out: list[FloatArray] = []
+        self._used = False
+
+    # ------------------------------------------------------------ protocol
+
+    def __enter__(self) -> LogStream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._reader.close()
+
+    @property
+    def stats(self) -> CdrStats:
+        """Messages decoded on the fast path and through rosbags."""
+        return self._reader.stats
+
+    @property
+    def damage(self) -> str | None:
+        """With strict=False, what was damaged and how much was read; else None."""
+        return self._reader.damage
+
+    def __iter__(self) -> Iterator[SampleBlock]:
+        if self._used:
+            raise RuntimeError("a LogStream can be iterated once")
+        self._used = True
+        return self._blocks()
+
+    # ------------------------------------------------------------ work
+
+    def _blocks(self) -> Iterator[SampleBlock]:
+        head, self._head = self._head, []
+        for topic, batch, mark in head:
+            yield from self._take(topic, batch, mark)
+        for topic, batch in self._items:
+            yield from self._take(topic, batch, self._reader.watermark_ns)
+        yield from self._emit(_END, final=True)
+        if self.counts.samples == 0:
+            raise LogReadError(
+                "no sample carries every joint",
+                f"{self.source}, {self.topic}",
+                "pick another topic with the topic option, or check the joint map",
+            )
+        self._report()
+
+    def _take(self, topic: str, batch: Batch, mark: int) -> Iterator[SampleBlock]:
+        if topic == self.topic and isinstance(batch, JointStateBatch):
+            self._add_samples(batch)
+        if topic == self.label_topic and self._labels is not None and isinstance(batch, BoolBatch):
+            self._labels.add(batch)
+        if topic == self.sim_topic and self._sim is not None and isinstance(batch, JointStateBatch):
+            self._add_sim(batch)
+        yield from self._emit(mark, final=False)
+
+    def _cols(self, names: tuple[str, ...]) -> NDArray[np.intp]:
+        """Per stream joint, its column in messages named ``names`` (-1: absent)."""
+        cols = self._columns.get(names)
+        if cols is None:
+            where: dict[str, int] = {}
+            for i, n in enumerate(names):
+                where.setdefault(self._joint_map.get(n, n), i)
+            cols = np.array([where.get(j, -1) for j in self.joint_names], dtype=np.intp)
+            self._columns[names] = cols
+        return cols
+
+    def _check_ragged(self, batch: JointStateBatch) -> None:
+        """Filled arrays must match ``name``; counted here, refused (for now) as before."""
+        k = len(batch.names)
+        kp, kv, ke = batch.position.shape[1], batch.velocity.shape[1], batch.effort.shape[1]
+        if kp == k and kv in (0, k) and ke in (0, k):
+            return
+        self.counts.ragged += len(batch)
+        raise LogReadError(
+            f"ragged JointState: {k} names but {kp} position, {kv} velocity and {ke} effort values",
+            f"{self.source}, {self.topic} at log time {int(batch.log_time_ns.min())}",
+            "fix the publisher; every filled array must match `name`",
+        )
+
+    def _add_samples(self, batch: JointStateBatch) -> None:
+        n = len(batch)
+        self.counts.read += n
+        self._check_ragged(batch)
+        cols = self._cols(batch.names)
+        if (cols < 0).any():
+            self.counts.incomplete += n
+            return
+        same = len(cols) == len(batch.names) and bool((cols == np.arange(len(cols))).all())
+
+        def pick(values: FloatArray) -> FloatArray:
+            return values if same else values[:, cols]  # a copy only when columns move
+
+        position = pick(batch.position)
+        ok = np.isfinite(position).all(axis=1)
+        nan = np.full((n, len(cols)), np.nan)
+        velocity = pick(batch.velocity) if batch.velocity.shape[1] else nan
+        effort = None
+        if self.has_effort:
+            effort = pick(batch.effort) if batch.effort.shape[1] else nan
+        stamp = np.where(batch.stamp_ns != 0, batch.stamp_ns, batch.log_time_ns)
+        seq = np.arange(self._seq, self._seq + n, dtype=np.int64)
+        self._seq += n
+        rows = _Rows(stamp, batch.log_time_ns, seq, position, velocity, effort)
+        self.counts.incomplete += int((~ok).sum())
+        if self._last is not None:
+            self.counts.duplicates += int((ok & (stamp == self._last)).sum())
+            self.counts.late += int((ok & (stamp < self._last)).sum())
+            ok &= stamp > self._last
+        if not ok.all():
+            rows = rows.select(np.flatnonzero(ok))
+        rows, dropped = rows.sorted_unique()
+        self.counts.duplicates += dropped
+        pending = self._pending
+        if len(pending) == 0:
+            self._pending = rows
+        elif len(rows) and rows.stamp[0] > pending.stamp[-1]:
+            self._pending = _Rows.join(pending, rows)  # the usual case: no sort needed
+        elif len(rows):
+            self._pending, dropped = _Rows.join(pending, rows).sorted_unique()
+            self.counts.duplicates += dropped
+
+    def _add_sim(self, batch: JointStateBatch) -> None:
+        assert self._sim is not None
+        cols = self._cols(batch.names)
+        width = batch.effort.shape[1]
+        effort = np.full((len(batch), len(cols)), np.nan)
+        have = (cols >= 0) & (cols < width)  # like zip(name, effort): extra names get nothing
+        effort[:, have] = batch.effort[:, cols[have]]
+        stamp = np.where(batch.stamp_ns != 0, batch.stamp_ns, batch.log_time_ns)
+        if self._last is not None:  # their samples are gone already
+            keep = stamp > self._last
+            stamp, effort = stamp[keep], effort[keep]
+        self._sim.add(stamp, effort)
+
+    def _emit(self, mark: int, final: bool) -> Iterator[SampleBlock]:
+        pending = self._pending
+        k = len(pending) if final else max(0, len(pending) - self.reorder)
+        if not final and k and (self._labels is not None or self._sim is not None):
+            # labels and the twin's effort must have been read up to the samples' log time
+            waiting = np.flatnonzero(pending.log_time[:k] >= mark)
+            if len(waiting):
+                k = int(waiting[0])
+        if k:
+            done, self._pending = pending.select(slice(0, k)), pending.select(slice(k, None))
+            self._last = int(done.stamp[-1])
+            if self._labels is not None:
+                self._labels_out.append(self._labels.hold(done.log_time))
+            if self._sim is not None:
+                self._sim_out.append(self._sim.take(done.stamp))
+                self._sim.drop_through(self._last)
+            self._out.append(done)
+            self._out_n += k
+        if self._labels is not None:
+            rest = self._pending.log_time
+            needed = min(mark, int(rest.min())) if len(rest) else mark
+            self._labels.settle(mark, needed)
+        while self._out_n >= self.block_size or (final and self._out_n):
+            yield self._block(min(self.block_size, self._out_n))
+
+    def _block(self, n: int) -> SampleBlock:
+        rows = self._out[0] if len(self._out) == 1 else _concat(self._out)
+        labels = _cat(self._labels_out)
+        sim = _cat(self._sim_out)
+        head, rest = rows.select(slice(0, n)), rows.select(slice(n, None))
+        self._out = [rest] if len(rest) else []
+        self._out_n = len(rest)
+        self._labels_out = [] if labels is None or not len(rest) else [labels[n:]]
+        self._sim_out = [] if sim is None or not len(rest) else [sim[n:]]
+        self.counts.samples += n
+        return SampleBlock(
+            stamp_ns=head.stamp,
+            log_time_ns=head.log_time,
+            position=head.position,
+            velocity=head.velocity,
+            effort=head.effort,
+            labels=None if labels is None else labels[:n],
+            sim_effort=None if sim is None else sim[:n],
+        )
+
+    def _report(self) -> None:
+        c = self.counts
+        if c.incomplete:
+            log.warning(
+                "%s: dropping %d sample(s) that do not carry every joint", self.source, c.incomplete
+            )
+        if c.late:
+            log.warning(
+                "%s: dropping %d sample(s) stamped earlier than samples already read "
+                "(more than %d samples out of order)",
+                self.source,
+                c.late,
+                self.reorder,
+            )
+        if self.damage is not None:
+            log.warning("%s: %s", self.source, self.damage)
+
+
+def _cat(parts: list[NDArray[_T]]) -> NDArray[_T] | None:
+    if not parts:
+        return None
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _concat(parts: list[_Rows]) -> _Rows:
+    effort = [p.effort for p in parts if p.effort is not None]
+    return _Rows(
+        np.concatenate([p.stamp for p in parts]),
+        np.concatenate([p.log_time for p in parts]),
+        np.concatenate([p.seq for p in parts]),
+        np.concatenate([p.position for p in parts]),
+        np.concatenate([p.velocity for p in parts]),
+        np.concatenate(effort) if len(effort) == len(parts) else None,
+    )
+
+
+def iter_blocks(
+    path: str | Path,
+    options: LogOptions,
+    joints: Sequence[str] | None = None,
+    block_size: int = DEFAULT_BLOCK,
+    strict: bool = True,
+    reorder: int = DEFAULT_REORDER,
+) -> LogStream:
+    """Open a log for streaming; iterate the result for ``SampleBlock``s (see ``LogStream``)."""
+    return LogStream(path, options, joints, block_size, strict, reorder)
