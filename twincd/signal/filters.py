@@ -1,33 +1,59 @@
-"""Low-pass filtering of effort signals (the paper's τ̃ and τ̂̃), with scipy.signal.
+"""Low-pass filtering of effort signals (the paper's τ̃ and τ̂̃), whole or streamed.
 
-A Butterworth filter as second-order sections, run zero-phase (``sosfiltfilt``, the default for
-offline logs) or causal (``sosfilt`` forward only, started in steady state: what a live detector
-sees). Logs are cut at gaps (twincd.signal.derivatives.segment_bounds) and each segment is
-filtered on
-its own; the sampling rate is the median rate of the log.
+A Butterworth filter as second-order sections, run zero-phase (the result of
+``scipy.signal.sosfiltfilt`` with an odd-extension pad of ``padlen`` samples at each segment's
+ends; the default for offline logs) or causal (``sosfilt`` forward only, started in steady state
+at each segment's first value: what a live detector sees). Streams are cut at gaps
+(twincd.signal.stream.Segmenter) and each segment is filtered on its own; the sampling rate is
+the nominal one given by the caller, never estimated from a whole log.
+
+``StreamingLowPass`` is the one implementation; ``LowPass.apply`` runs it on a whole log.
+Streamed zero-phase filtering runs the forward pass exactly (state carried between pushes) and
+the backward pass over overlapping blocks: each block's backward pass starts ``margin`` samples
+beyond the samples it emits, in steady state, where ``margin`` is long enough for the start-up
+transient to decay below 1e-12 (``decay_margin``); at a segment's end the true end extension is
+used. So a sample is emitted ``margin`` samples late, memory stays bounded by block + margin,
+and the result equals the whole-segment ``sosfiltfilt`` to ~1e-12 of the signal's range.
+
+scipy.signal takes seconds to import: it is imported inside the functions that need it.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
-from scipy import signal
+from numpy.typing import ArrayLike
 
+from twincd.defaults import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from twincd.errors import DataError, UsageError
-from twincd.signal.derivatives import segment_bounds
+from twincd.signal.stream import (
+    DEFAULT_GAP_FACTOR,
+    FloatArray,
+    IntArray,
+    SegmentedStage,
+    nominal_period,
+    run_whole,
+    seconds_to_ns,
+)
 
-FloatArray = NDArray[np.float64]
+__all__ = [
+    "DECAY_TOLERANCE",
+    "DEFAULT_CAUSAL_CUTOFF_HZ",
+    "DEFAULT_CUTOFF_HZ",
+    "DEFAULT_ORDER",
+    "LowPass",
+    "StreamingLowPass",
+    "decay_margin",
+]
 
-DEFAULT_ORDER = 2
-# Chosen on train/val data only (sample_logs/train fits a, b; hand-press-like sin² bumps of
-# 0.4–1.6 s injected into sample_logs/val are the positives): best F1 over μ + iσ peaks at 1 Hz
-# for the zero-phase filter (0.91 vs 0.83 at 5 Hz) and at 3 Hz for the causal one, whose lag
-# grows as the cut-off falls.
-DEFAULT_CUTOFF_HZ = 1.0
-DEFAULT_CAUSAL_CUTOFF_HZ = 3.0
+# the streamed backward pass starts where its start-up transient will have decayed below this
+# (relative to the size of the state error, itself of the order of the signal's range)
+DECAY_TOLERANCE = 1e-12
+# samples emitted per backward pass when much is ready at once: cost (block + margin) / block
+_BLOCK = 65536
 
 
 @dataclass(frozen=True)
@@ -42,50 +68,50 @@ class LowPass:
     def __post_init__(self) -> None:
         if self.kind != "butterworth":
             raise UsageError(f"unknown filter kind {self.kind!r}", "filter", "use butterworth")
-        if self.order < 1 or self.cutoff_hz <= 0:
+        if self.order < 1 or not self.cutoff_hz > 0:
             raise UsageError(
                 "filter order must be >= 1 and cut-off > 0 Hz",
                 f"order={self.order}, cutoff={self.cutoff_hz}",
-                "pick a positive --filter-order and --cutoff",
+                "pick a positive filter order and cut-off",
             )
 
     def sos(self, fs_hz: float) -> FloatArray:
+        """Second-order sections of the filter at sampling rate ``fs_hz``."""
+        from scipy import signal
+
         if self.cutoff_hz >= fs_hz / 2:
             raise UsageError(
                 f"cut-off {self.cutoff_hz} Hz is not below the Nyquist rate {fs_hz / 2:.3g} Hz",
-                "--cutoff",
+                "filter settings",
                 "pick a lower cut-off",
             )
         sos: FloatArray = signal.butter(self.order, self.cutoff_hz, fs=fs_hz, output="sos")
         return sos
 
-    def apply(self, t_s: FloatArray, values: FloatArray, source: str = "") -> FloatArray:
-        """Filter (N, channels) or (N,) values sampled at t_s (seconds), gap by gap."""
-        x = np.asarray(values, dtype=np.float64)
-        if len(t_s) < 2:
-            raise DataError("log too short to filter", source, "record at least a few seconds")
-        fs = 1.0 / float(np.median(np.diff(t_s)))
-        sos = self.sos(fs)
-        # zero-phase edges: pad over about one period of the cut-off (scipy's default of a few
-        # samples leaves start-up transients on logs that begin with the arm moving)
-        padlen = max(3 * (2 * len(sos) + 1), int(np.ceil(fs / self.cutoff_hz)))
-        out = np.empty_like(x)
-        for a, b in segment_bounds(t_s):
-            out[a:b] = self._segment(sos, x[a:b], padlen)
-        return out
+    def padlen(self, fs_hz: float) -> int:
+        """Zero-phase edge pad: about one period of the cut-off (scipy's default of a few
+        samples leaves start-up transients on logs that begin with the arm moving)."""
+        sections = (self.order + 1) // 2
+        # the tiny epsilon keeps 1/0.001 s ÷ 1 Hz at 1000 samples whatever the rounding
+        return max(3 * (2 * sections + 1), math.ceil(fs_hz / self.cutoff_hz - 1e-9))
 
-    def _segment(self, sos: FloatArray, x: FloatArray, padlen: int) -> FloatArray:
-        if len(x) == 1:
-            single: FloatArray = x.copy()
-            return single
-        if self.causal:
-            zi = signal.sosfilt_zi(sos)  # (sections, 2): steady state for a unit step
-            zi = zi[:, :, None] * x[0][None, None, ...] if x.ndim == 2 else zi * x[0]
-            y: FloatArray = signal.sosfilt(sos, x, axis=0, zi=zi)[0]
-            return y
-        # short segments after a gap get a shorter pad instead of an error
-        filtered: FloatArray = signal.sosfiltfilt(sos, x, axis=0, padlen=min(padlen, len(x) - 1))
-        return filtered
+    def apply(
+        self,
+        t_s: ArrayLike,
+        values: ArrayLike,
+        source: str = "",
+        period_s: float | None = None,
+        gap_factor: float = DEFAULT_GAP_FACTOR,
+    ) -> FloatArray:
+        """Filter (N, channels) or (N,) values sampled at t_s (seconds), gap by gap: a
+        ``StreamingLowPass`` fed the whole log. ``period_s`` None → ``nominal_period`` of t_s
+        (times taken to whole nanoseconds, as header stamps are)."""
+        x = np.asarray(values, dtype=np.float64)
+        ns = seconds_to_ns(t_s)
+        if len(ns) < 2:
+            raise DataError("log too short to filter", source, "record at least a few seconds")
+        period = nominal_period(ns, source) if period_s is None else period_s
+        return run_whole(StreamingLowPass(self, period, gap_factor), ns, x)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -100,3 +126,171 @@ class LowPass:
             causal=bool(d["causal"]),
             kind=str(d.get("kind", "butterworth")),
         )
+
+
+def decay_margin(sos: FloatArray, tolerance: float = DECAY_TOLERANCE) -> int:
+    """Samples after which any start-up transient of ``sos`` stays below ``tolerance`` × the
+    initial state error: the last sample where the summed |zero-input response| to a unit error
+    in each state exceeds it, plus one. Sized by the slowest pole, checked by simulation."""
+    from scipy import signal
+
+    poles = np.concatenate([np.roots(section[3:]) for section in sos])
+    radius = float(np.abs(poles).max()) if len(poles) else 0.0
+    if radius >= 1:
+        raise UsageError("the filter is unstable", "filter settings", "pick another cut-off")
+    if radius == 0:
+        return len(sos) * 2
+    states = 2 * len(sos)
+    zi = np.zeros((len(sos), 2, states))
+    for j in range(states):
+        zi[j // 2, j % 2, j] = 1.0
+    length = math.ceil(math.log(tolerance) / math.log(radius)) + 64
+    while True:
+        h, _ = signal.sosfilt(sos, np.zeros((length, states)), axis=0, zi=zi)
+        above = np.flatnonzero(np.abs(h).sum(axis=1) > tolerance)
+        last = int(above[-1]) + 1 if len(above) else 0
+        if last < length * 3 // 4:  # the tail of the simulation is well below: settled
+            return last
+        length *= 2
+
+
+class StreamingLowPass(SegmentedStage):
+    """The Butterworth low-pass, pushed in chunks of any size (mode from ``lowpass.causal``).
+
+    ``push(stamp_ns, values)`` takes int64 ns stamps (n,) and values (n,) or (n, channels) and
+    returns the filtered values of the oldest samples not emitted yet, in order; ``finish()``
+    returns the rest.
+
+    Causal: ``lookahead`` = 0; every sample is emitted at once and chunked runs equal one run
+    exactly (the final state of a push is the initial state of the next). Zero-phase:
+    ``lookahead`` = ``margin`` samples; a sample is emitted once ``margin`` later samples of its
+    segment are known, or its segment has ended; the result equals ``sosfiltfilt`` on each
+    segment with ``padlen`` samples of odd extension, to ~1e-12 of the signal's range.
+    ``buffered`` never exceeds ``margin`` + 1 samples.
+    """
+
+    def __init__(
+        self, lowpass: LowPass, period_s: float, gap_factor: float = DEFAULT_GAP_FACTOR
+    ) -> None:
+        from scipy import signal
+
+        super().__init__(period_s, gap_factor)
+        self.lowpass = lowpass
+        self.causal = lowpass.causal
+        fs = 1.0 / self.period_s
+        self.sos = lowpass.sos(fs)
+        self._zi: FloatArray = signal.sosfilt_zi(self.sos)  # steady state for a unit input
+        self.padlen = lowpass.padlen(fs)
+        self.margin = 0 if self.causal else max(decay_margin(self.sos), self.padlen)
+        self.lookahead = self.margin
+        self._block = max(_BLOCK, self.margin)
+        self._reset()
+
+    def _reset(self) -> None:
+        self._n = 0  # samples of the current segment seen
+        self._base = 0  # segment index of the buffers' first sample
+        self._next = 0  # segment index of the next sample to emit
+        self._x = np.zeros((0, max(self._width, 1)))  # raw values (zero-phase)
+        self._yf: FloatArray | None = None  # forward-pass output, aligned with _x
+        self._zf: FloatArray | None = None  # forward state after the last sample seen
+        self._pad = 0  # the segment's pad length, once known
+
+    @property
+    def buffered(self) -> int:
+        """Samples held in the internal buffers (at most ``margin`` + 1)."""
+        return len(self._x)
+
+    def _steady(self, value: FloatArray) -> FloatArray:
+        """Filter state at rest on ``value`` (one per channel)."""
+        state: FloatArray = self._zi[:, :, None] * value[None, None, :]
+        return state
+
+    def _filter(self, x: FloatArray, zi: FloatArray) -> tuple[FloatArray, FloatArray]:
+        from scipy import signal
+
+        y, zf = signal.sosfilt(self.sos, x, axis=0, zi=zi)
+        return y, zf
+
+    def _extend(self, t: IntArray, y: FloatArray) -> FloatArray:
+        if self.causal:
+            if self._n == 0:
+                self._zf = self._steady(y[0])
+            assert self._zf is not None
+            self._n += len(y)
+            out, self._zf = self._filter(y, self._zf)
+            return out
+        # a copy either way: the buffer must not alias the caller's array
+        self._x = np.concatenate((self._x, y)) if self._n else y.copy()
+        self._n += len(y)
+        if self._zf is None:
+            if self._n > self.padlen:  # the segment is long enough for the full pad
+                self._start_forward(self.padlen)
+        else:
+            assert self._yf is not None
+            yf, self._zf = self._filter(y, self._zf)
+            self._yf = np.concatenate((self._yf, yf))
+        out = self._emit_ready()
+        self._trim()
+        return out
+
+    def _start_forward(self, pad: int) -> None:
+        """Forward pass from the odd extension before the segment's start, as sosfiltfilt."""
+        assert self._base == 0
+        x = self._x
+        self._pad = pad
+        left = 2 * x[0] - x[pad:0:-1]
+        _, zf = self._filter(left, self._steady(left[0]))
+        self._yf, self._zf = self._filter(x, zf)
+
+    def _emit_ready(self) -> FloatArray:
+        """Samples with ``margin`` later samples known, by backward passes over blocks."""
+        if self._zf is None:
+            return np.zeros((0, self._x.shape[1]))
+        stop = self._n - self.margin
+        parts = []
+        while self._next < stop:
+            end = min(self._next + self._block, stop)
+            parts.append(self._backward(self._next, end, end - 1 + self.margin))
+            self._next = end
+        return np.concatenate(parts) if parts else np.zeros((0, self._x.shape[1]))
+
+    def _backward(self, a: int, b: int, start: int) -> FloatArray:
+        """Backward pass from segment sample ``start`` (in steady state) down to ``a``; the
+        outputs for [a, b) are those at least ``margin`` samples from the start."""
+        assert self._yf is not None
+        seg = self._yf[a - self._base : start + 1 - self._base]
+        yb, _ = self._filter(seg[::-1], self._steady(seg[-1]))
+        out: FloatArray = yb[::-1][: b - a]
+        return out
+
+    def _trim(self) -> None:
+        if self._zf is None:
+            return  # everything is needed until the forward pass starts (≤ padlen samples)
+        keep = max(self._base, min(self._next, self._n - (self.padlen + 1)))
+        assert self._yf is not None
+        # copies: the buffers must not alias the caller's arrays
+        self._x = self._x[keep - self._base :].copy()
+        self._yf = self._yf[keep - self._base :].copy()
+        self._base = keep
+
+    def _end_segment(self) -> FloatArray:
+        width = self._x.shape[1]
+        if self.causal or self._n == 0:
+            self._reset()
+            return np.zeros((0, max(self._width, 1)))
+        if self._zf is None:
+            if self._n == 1:  # nothing to filter
+                lone: FloatArray = self._x.copy()
+                self._reset()
+                return lone
+            self._start_forward(min(self.padlen, self._n - 1))
+        assert self._yf is not None and self._zf is not None
+        # the true end extension, then the backward pass from its end, as sosfiltfilt
+        x, pad = self._x, self._pad
+        right = 2 * x[-1] - x[-2 : -(pad + 2) : -1]
+        yr, _ = self._filter(right, self._zf)
+        tail = np.concatenate((self._yf[self._next - self._base :], yr))
+        yb, _ = self._filter(tail[::-1], self._steady(tail[-1]))
+        out: FloatArray = yb[::-1][: self._n - self._next]
+        self._reset()
+        return out if len(out) else np.zeros((0, width))

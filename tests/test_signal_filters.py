@@ -1,0 +1,302 @@
+"""twincd.signal.filters: the Butterworth low-pass applied to both efforts, whole or streamed."""
+
+from __future__ import annotations
+
+import itertools
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import signal
+
+from twincd.defaults import DEFAULT_CUTOFF_HZ
+from twincd.errors import DataError, UsageError
+from twincd.signal import LowPass, StreamingLowPass, decay_margin, nominal_period
+
+FS = 100.0
+T = np.arange(0, 20, 1 / FS)
+INNER = slice(300, -300)  # away from start-up at the ends
+T0_NS = 1_700_000_000_000_000_000
+
+
+def make_stamps(rng: np.random.Generator, n: int, period_ns: int, gaps: int = 0) -> np.ndarray:
+    """±15 % jitter around ``period_ns``, plus ``gaps`` intervals of 6–40 periods."""
+    dt = np.rint(period_ns * (1 + rng.uniform(-0.15, 0.15, n))).astype(np.int64)
+    if gaps and n > 1:
+        where = rng.choice(np.arange(1, n), size=min(gaps, n - 1), replace=False)
+        dt[where] = rng.integers(6 * period_ns, 40 * period_ns, len(where))
+    return T0_NS + np.cumsum(dt) - dt[0]
+
+
+def make_values(rng: np.random.Generator, n: int, channels: int) -> np.ndarray:
+    """Random walk plus big steps plus an offset; channels 0 → (n,)."""
+    c = max(channels, 1)
+    y = 50 + np.cumsum(rng.standard_normal((n, c)), axis=0)
+    y += 30 * (rng.uniform(size=(n, c)) < 0.005).cumsum(axis=0)
+    return y[:, 0] if channels == 0 else y
+
+
+def run(stage: StreamingLowPass, stamps, values, cuts) -> np.ndarray:
+    """Push in pieces split at ``cuts``, then finish; every output is C-ordered (a layout that
+    followed the chunking would change reductions downstream)."""
+    edges = [0, *sorted(c for c in set(cuts) if 0 < c < len(stamps)), len(stamps)]
+    out = [stage.push(stamps[a:b], values[a:b]) for a, b in itertools.pairwise(edges)]
+    out.append(stage.finish())
+    assert all(o.flags.c_contiguous and o.shape[1:] == values.shape[1:] for o in out)
+    return np.concatenate(out)
+
+
+def split_points(n: int, how: str | int, rng: np.random.Generator) -> list[int]:
+    if how == "whole":
+        return []
+    if how == "random":
+        return sorted(rng.choice(np.arange(1, max(n, 2)), size=min(n - 1, 6), replace=False))
+    return list(range(int(how), n, int(how)))
+
+
+def reference(lp: LowPass, stamps, values, period_s: float) -> np.ndarray:
+    """scipy on each gap-free segment: sosfiltfilt with the odd pad, or sosfilt from rest."""
+    fs = 1.0 / period_s
+    sos = lp.sos(fs)
+    pad = lp.padlen(fs)
+    out = np.array(values, dtype=np.float64)
+    cuts = [0, *(np.flatnonzero(np.diff(stamps) > 5 * period_s * 1e9) + 1).tolist(), len(stamps)]
+    for a, b in itertools.pairwise(cuts):
+        x = out[a:b]
+        if b - a < 2:
+            continue
+        if lp.causal:
+            zi = signal.sosfilt_zi(sos)
+            zi = zi[:, :, None] * x[0] if x.ndim == 2 else zi * x[0]
+            out[a:b] = signal.sosfilt(sos, x, axis=0, zi=zi)[0]
+        else:
+            out[a:b] = signal.sosfiltfilt(sos, x, axis=0, padlen=min(pad, b - a - 1))
+    return out
+
+
+# ----------------------------------------------------------------------- the filter itself
+
+
+@pytest.mark.parametrize("causal", [False, True])
+def test_sine_above_cutoff_is_removed_and_below_kept(causal):
+    lp = LowPass(cutoff_hz=2.0, order=4, causal=causal)
+    slow = np.sin(2 * np.pi * 0.2 * T)
+    fast = np.sin(2 * np.pi * 20.0 * T)
+    assert np.abs(lp.apply(T, fast)[INNER]).max() < 0.01
+    kept = lp.apply(T, slow)[INNER]
+    assert np.abs(kept).max() == pytest.approx(1.0, abs=0.02)
+    if not causal:  # zero-phase: no lag at all
+        assert np.abs(kept - slow[INNER]).max() < 0.01
+
+
+def test_zero_phase_has_no_lag_and_causal_lags():
+    x = np.sin(2 * np.pi * 0.5 * T)
+    zero = LowPass(2.0).apply(T, x)
+    causal = LowPass(2.0, causal=True).apply(T, x)
+    lag = lambda y: np.argmax(np.correlate(y[INNER], x[INNER], "full")) - (len(x[INNER]) - 1)  # noqa: E731
+    assert lag(zero) == 0
+    assert lag(causal) > 0
+
+
+def test_columns_are_filtered_independently():
+    x = np.column_stack([np.sin(2 * np.pi * 0.2 * T), np.sin(2 * np.pi * 25 * T)])
+    y = LowPass(2.0).apply(T, x)
+    assert y.shape == x.shape
+    assert np.abs(y[INNER, 1]).max() < 0.01 < np.abs(y[INNER, 0]).max()
+
+
+def test_too_short_and_bad_settings_are_clear_errors():
+    with pytest.raises(DataError, match="too short"):
+        LowPass().apply(np.array([0.0]), np.array([1.0]), "one.mcap")
+    with pytest.raises(UsageError) as err:
+        LowPass(cutoff_hz=0.0)
+    assert "--" not in str(err.value)  # the library never names a CLI flag
+    with pytest.raises(UsageError, match="Nyquist") as err:
+        LowPass(cutoff_hz=60.0).apply(T, np.sin(T))
+    assert "--" not in str(err.value)
+    with pytest.raises(UsageError, match="period"):
+        StreamingLowPass(LowPass(), period_s=-1.0)
+
+
+def test_round_trip_through_dict():
+    lp = LowPass(cutoff_hz=3.5, order=3, causal=True)
+    d = lp.to_dict()
+    assert d["zero_phase"] is False and d["cutoff_hz"] == 3.5
+    assert LowPass.from_dict(d) == lp
+    assert LowPass().cutoff_hz == DEFAULT_CUTOFF_HZ
+
+
+def test_zero_phase_edges_follow_a_signal_that_starts_moving():
+    # a log that starts mid-motion: slow trend plus a slow sine, well below the cut-off
+    t = np.arange(0, 10, 0.01)
+    x = 1 + 0.5 * t + np.sin(2 * np.pi * 0.2 * t)
+    y = LowPass(cutoff_hz=1.0).apply(t, x)
+    assert np.abs(y - x)[:100].max() < 0.01
+    assert np.abs(y - x)[-100:].max() < 0.01
+
+
+@pytest.mark.parametrize("causal", [False, True])
+def test_a_constant_passes_unchanged_without_a_start_up_transient(causal):
+    stamps = T0_NS + 1_000_000 * np.arange(20_000)
+    x = np.full((20_000, 2), [3.5, -120.0])
+    stage = StreamingLowPass(LowPass(1.0, causal=causal), period_s=1e-3)
+    first = stage.push(stamps[:10], x[:10])
+    # 1e-10: the rounded coefficients' DC gain (b ≈ 1e-5 at 1 Hz / 1 kHz), as in scipy itself;
+    # a start-up transient would be of the order of the value
+    if causal:  # started at rest on the first value: right from the first sample
+        np.testing.assert_allclose(first, x[:10], rtol=1e-10)
+    y = np.concatenate((first, stage.push(stamps[10:], x[10:]), stage.finish()))
+    np.testing.assert_allclose(y, x, rtol=1e-10)
+
+
+def test_scipy_is_not_imported_with_the_module():
+    code = "import sys, twincd.signal; assert 'scipy.signal' not in sys.modules, 'imported'"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# ----------------------------------------------------------------------- streamed = whole
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 2500),
+    gaps=st.integers(0, 4),
+    channels=st.sampled_from([0, 1, 3]),
+    causal=st.booleans(),
+    cutoff=st.sampled_from([2.0, 5.0, 15.0, 25.0]),  # 25 Hz, order 1: margin = padlen
+    order=st.integers(1, 4),
+    how=st.sampled_from([1, 7, 1000, "whole", "random"]),
+)
+def test_streamed_equals_scipy_on_each_segment(seed, n, gaps, channels, causal, cutoff, order, how):
+    rng = np.random.default_rng(seed)
+    period_ns = 10_000_000  # 100 Hz: margins of 100–900 samples, so long segments exceed them
+    stamps = make_stamps(rng, n, period_ns, gaps)
+    x = make_values(rng, n, channels)
+    lp = LowPass(cutoff, order, causal=causal)
+    if how == 1:  # one push per sample costs a backward pass each: keep those runs short
+        stamps, x = stamps[:400], x[:400]
+    whole = run(StreamingLowPass(lp, period_ns * 1e-9), stamps, x, [])
+    stage = StreamingLowPass(lp, period_ns * 1e-9)
+    got = run(stage, stamps, x, split_points(len(stamps), how, rng))
+    assert got.shape == x.shape
+    span = max(float(np.ptp(x)), 1.0)
+    if causal:  # carried state: exactly one pass
+        np.testing.assert_array_equal(got, whole)
+    else:
+        assert np.abs(got - whole).max(initial=0.0) <= 1e-9 * span
+    ref = reference(lp, stamps, x, period_ns * 1e-9)
+    assert np.abs(whole - ref).max(initial=0.0) <= 1e-9 * span
+    assert np.abs(got - ref).max(initial=0.0) <= 1e-9 * span
+
+
+def test_default_filter_at_1khz_streams_like_sosfiltfilt_in_bounded_memory():
+    rng = np.random.default_rng(0)
+    n = 60_000
+    stamps = make_stamps(rng, n, 1_000_000, gaps=3)
+    x = make_values(rng, n, 4)
+    period = nominal_period(stamps)
+    lp = LowPass()
+    stage = StreamingLowPass(lp, period)
+    # the margin is set by the slowest pole (|p| ≈ 0.9956 at 1 Hz / 1 kHz), not the pad
+    assert 6000 < stage.margin < 9000 and stage.margin >= stage.padlen == 992
+    out, held = [], []
+    for a in range(0, n, 1000):
+        out.append(stage.push(stamps[a : a + 1000], x[a : a + 1000]))
+        held.append(stage.buffered)
+        assert stage.pending <= stage.margin + 1000
+    out.append(stage.finish())
+    got = np.concatenate(out)
+    ref = reference(lp, stamps, x, period)
+    assert np.abs(got - ref).max() <= 1e-9 * np.ptp(x)
+    # buffers never hold more than margin + 1 samples, however long the log
+    assert max(held) <= stage.margin + 1
+    assert stage.buffered == 0
+
+
+def test_zero_phase_emits_a_sample_once_margin_later_samples_are_known():
+    lp = LowPass(5.0, 2)
+    stage = StreamingLowPass(lp, period_s=0.01)
+    m = stage.lookahead
+    assert m == stage.margin > 0
+    rng = np.random.default_rng(1)
+    n = m + 50
+    stamps = make_stamps(rng, n, 10_000_000)
+    x = make_values(rng, n, 1)
+    for k in range(n):
+        stage.push(stamps[k : k + 1], x[k : k + 1])
+        assert stage.emitted == max(0, k + 1 - m)
+    # a gap ends the segment: everything before it comes out at once
+    tail = stage.push(stamps[-1:] + 10**9, x[-1:])
+    assert len(tail) == m and stage.emitted == n
+    assert StreamingLowPass(LowPass(5.0, causal=True), period_s=0.01).lookahead == 0
+
+
+def test_the_margin_lets_any_start_up_transient_decay():
+    lp = LowPass(1.0, 2)
+    sos = lp.sos(1000.0)
+    m = decay_margin(sos)
+    # zero input, a unit error in each state: the response is below 1e-12 from m on
+    states = 2 * len(sos)
+    zi = np.zeros((len(sos), 2, states))
+    for j in range(states):
+        zi[j // 2, j % 2, j] = 1.0
+    h, _ = signal.sosfilt(sos, np.zeros((3 * m, states)), axis=0, zi=zi)
+    envelope = np.abs(h).sum(axis=1)
+    assert envelope[m:].max() <= 1e-12 < envelope[m - 1]
+
+
+@pytest.mark.parametrize("causal", [False, True])
+def test_a_step_across_a_gap_does_not_leak(causal):
+    stamps = T0_NS + 10_000_000 * np.concatenate((np.arange(2000), np.arange(2100, 4000)))
+    x = np.where(np.arange(len(stamps)) < 2000, 1.0, 9.0)
+    got = run(StreamingLowPass(LowPass(2.0, causal=causal), 0.01), stamps, x, [1999, 2001])
+    np.testing.assert_allclose(got, x, rtol=1e-12)
+
+
+def test_short_segments_use_a_shorter_pad():
+    lengths = [1, 2, 5, 40, 3]
+    stamps = np.concatenate(
+        [T0_NS + 10**10 * k + 10_000_000 * np.arange(n) for k, n in enumerate(lengths)]
+    )
+    rng = np.random.default_rng(2)
+    x = make_values(rng, len(stamps), 2)
+    lp = LowPass(2.0, 3)
+    got = run(StreamingLowPass(lp, 0.01), stamps, x, [1, 4, 30])
+    np.testing.assert_allclose(got, reference(lp, stamps, x, 0.01), rtol=0, atol=1e-12)
+    assert got[0].tolist() == x[0].tolist()  # a lone sample comes back as it is
+
+
+def test_apply_is_one_push_with_the_nominal_or_given_period():
+    rng = np.random.default_rng(3)
+    stamps = make_stamps(rng, 5000, 10_000_000, gaps=2)
+    x = make_values(rng, 5000, 2)
+    t_s = (stamps - stamps[0]) * 1e-9
+    lp = LowPass(2.0)
+    period = nominal_period(stamps)
+    whole = run(StreamingLowPass(lp, period), stamps, x, [])
+    np.testing.assert_array_equal(lp.apply(t_s, x), whole)
+    given_period = run(StreamingLowPass(lp, 0.0095), stamps, x, [])
+    np.testing.assert_array_equal(lp.apply(t_s, x, period_s=0.0095), given_period)
+    assert lp.apply(t_s, x[:, 0]).shape == (5000,)
+
+
+@pytest.mark.parametrize("causal", [False, True])
+def test_stages_keep_no_reference_to_pushed_arrays(causal):
+    rng = np.random.default_rng(4)
+    stamps = make_stamps(rng, 3000, 10_000_000)
+    x = make_values(rng, 3000, 2)
+    lp = LowPass(2.0, causal=causal)
+    expect = run(StreamingLowPass(lp, 0.01), stamps, x, [])
+    stage = StreamingLowPass(lp, 0.01)
+    out = []
+    for a in (0, 5, 40, 1500):  # a few samples (before the pad is full), then more
+        piece = x[a : {0: 5, 5: 40, 40: 1500, 1500: 3000}[a]].copy()
+        out.append(stage.push(stamps[a : a + len(piece)], piece))
+        piece[:] = np.nan  # the caller reuses its buffer
+    out.append(stage.finish())
+    # zero-phase: other backward-pass starts, so equal within 1e-9 of the range, not bit for bit
+    np.testing.assert_allclose(np.concatenate(out), expect, rtol=0, atol=1e-9 * np.ptp(x))
