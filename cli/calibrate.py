@@ -9,25 +9,22 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from twincd.calibration import Calibration, Setup, fit_calibration
-from twincd.errors import UsageError
-from twincd.io.logs import expand_logs, parse_joint_map
-from twincd.io.mcap_write import check_writable
-from twincd.signal.filters import (
+from twincd.defaults import (
     DEFAULT_CAUSAL_CUTOFF_HZ,
     DEFAULT_CUTOFF_HZ,
+    DEFAULT_K_SIGMA,
     DEFAULT_ORDER,
-    LowPass,
 )
-from twincd.threshold import DEFAULT_K_SIGMA, calibrate_threshold
+from twincd.errors import UsageError
 
 from .common import (
     Debug,
+    Jobs,
     JointMap,
     LabelTopic,
     Logs,
@@ -37,9 +34,12 @@ from .common import (
     Topic,
     command,
     log_options,
-    progress,
+    run_per_log,
     stdout,
 )
+
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration, Setup
 
 log = logging.getLogger("twincd")
 
@@ -90,6 +90,10 @@ def resolve_setup(
     causal: bool | None = None,
 ) -> Setup:
     """Settings for reading logs: explicit options over the calibration's, never against them."""
+    from twincd.calibration import Setup
+    from twincd.io.logs import parse_joint_map
+    from twincd.signal.filters import LowPass
+
     if calibration is None:
         default_cutoff = DEFAULT_CAUSAL_CUTOFF_HZ if causal else DEFAULT_CUTOFF_HZ
         lowpass = LowPass(
@@ -164,6 +168,7 @@ def fit(
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
     causal: Causal = None,
+    jobs: Jobs = 0,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -175,12 +180,18 @@ def fit(
 
     Example: twincd fit logs/train/*.mcap -o calibration.json
     """
+    from twincd.calibration import fit_log, merge_fits
+    from twincd.executors import Bound
+    from twincd.io.logs import expand_logs
+    from twincd.io.mcap_write import check_writable
+
     check_writable(output)
     paths = expand_logs(logs)
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
     )
-    cal = fit_calibration(progress(paths, "fitting", quiet), setup)
+    parts = run_per_log(Bound(fit_log, setup), paths, jobs, "fitting", quiet)
+    cal = merge_fits(parts, setup)
     cal.save(output)
     stdout.print(fit_table(cal))
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
@@ -203,6 +214,7 @@ def threshold(
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
+    jobs: Jobs = 0,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -214,13 +226,19 @@ def threshold(
 
     Example: twincd threshold logs/val/*.mcap -c calibration.json --sigma 4
     """
+    from twincd.calibration import Calibration
+    from twincd.executors import Bound
+    from twincd.io.logs import expand_logs
+    from twincd.io.mcap_write import check_writable
+    from twincd.threshold import score_log, with_threshold
+
     cal = Calibration.load(calibration)
     target = output or calibration
     check_writable(target)
     paths = expand_logs(logs)
     setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
-    prepared = setup.prepare_all(progress(paths, "scoring", quiet))
-    cal = calibrate_threshold(prepared, cal, sigma)
+    parts = run_per_log(Bound(score_log, setup, cal), paths, jobs, "scoring", quiet)
+    cal = with_threshold(parts, cal, sigma)
     cal.save(target)
     th = cal.require_threshold()
     stdout.print(

@@ -7,23 +7,20 @@ import functools
 import logging
 import os
 import sys
+import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
 
+from twincd.defaults import DEFAULT_LABEL_TOPIC, DEFAULT_ROBOT, DEFAULT_SIM_TOPIC, DEFAULT_TOPIC
 from twincd.errors import TwincdError
-from twincd.io.logs import (
-    DEFAULT_LABEL_TOPIC,
-    DEFAULT_SIM_TOPIC,
-    DEFAULT_TOPIC,
-    LogOptions,
-    parse_joint_map,
-)
-from twincd.twin.robot import DEFAULT_ROBOT
+
+if TYPE_CHECKING:
+    from twincd.io.logs import LogOptions
 
 T = TypeVar("T")
 
@@ -52,6 +49,12 @@ JointMap = Annotated[
     str | None, typer.Option("--joint-map", help="rename log joints: old=new,old2=new2")
 ]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.")]
+Jobs = Annotated[
+    int,
+    typer.Option(
+        "--jobs", "-j", help="Logs processed at once in local processes (0: every core).", min=0
+    ),
+]
 Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")]
 
 stderr = Console(stderr=True, highlight=False)
@@ -80,6 +83,8 @@ def log_options(
     defaults: LogOptions | None = None,
 ) -> LogOptions:
     """Options from the command line; unset ones fall back to ``defaults`` (a calibration's)."""
+    from twincd.io.logs import LogOptions, parse_joint_map
+
     base = defaults or LogOptions()
     return LogOptions(
         topic=topic or base.topic,
@@ -130,14 +135,41 @@ def progress(items: Sequence[T], description: str, quiet: bool) -> Iterator[T]:
 
 
 @contextlib.contextmanager
+def counter(total: int, description: str, quiet: bool) -> Iterator[Callable[[int], None]]:
+    """A progress bar over ``total`` logs that the work advances by calling the yielded
+    function with the number just done (only when stderr is a terminal)."""
+    if not show_progress(quiet) or total < 2:
+        yield lambda _done: None
+        return
+    from rich.progress import Progress
+
+    with Progress(console=stderr, transient=True) as bar:
+        task = bar.add_task(description, total=total)
+        yield lambda done: bar.advance(task, done)
+
+
+def run_per_log(
+    func: Callable[[T], Any], items: Sequence[T], jobs: int, description: str, quiet: bool
+) -> list[Any]:
+    """``func`` over ``items`` on ``jobs`` processes, with a progress bar."""
+    from twincd.executors import Executor
+
+    with counter(len(items), description, quiet) as advance:
+        return Executor(jobs).map(func, items, advance)
+
+
+@contextlib.contextmanager
 def all_or_nothing() -> Iterator[list[Path]]:
-    """Collects the files a multi-log run writes; if the run fails, they are removed again,
-    so a failed run leaves nothing behind (DESIGN §5)."""
+    """Collects the files a multi-log run may write; if the run fails, those it wrote are
+    removed again (files older than the run are left alone), so a failed run leaves nothing
+    behind (DESIGN §5)."""
+    started = time.time_ns()
     written: list[Path] = []
     try:
         yield written
     except BaseException:
         for path in written:
             with contextlib.suppress(OSError):
-                path.unlink()
+                if path.stat().st_mtime_ns >= started:
+                    path.unlink()
         raise

@@ -3,23 +3,22 @@
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from twincd.calibration import Calibration
-from twincd.detection import LogDetection
-from twincd.detection import detect as detect_log
 from twincd.errors import UsageError
-from twincd.io.logs import expand_logs
-from twincd.io.mcap_write import check_writable
-from twincd.outputs import OUTPUT_SUFFIXES, write_detection
 
-from .calibrate import CalibrationIn, resolve_setup
+if TYPE_CHECKING:
+    from twincd.detection import DetectionSummary
+
+from .calibrate import CalibrationIn, Causal, resolve_setup
 from .common import (
     Debug,
+    Jobs,
     JointMap,
     LabelTopic,
     Logs,
@@ -29,13 +28,17 @@ from .common import (
     Topic,
     all_or_nothing,
     command,
-    progress,
+    run_per_log,
     stdout,
 )
+
+log = logging.getLogger("twincd")
 
 
 def _targets(paths: list[Path], output: Path | None) -> list[Path | None]:
     """Where each log's per-sample output goes: -o itself, or a file per log in folder -o."""
+    from twincd.outputs import OUTPUT_SUFFIXES
+
     if output is None:
         return [None] * len(paths)
     if len(paths) == 1 and output.suffix:
@@ -52,11 +55,11 @@ def _targets(paths: list[Path], output: Path | None) -> list[Path | None]:
     return [output / f"{p.stem if p.is_file() else p.name}.detect.mcap" for p in paths]
 
 
-def events_table(result: LogDetection) -> Table:
-    t0 = int(result.log.states.stamp_ns[0])
+def events_table(result: DetectionSummary) -> Table:
+    t0 = result.first_stamp_ns
     table = Table(
         title=f"{result.source}: {len(result.events)} collision event(s), "
-        f"{int(result.flags.sum())}/{len(result.scores)} samples flagged"
+        f"{result.collision_samples}/{result.samples} samples flagged"
     )
     for col in ("#", "start (s)", "end (s)", "duration (s)", "peak score", "joint"):
         table.add_column(col, justify="left" if col == "joint" else "right")
@@ -91,6 +94,8 @@ def detect(
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
+    causal: Causal = None,
+    jobs: Jobs = 0,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -102,29 +107,35 @@ def detect(
 
     Example: twincd detect run.mcap -c calibration.json -o run.detect.mcap
     """
+    from twincd.calibration import Calibration
+    from twincd.executors import Bound
+    from twincd.io.logs import expand_logs
+    from twincd.io.mcap_write import check_writable
+    from twincd.outputs import detect_and_write
+
     cal = Calibration.load(calibration)
     cal.require_threshold()
     paths = expand_logs(logs)
-    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
+    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map, causal=causal)
     targets = _targets(paths, output)
     # one log at a time: only the small summaries are kept, so memory stays flat
     for target in targets:
         if target is not None:
             check_writable(target)
-    summaries = []
+    items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
-        for path, target in progress(list(zip(paths, targets, strict=True)), "detecting", quiet):
-            result = detect_log(setup.prepare(path), cal)
-            if target is not None:
-                write_detection(result, path, target)
-                written.append(target)
-            summaries.append(result.to_dict())
-            if json_:
-                continue
-            if result.events:
-                stdout.print(events_table(result))
-            else:
-                stdout.print(f"{result.source}: no collision ({len(result.scores)} samples)")
+        written.extend(target for target in targets if target is not None)
+        results = run_per_log(Bound(detect_and_write, cal, setup), items, jobs, "detecting", quiet)
+    summaries = [r.to_dict() for r in results]
+    for result in results:
+        for line in result.warnings:
+            log.warning("%s", line)
+        if json_:
+            continue
+        if result.events:
+            stdout.print(events_table(result))
+        else:
+            stdout.print(f"{result.source}: no collision ({result.samples} samples)")
     found = any(s["events"] for s in summaries)
     if json_:
         doc = {

@@ -12,12 +12,7 @@ import typer
 from rich import box
 from rich.table import Table
 
-from twincd.calibration import Calibration
-from twincd.evaluation.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
-from twincd.evaluation.runner import DEFAULT_REPEATS, parse_methods
-from twincd.evaluation.runner import evaluate as run_evaluation
-from twincd.io.logs import expand_logs
-from twincd.io.mcap_write import atomic_output, check_writable
+from twincd.defaults import DEFAULT_REPEATS
 
 from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
 from .common import (
@@ -108,6 +103,13 @@ def evaluate(
 
     Example: twincd evaluate logs/test -c calibration.json --report report.md
     """
+    from twincd.calibration import Calibration
+    from twincd.evaluation.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
+    from twincd.evaluation.runner import evaluate as run_evaluation
+    from twincd.evaluation.runner import parse_methods
+    from twincd.io.logs import expand_logs
+    from twincd.io.mcap_write import atomic_output, check_writable
+
     cal = Calibration.load(calibration) if calibration is not None else None
     names = parse_methods(methods)
     if report is not None:

@@ -7,14 +7,12 @@ from typing import Annotated
 
 import typer
 
+from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import UsageError
-from twincd.io.logs import expand_logs
-from twincd.io.mcap_write import check_writable
-from twincd.simulate import default_output, simulate_log
-from twincd.twin.robot import DEFAULT_ROBOT, list_robots
 
 from .common import (
     Debug,
+    Jobs,
     JointMap,
     LabelTopic,
     Quiet,
@@ -24,7 +22,7 @@ from .common import (
     all_or_nothing,
     command,
     log_options,
-    progress,
+    run_per_log,
     stdout,
 )
 
@@ -50,6 +48,7 @@ def simulate(
     list_robots_: Annotated[
         bool, typer.Option("--list-robots", help="List the robot names --robot accepts.")
     ] = False,
+    jobs: Jobs = 0,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -59,6 +58,12 @@ def simulate(
 
     Example: twincd simulate run.mcap --robot xarm7 -o run.twin.mcap
     """
+    from twincd.executors import Bound
+    from twincd.io.logs import expand_logs
+    from twincd.io.mcap_write import check_writable
+    from twincd.simulate import default_output, simulate_item
+    from twincd.twin.robot import list_robots
+
     if list_robots_:
         for name in list_robots():
             stdout.print(name)
@@ -68,6 +73,11 @@ def simulate(
     paths = expand_logs(logs)
     if in_place and output is not None:
         raise UsageError("--in-place and --output exclude each other", "simulate", "pick one")
+    for path in paths if in_place else []:
+        if not (path.is_file() and path.suffix == ".mcap"):
+            raise UsageError(
+                "--in-place rewrites bare .mcap files only", str(path), "use -o for other logs"
+            )
     several = len(paths) > 1
     if several and output is not None:
         if output.suffix == ".mcap":
@@ -79,9 +89,11 @@ def simulate(
         targets = [output / default_output(p).name if several else output for p in paths]
     for path, target in zip(paths, targets):
         check_writable(target if target is not None else default_output(path))
+    items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
-        for path, target in progress(list(zip(paths, targets)), "simulating", quiet):
-            result = simulate_log(path, target, robot or DEFAULT_ROBOT, options, in_place=in_place)
-            if not in_place:
-                written.append(result.output)
-            stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")
+        if not in_place:
+            written.extend(t if t is not None else default_output(p) for p, t in items)
+        work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place)
+        results = run_per_log(work, items, jobs, "simulating", quiet)
+    for result in results:
+        stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")

@@ -10,7 +10,6 @@ from typing import Annotated
 import typer
 
 from twincd.errors import UsageError
-from twincd.synth.plant import SynthConfig, write_dataset
 
 from .common import Debug, Quiet, command, stdout
 
@@ -48,6 +47,8 @@ def synth(
 
     Example: twincd synth data --seed 0 --train 30 --val 5 --test 5
     """
+    from twincd.synth.plant import SynthConfig, write_dataset
+
     if not 0 < min_duration <= max_duration:
         raise UsageError(
             f"bad duration range {min_duration}–{max_duration} s",

@@ -26,6 +26,7 @@ def test_fit_writes_the_calibration_and_prints_the_table(fitted):
         "causal": False,
         "kind": "butterworth",
         "zero_phase": True,
+        "sample_rate_hz": 100.0,  # the logs' nominal rate: later logs are filtered at it
     }
     assert doc["log_options"]["topic"] == "/joint_states"
     assert doc["threshold"] is None and len(doc["fit"]["logs"]) == 3

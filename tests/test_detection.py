@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 
 import numpy as np
 import pytest
 from conftest import DEFAULT_BUMPS, GAINS, TWIN_JOINTS
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from twincd.calibration import Calibration, Setup, Threshold, fit_calibration
 from twincd.detection import affine_score, detect, find_events, residual, runs
@@ -162,3 +165,29 @@ def test_proposed_method_is_registered_and_fits(twin_dataset):
 
 def test_threshold_dataclass_value():
     assert Threshold(3.0, 1.0, 0.5).value == 2.5
+
+
+@given(
+    flags=st.lists(st.booleans(), min_size=1, max_size=80),
+    cuts=st.lists(st.integers(0, 80), max_size=10),
+    seed=st.integers(0, 2**16),
+)
+@settings(max_examples=300, deadline=None)
+def test_events_are_the_same_in_any_chunking(flags: list[bool], cuts: list[int], seed: int) -> None:
+    from twincd.detection import EventTracker
+
+    rng = np.random.default_rng(seed)
+    f = np.array(flags)
+    n = len(f)
+    scores = rng.random(n)
+    resid = rng.normal(size=(n, 3))
+    stamps = np.cumsum(rng.integers(1, 5, n)).astype(np.int64)
+    whole = find_events(f, scores, resid, stamps, ["a", "b", "c"])
+    tracker = EventTracker(["a", "b", "c"])
+    edges = [0, *sorted({c for c in cuts if 0 < c < n}), n]
+    chunked = []
+    for a, b in itertools.pairwise(edges):
+        chunked += tracker.push(f[a:b], scores[a:b], resid[a:b], stamps[a:b])
+    chunked += tracker.finish()
+    assert chunked == whole
+    assert [(e.first, e.last) for e in whole] == runs(f)

@@ -105,3 +105,15 @@ def test_differentiator_is_exact_for_cubics_on_irregular_times():
 def test_differentiator_rejects_a_degenerate_window():
     with pytest.raises(ValueError):
         differentiate(np.arange(5.0), np.arange(5.0), window=1)
+
+
+def test_batched_rnea_equals_a_loop_of_pinocchio_rnea() -> None:
+    import pinocchio as pin
+
+    robot = load_robot("xarm7")
+    rng = np.random.default_rng(3)
+    q, qd, qdd = (rng.uniform(-1, 1, (257, robot.dof)) for _ in range(3))
+    data = robot.model.createData()
+    loop = np.array([pin.rnea(robot.model, data, *row) for row in zip(q, qd, qdd)])
+    for threads in (1, 2):
+        np.testing.assert_array_equal(inverse_dynamics(robot, q, qd, qdd, threads), loop)

@@ -18,6 +18,10 @@ class TwincdError(Exception):
         self.hint = hint
         super().__init__(self.message)
 
+    def __reduce__(self) -> tuple[type[TwincdError], tuple[str, str, str]]:
+        # errors cross process boundaries (a pool worker's failure): rebuild from the parts
+        return (type(self), (self.what, self.where, self.hint))
+
     @property
     def message(self) -> str:
         text = self.what

@@ -1,97 +1,208 @@
-"""Per-sample detection outputs: augmented MCAP, CSV or JSONL (DESIGN §3)."""
+"""Per-sample detection outputs, written while a log streams (DESIGN §3): the input copied
+losslessly into MCAP plus ``/twincd/residual``, ``/twincd/score``, ``/twincd/collision`` and
+``/twincd/event`` channels, or one CSV/JSONL row per sample. Every output is written to a
+temporary file and renamed into place only when the log has been processed completely."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any
 
-from twincd.detection.detect import LogDetection
+import numpy as np
+
+from twincd.detection.detect import DetectionSummary, FrameSink, LogDetection, detect_file
+from twincd.detection.events import Event
 from twincd.errors import OutputError
+from twincd.frames import Frame
+
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration
+    from twincd.pipeline import Setup
 
 RESIDUAL_TOPIC = "/twincd/residual"
 SCORE_TOPIC = "/twincd/score"
 COLLISION_TOPIC = "/twincd/collision"
+EVENT_TOPIC = "/twincd/event"
 
 OUTPUT_SUFFIXES = (".mcap", ".csv", ".jsonl")
 
 
-def write_detection(result: LogDetection, source: Path, target: Path) -> None:
-    """``target`` by suffix: augmented MCAP, or one CSV/JSONL row per sample (atomic)."""
-    suffix = target.suffix.lower()
-    if suffix == ".mcap":
-        _write_mcap(result, source, target)
-    elif suffix in (".csv", ".jsonl"):
-        from twincd.io.mcap_write import atomic_output
-
-        with atomic_output(target) as stream:
-            text = io.TextIOWrapper(stream, encoding="utf-8", newline="")
-            rows = _rows(result)
-            if suffix == ".csv":
-                _write_csv(text, result, rows)
-            else:
-                for row in rows:
-                    text.write(json.dumps(row) + "\n")
-            text.flush()
-            text.detach()
-    else:
+def check_output_kind(target: Path) -> None:
+    if target.suffix.lower() not in OUTPUT_SUFFIXES:
         raise OutputError(
             f"unknown output type {target.suffix!r}",
             str(target),
-            "end -o with .mcap, .csv or .jsonl",
+            "name the output .mcap, .csv or .jsonl",
         )
 
 
-def _rows(result: LogDetection) -> Iterator[dict[str, object]]:
-    names = result.log.joint_names
-    stamps = result.log.states.stamp_ns
-    for i in range(len(result.scores)):
-        row: dict[str, object] = {
-            "stamp_ns": int(stamps[i]),
-            "score": float(result.scores[i]),
-            "collision": bool(result.flags[i]),
-        }
-        for j, n in enumerate(names):
-            row[f"residual_{n}"] = float(result.residual[i, j])
-        yield row
+@contextlib.contextmanager
+def open_sink(source: Path, target: Path, joint_names: Sequence[str]) -> Iterator[FrameSink]:
+    """A sink for ``target`` by its suffix; the file appears only if the block completes."""
+    check_output_kind(target)
+    if target.suffix.lower() == ".mcap":
+        if target.resolve() == Path(source).resolve():
+            raise OutputError("output would overwrite the input", str(target), "pick another")
+        with McapSink(source, target, joint_names) as sink:
+            yield sink
+        return
+    from twincd.io.atomic import atomic_output
+
+    with atomic_output(target) as stream:
+        text = io.TextIOWrapper(stream, encoding="utf-8", newline="")
+        table: FrameSink = (
+            CsvSink(text, joint_names)
+            if target.suffix.lower() == ".csv"
+            else JsonlSink(text, joint_names)
+        )
+        yield table
+        text.flush()
+        text.detach()
 
 
-def _write_csv(
-    text: io.TextIOWrapper, result: LogDetection, rows: Iterator[dict[str, object]]
-) -> None:
-    fields = ["stamp_ns", "score", "collision"] + [f"residual_{n}" for n in result.log.joint_names]
-    writer = csv.DictWriter(text, fieldnames=fields, lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({**row, "collision": int(bool(row["collision"]))})  # 0/1 for any tool
+class McapSink:
+    """The input log plus twincd's channels; each message stamped like its joint state."""
+
+    def __init__(self, source: Path, target: Path, joint_names: Sequence[str]) -> None:
+        from twincd.io.mcap_write import AugmentedMcap
+
+        self.joint_names = list(joint_names)
+        replaced = (RESIDUAL_TOPIC, SCORE_TOPIC, COLLISION_TOPIC, EVENT_TOPIC)
+        self._out = AugmentedMcap(source, target, replace_topics=replaced)
+
+    def __enter__(self) -> McapSink:
+        from twincd.io.logs import JOINT_STATE
+
+        self._out.__enter__()
+        self._residual = self._out.add_channel(RESIDUAL_TOPIC, JOINT_STATE)
+        self._score = self._out.add_channel(SCORE_TOPIC, "std_msgs/msg/Float64")
+        self._collision = self._out.add_channel(COLLISION_TOPIC, "std_msgs/msg/Bool")
+        self._event = self._out.add_channel(EVENT_TOPIC, "std_msgs/msg/String")
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._out.__exit__(*exc)
+
+    def write(self, frame: Frame, events: list[Event]) -> None:
+        from twincd.io.cdr import bool_block, float64_block, joint_state_block, serialize
+
+        if frame.n:
+            t = frame["log_time_ns"]
+            residual = joint_state_block(
+                frame["stamp_ns"],
+                self.joint_names,
+                frame["position"],
+                frame["velocity"],
+                frame["residual"],
+            )
+            self._out.write(self._residual, t, residual)
+            # Float64 and Bool have no header: their log time ties them to the sample
+            self._out.write(self._score, t, float64_block(frame["score"]))
+            self._out.write(self._collision, t, bool_block(frame["flag"]))
+        if events:
+            from twincd.io.cdr import TYPESTORE
+
+            string = TYPESTORE.types["std_msgs/msg/String"]
+            payloads = [
+                serialize(string(data=json.dumps(e.to_dict())), "std_msgs/msg/String")
+                for e in events
+            ]
+            # an event is published when it ends: at its last sample's time
+            times = np.array([e.end_ns for e in events], dtype=np.int64)
+            self._out.write(self._event, times, payloads)
 
 
-def _write_mcap(result: LogDetection, source: Path, target: Path) -> None:
-    from twincd.io.cdr import bool_cdr, float64_cdr, joint_state_cdr
-    from twincd.io.logs import JOINT_STATE
-    from twincd.io.mcap_write import NewTopic, write_augmented
+def _columns(joint_names: Sequence[str]) -> list[str]:
+    return ["stamp_ns", "score", "collision"] + [f"residual_{n}" for n in joint_names]
 
-    if target.resolve() == Path(source).resolve():
-        raise OutputError("output would overwrite the input", str(target), "pick another -o")
+
+class CsvSink:
+    """One CSV row per sample; collision as 0/1 so that any tool reads it."""
+
+    def __init__(self, text: IO[str], joint_names: Sequence[str]) -> None:
+        self._writer = csv.writer(text, lineterminator="\n")
+        self._writer.writerow(_columns(joint_names))
+
+    def write(self, frame: Frame, events: list[Event]) -> None:
+        if not frame.n:
+            return
+        rows = zip(
+            frame["stamp_ns"].tolist(),
+            map(repr, frame["score"].tolist()),
+            frame["flag"].astype(int).tolist(),
+            *(map(repr, col) for col in frame["residual"].T.tolist()),
+            strict=True,
+        )
+        self._writer.writerows(rows)
+
+
+class JsonlSink:
+    """One JSON object per sample."""
+
+    def __init__(self, text: IO[str], joint_names: Sequence[str]) -> None:
+        self._text = text
+        self._keys = _columns(joint_names)
+
+    def write(self, frame: Frame, events: list[Event]) -> None:
+        if not frame.n:
+            return
+        columns = [
+            frame["stamp_ns"].tolist(),
+            frame["score"].tolist(),
+            frame["flag"].tolist(),
+            *frame["residual"].T.tolist(),
+        ]
+        for values in zip(*columns, strict=True):
+            self._text.write(json.dumps(dict(zip(self._keys, values, strict=True))) + "\n")
+
+
+def detect_and_write(
+    item: tuple[Path, Path | None], calibration: Calibration, setup: Setup
+) -> DetectionSummary:
+    """The per-log step of ``detect``: stream one log, writing its per-sample output (if any)
+    where the work runs; only the summary travels back."""
+    path, target = item
+    with contextlib.ExitStack() as outputs:
+        sinks = []
+        if target is not None:
+            sinks.append(outputs.enter_context(open_sink(path, target, calibration.joint_names)))
+        return detect_file(path, calibration, setup, sinks)
+
+
+def write_detection(result: LogDetection, source: Path, target: Path) -> None:
+    """Write a whole-log detection to ``target`` (same formats as streaming detection)."""
     states = result.log.states
-    stamps, log_times = states.stamp_ns, states.log_time_ns
-
-    def timed(payloads: Iterable[bytes]) -> Iterator[tuple[int, int, bytes]]:
-        for t, data in zip(log_times, payloads, strict=False):
-            yield int(t), int(t), data
-
-    # Float64 and Bool have no header: their log time ties them to the sample
-    residual_msgs = joint_state_cdr(
-        stamps, states.joint_names, states.position, states.velocity, result.residual
+    frame = Frame(
+        {
+            "stamp_ns": states.stamp_ns,
+            "log_time_ns": states.log_time_ns,
+            "position": states.position,
+            "velocity": states.velocity,
+            "residual": result.residual,
+            "score": result.scores,
+            "flag": result.flags,
+        }
     )
-    write_augmented(
-        source,
-        target,
-        [
-            NewTopic(RESIDUAL_TOPIC, JOINT_STATE, timed(residual_msgs)),
-            NewTopic(SCORE_TOPIC, "std_msgs/msg/Float64", timed(map(float64_cdr, result.scores))),
-            NewTopic(COLLISION_TOPIC, "std_msgs/msg/Bool", timed(map(bool_cdr, result.flags))),
-        ],
-    )
+    with open_sink(source, target, result.log.joint_names) as sink:
+        sink.write(frame, result.events)
+
+
+__all__ = [
+    "COLLISION_TOPIC",
+    "EVENT_TOPIC",
+    "OUTPUT_SUFFIXES",
+    "RESIDUAL_TOPIC",
+    "SCORE_TOPIC",
+    "CsvSink",
+    "JsonlSink",
+    "McapSink",
+    "check_output_kind",
+    "detect_and_write",
+    "open_sink",
+    "write_detection",
+]

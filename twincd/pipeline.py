@@ -1,31 +1,55 @@
-"""From a log on disk to the arrays every method works on: read, twin (or the log's own
-``/twincd/sim_effort``), low-pass filter. Pure per-log work; nothing is shared between logs but
-the read-only robot model cache.
+"""From a log on disk to the arrays every method works on, block by block: read, twin (or the
+log's own ``/twincd/sim_effort``), low-pass filter.
+
+One chain of stages (twincd.frames) serves every use: ``Setup.open(path)`` streams a log of any
+length at flat memory (what ``fit``, ``threshold``, ``detect`` and ``simulate`` use),
+``Setup.prepare(path)`` concatenates the same blocks into one ``PreparedLog`` (what ``evaluate``
+and the baselines use on sample-sized logs), and ``twincd.detection.OnlineDetector`` feeds the
+same stages with live samples.
+
+Sampling rate and gaps: a log's nominal period is the calibration's (``Setup.period_s``) when
+there is one, so batch and live detection filter alike; otherwise the median interval of the
+log's first samples (``twincd.signal.nominal_period``), never the whole log. A gap is an
+interval longer than 5 periods; stages restart after it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+import logging
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import DataError, JointMismatchError
-from twincd.io.logs import JointStates, LogOptions, read_log
+from twincd.frames import Chain, Derived, Frame, Mapped, Stage
+from twincd.io.logs import JointStates, LogOptions
 from twincd.signal.filters import LowPass
-from twincd.twin.dynamics import Differentiator, simulate_effort
-from twincd.twin.robot import RobotModel, load_robot
+
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration
+    from twincd.io.blocks import LogStream
+    from twincd.twin.robot import RobotModel
+
+log = logging.getLogger("twincd")
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+IntArray = NDArray[np.intp]
+
+DEFAULT_BLOCK = 65536
+# samples looked at before the stages are set up: enough for a stable nominal period
+PEEK_SAMPLES = 1001
 
 
 @dataclass(frozen=True)
 class PreparedLog:
-    """One log ready for scoring: raw and filtered efforts in ``joint_names`` order.
+    """One whole log ready for scoring: raw and filtered efforts in ``joint_names`` order.
 
     ``effort_f`` is the paper's τ̃ and ``sim_effort_f`` its τ̂̃. ``robot`` is None when the
     twin's effort came from the log itself and no model was asked for.
@@ -39,6 +63,7 @@ class PreparedLog:
     simulated: bool  # False: the log carried /twincd/sim_effort
     # the filter behind effort_f: methods that filter other inputs do it alike
     lowpass: LowPass = field(default_factory=LowPass)
+    period_s: float | None = None
 
     @property
     def source(self) -> str:
@@ -64,81 +89,377 @@ class PreparedLog:
 @lru_cache(maxsize=32)
 def robot_for(robot: str, joints: tuple[str, ...]) -> RobotModel:
     """The robot model reduced to ``joints`` (cached: loading a URDF costs milliseconds)."""
+    from twincd.twin.robot import load_robot
+
     return load_robot(robot, keep=joints)
 
 
-def twin_effort(
-    states: JointStates,
-    robot: str | None,
-    differentiator: Differentiator | None = None,
-    force_simulate: bool = False,
-    fallback_robot: str | None = None,
-) -> tuple[JointStates, FloatArray, RobotModel | None, bool]:
-    """(states in twin joint order, τ̂, robot or None, simulated?) for one log.
+# ------------------------------------------------------------------ the stages
 
-    Uses the log's ``/twincd/sim_effort`` when present (unless ``force_simulate``), else
-    simulates with ``robot`` (or ``fallback_robot`` when no robot was asked for: a default
-    model is only needed, and only loaded, for logs without a simulated effort).
+
+def pick_columns(columns: IntArray) -> Mapped:
+    """Reorder/select the joint columns of every per-joint array."""
+
+    def pick(frame: Frame) -> Frame:
+        return frame.with_columns(**{k: frame[k][:, columns] for k in _JOINT_COLUMNS if k in frame})
+
+    return Mapped(pick)
+
+
+_JOINT_COLUMNS = ("position", "velocity", "effort", "sim_effort")
+
+
+def _fill_velocity(frame: Frame) -> Frame:
+    velocity = frame["velocity"]
+    filled = np.where(np.isfinite(velocity), velocity, frame["dq"])
+    return Frame({k: v for k, v in frame.items() if k != "dq"}).with_columns(velocity=filled)
+
+
+def twin_stages(
+    robot: RobotModel | None,
+    period_s: float,
+    causal: bool,
+    fill_velocity: bool,
+    threads: int | None = None,
+) -> list[Stage]:
+    """Velocity (from position where the log has none), acceleration, τ̂ = RNEA(q, q̇, q̈).
+
+    Columns must be in the robot's joint order. ``robot`` None: the frames carry
+    ``sim_effort`` already, only the velocity is completed.
     """
-    if states.sim_effort is not None and not force_simulate:
-        have: BoolArray = np.asarray(np.isfinite(states.sim_effort).all(axis=0))
-        names = tuple(n for n, ok in zip(states.joint_names, have.tolist(), strict=True) if ok)
-        if names:
-            sel = states.select(names)
-            model = robot_for(robot, names) if robot else None
-            assert sel.sim_effort is not None
-            return sel, sel.sim_effort, model, False
-    robot = robot or fallback_robot
+    from twincd.signal.derivatives import StreamingDerivative
+    from twincd.twin.dynamics import inverse_dynamics
+
+    stages: list[Stage] = []
+    if fill_velocity:
+        dq = StreamingDerivative(period_s=period_s, causal=causal)
+        stages += [Derived(dq, "position", "dq"), Mapped(_fill_velocity)]
     if robot is None:
-        raise JointMismatchError(
-            "the log has no simulated effort and no robot model was given",
-            states.source,
-            "pass --robot or run `twincd simulate` first",
+        return stages
+    ddq = StreamingDerivative(period_s=period_s, causal=causal)
+
+    def twin(frame: Frame) -> Frame:
+        tau = inverse_dynamics(
+            robot, frame["position"], frame["velocity"], frame["ddq"], threads=threads
         )
-    model = robot_for(robot, states.joint_names)
-    sel = states.select(model.joint_names)
-    return sel, simulate_effort(model, sel, differentiator), model, True
+        rest = {k: v for k, v in frame.items() if k != "ddq"}
+        return Frame(rest).with_columns(sim_effort=tau)
+
+    return [*stages, Derived(ddq, "velocity", "ddq"), Mapped(twin)]
 
 
-def prepare(
-    path: str | Path,
-    options: LogOptions,
-    robot: str | None,
-    lowpass: LowPass,
-    joint_names: Sequence[str] | None = None,
-    fallback_robot: str | None = None,
-) -> PreparedLog:
-    """Read, twin and filter one log; ``joint_names`` pins the column order (a calibration's).
+def filter_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
+    """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass."""
+    from twincd.signal.filters import StreamingLowPass
 
-    ``fallback_robot`` simulates logs without ``/twincd/sim_effort`` when ``robot`` is None.
+    def stack(frame: Frame) -> Frame:
+        return frame.with_columns(both=np.hstack((frame["effort"], frame["sim_effort"])))
+
+    def split(frame: Frame) -> Frame:
+        both = frame["both_f"]
+        d = both.shape[1] // 2
+        rest = {k: v for k, v in frame.items() if k not in ("both", "both_f")}
+        return Frame(rest).with_columns(effort_f=both[:, :d], sim_effort_f=both[:, d:])
+
+    return [
+        Mapped(stack),
+        Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f"),
+        Mapped(split),
+    ]
+
+
+# ------------------------------------------------------------------ one log, streamed
+
+
+def _finite_rows(frame: Frame, columns: Sequence[str], used: IntArray) -> BoolArray:
+    ok = np.ones(frame.n, dtype=bool)
+    for c in columns:
+        if c in frame:
+            ok &= np.isfinite(frame[c][:, used]).all(axis=1)
+    return ok
+
+
+class PreparedStream:
+    """One log read, twinned and filtered block by block: a context manager whose iteration
+    yields Frames with ``stamp_ns``, ``log_time_ns``, ``position``, ``velocity``, ``effort``,
+    ``sim_effort`` (τ̂), ``effort_f`` (τ̃), ``sim_effort_f`` (τ̂̃) and ``labels`` (if the log has
+    them), joints in ``joint_names`` order.
+
+    ``filtered=False`` stops after the twin (what ``simulate`` writes); ``need_effort=False``
+    accepts logs without measured effort.
     """
-    states = read_log(path, options)
-    if states.effort is None:
-        raise DataError(
-            "the log has no measured effort",
-            f"{states.source}, {states.topic}",
-            "record JointState.effort; twincd compares it with the twin",
+
+    def __init__(
+        self,
+        path: str | Path,
+        setup: Setup,
+        filtered: bool = True,
+        need_effort: bool = True,
+        force_simulate: bool = False,
+    ) -> None:
+        self.path = Path(path)
+        self.setup = setup
+        self.filtered = filtered
+        self.need_effort = need_effort
+        self.force_simulate = force_simulate
+        self.robot: RobotModel | None = None
+        self.simulated = True
+        self.joint_names: tuple[str, ...] = ()
+        self.period_s = 0.0
+        self.samples = 0
+        self.dropped_bad = 0
+        self.velocity_from_position = False
+        self._log: LogStream | None = None
+
+    @property
+    def source(self) -> str:
+        return str(self.path)
+
+    def __enter__(self) -> PreparedStream:
+        from twincd.io.blocks import iter_blocks
+
+        self._log = iter_blocks(
+            self.path,
+            self.setup.options,
+            block_size=self.setup.block_size,
+            strict=self.setup.strict,
         )
-    sel, sim, model, simulated = twin_effort(states, robot, fallback_robot=fallback_robot)
-    if joint_names is not None:
-        missing = [n for n in joint_names if n not in sel.joint_names]
-        if missing:
-            raise JointMismatchError(
-                f"the log lacks calibrated joint(s) {', '.join(missing)}",
-                states.source,
-                "use a calibration made for this robot, or --joint-map",
+        self._log.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._log is not None:
+            self._log.__exit__(*exc)
+            self._log = None
+
+    @property
+    def topic(self) -> str:
+        assert self._log is not None
+        return str(self._log.topic)
+
+    def _peek(self, blocks: Iterator[Any]) -> list[Any]:
+        head: list[Any] = []
+        n = 0
+        for block in blocks:
+            head.append(block)
+            n += len(block.stamp_ns)
+            if n >= PEEK_SAMPLES:
+                break
+        return head
+
+    def _set_up(self, first: Frame) -> tuple[Chain, IntArray]:
+        """Decide, from the first samples, the twin source, the joints and the period."""
+        from twincd.signal import nominal_period
+
+        assert self._log is not None
+        setup = self.setup
+        names = tuple(self._log.joint_names)
+        if self.need_effort and "effort" not in first:
+            raise DataError(
+                "the log has no measured effort",
+                f"{self.source}, {self.topic}",
+                "record JointState.effort; twincd compares it with the twin",
             )
-        cols = [sel.joint_names.index(n) for n in joint_names]
-        sel = sel.select(joint_names)
-        sim = sim[:, cols]
-    assert sel.effort is not None
-    t_s = sel.t_s
+        sim = first.get("sim_effort")
+        use_log_sim = sim is not None and not self.force_simulate
+        if use_log_sim:
+            assert sim is not None
+            have = np.flatnonzero(np.isfinite(sim).all(axis=0))
+            twin_names = tuple(names[i] for i in have.tolist())
+            use_log_sim = bool(twin_names)
+        robot: RobotModel | None
+        if use_log_sim:
+            self.simulated = False
+            robot = robot_for(setup.robot, twin_names) if setup.robot else None
+            model = None
+        else:
+            robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
+            twin_names = model.joint_names
+        self.robot = robot
+        final = twin_names
+        if setup.joint_names is not None:
+            missing = [n for n in setup.joint_names if n not in twin_names]
+            if missing:
+                raise JointMismatchError(
+                    f"the log lacks calibrated joint(s) {', '.join(missing)}",
+                    self.source,
+                    "use a calibration made for this robot, or a joint map",
+                )
+            final = tuple(setup.joint_names)
+        self.joint_names = final
+        own = nominal_period(first["stamp_ns"])
+        self.period_s = setup.period_s or own
+        if setup.period_s and own > 0 and abs(own / setup.period_s - 1) > 0.05:
+            log.warning(
+                "%s is sampled every %.4g ms, the calibration every %.4g ms; its filter and "
+                "gap rule follow the calibration",
+                self.source,
+                own * 1e3,
+                setup.period_s * 1e3,
+            )
+        to_twin = np.array([names.index(n) for n in twin_names], dtype=np.intp)
+        to_final = np.array([twin_names.index(n) for n in final], dtype=np.intp)
+        fill = not bool(np.isfinite(first["velocity"][:, to_twin]).all())
+        causal = setup.lowpass.causal
+        stages: list[Stage] = [
+            pick_columns(to_twin),
+            *twin_stages(model, self.period_s, causal, fill, setup.twin_threads),
+            pick_columns(to_final),
+        ]
+        if self.filtered:
+            stages += filter_stages(setup.lowpass, self.period_s)
+        self.velocity_from_position = fill
+        return Chain(stages), to_twin
+
+    def __iter__(self) -> Iterator[Frame]:
+        assert self._log is not None, "use PreparedStream as a context manager"
+        blocks = iter(self._log)
+        head = self._peek(blocks)
+        if not head:
+            raise DataError(
+                "the log has no joint-state samples", self.source, "record joint states"
+            )
+        first = Frame.concat([_frame(b) for b in head])
+        chain, used = self._set_up(first)
+        needed = ["position", "effort"] + ([] if self.velocity_from_position else ["velocity"])
+        if not self.simulated:
+            needed.append("sim_effort")
+
+        def frames() -> Iterator[Frame]:
+            yield first
+            for block in blocks:
+                yield _frame(block)
+
+        def clean(frames_in: Iterable[Frame]) -> Iterator[Frame]:
+            for frame in frames_in:
+                ok = _finite_rows(frame, needed, used)
+                if not ok.all():
+                    self.dropped_bad += int((~ok).sum())
+                    frame = Frame({k: v[ok] for k, v in frame.items()})
+                yield frame
+
+        for out in chain.run(clean(frames())):
+            self.samples += out.n
+            yield out
+        if self.dropped_bad:
+            log.warning(
+                "%s: dropped %d sample(s) with NaN or infinite values",
+                self.source,
+                self.dropped_bad,
+            )
+        if self.samples < 2:
+            raise DataError("log too short to filter", self.source, "record at least a few seconds")
+
+
+def _frame(block: Any) -> Frame:
+    """A reader's SampleBlock as a Frame."""
+    return Frame(
+        {
+            "stamp_ns": block.stamp_ns,
+            "log_time_ns": block.log_time_ns,
+            "position": block.position,
+            "velocity": block.velocity,
+            "effort": block.effort,
+            "labels": block.labels,
+            "sim_effort": block.sim_effort,
+        }
+    )
+
+
+# ------------------------------------------------------------------ settings
+
+
+@dataclass(frozen=True)
+class Setup:
+    """How logs become prepared samples: log options, robot, filter and (optionally) joint
+    order and sampling period, all taken from a calibration when there is one.
+
+    ``robot`` None means: use a log's own simulated effort, else simulate with the default
+    robot model.
+    """
+
+    options: LogOptions = field(default_factory=LogOptions)
+    robot: str | None = None
+    lowpass: LowPass = field(default_factory=LowPass)
+    joint_names: tuple[str, ...] | None = None
+    urdf_sha256: str | None = None  # the calibration's: a changed URDF gets a warning
+    period_s: float | None = None  # the calibration's sampling period
+    block_size: int = DEFAULT_BLOCK
+    strict: bool = True
+    twin_threads: int | None = None  # None: every core this process may use
+
+    @classmethod
+    def from_calibration(cls, calibration: Calibration) -> Setup:
+        return cls(
+            options=calibration.options,
+            robot=calibration.robot,
+            lowpass=calibration.lowpass,
+            joint_names=calibration.joint_names,
+            urdf_sha256=calibration.urdf_sha256,
+            period_s=calibration.period_s,
+        )
+
+    def open(self, path: str | Path, **kwargs: Any) -> PreparedStream:
+        """Stream one log (a context manager; iterate it for Frames)."""
+        return PreparedStream(path, self, **kwargs)
+
+    def prepare(self, path: str | Path) -> PreparedLog:
+        """One whole log in memory (for sample-sized logs: evaluate, baselines, studies)."""
+        with self.open(path) as stream:
+            whole = Frame.concat(list(stream))
+            _warn_changed_urdf(stream.robot, stream.simulated, self.urdf_sha256)
+            return prepared_log(stream, whole, self.lowpass)
+
+    def prepare_all(self, paths: Iterable[str | Path]) -> Iterator[PreparedLog]:
+        """Prepare logs lazily; the first log pins the joint order when none is set."""
+        setup = self
+        for path in paths:
+            prepared = setup.prepare(path)
+            if setup.joint_names is None:
+                setup = replace(setup, joint_names=prepared.joint_names)
+            yield prepared
+
+
+_WARNED_URDF: set[str] = set()
+
+
+def _warn_changed_urdf(robot: RobotModel | None, simulated: bool, expected: str | None) -> None:
+    if (
+        simulated
+        and robot is not None
+        and expected
+        and robot.urdf_sha256 != expected
+        and robot.urdf_sha256 not in _WARNED_URDF
+    ):
+        _WARNED_URDF.add(robot.urdf_sha256)
+        log.warning(
+            "the URDF %s differs from the one the calibration was fitted with; "
+            "re-fit the calibration if the model changed",
+            robot.urdf_path,
+        )
+
+
+def prepared_log(stream: PreparedStream, whole: Frame, lowpass: LowPass) -> PreparedLog:
+    states = JointStates(
+        source=stream.source,
+        topic=stream.topic,
+        joint_names=stream.joint_names,
+        stamp_ns=whole["stamp_ns"],
+        log_time_ns=whole["log_time_ns"],
+        position=whole["position"],
+        velocity=whole["velocity"],
+        effort=whole["effort"],
+        velocity_from_position=stream.velocity_from_position,
+        labels=whole.get("labels"),
+        sim_effort=None if stream.simulated else whole["sim_effort"],
+    )
     return PreparedLog(
-        states=sel,
-        sim_effort=sim,
-        effort_f=lowpass.apply(t_s, sel.effort, sel.source),
-        sim_effort_f=lowpass.apply(t_s, sim, sel.source),
-        robot=model,
-        simulated=simulated,
+        states=states,
+        sim_effort=whole["sim_effort"],
+        effort_f=whole["effort_f"],
+        sim_effort_f=whole["sim_effort_f"],
+        robot=stream.robot,
+        simulated=stream.simulated,
         lowpass=lowpass,
+        period_s=stream.period_s,
     )

@@ -1,4 +1,5 @@
-"""``simulate``: run the twin over a log and write its effort back next to the input messages."""
+"""``simulate``: run the twin over a log and write its effort back next to the input messages,
+block by block (flat memory for any log length)."""
 
 from __future__ import annotations
 
@@ -6,11 +7,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from twincd.errors import UsageError
-from twincd.io.cdr import joint_state_cdr
-from twincd.io.logs import JOINT_STATE, TWIN_SUFFIX, LogOptions, read_log
-from twincd.io.mcap_write import NewTopic, write_augmented
-from twincd.pipeline import twin_effort
-from twincd.twin.dynamics import Differentiator
+from twincd.io.logs import JOINT_STATE, TWIN_SUFFIX, LogOptions
+from twincd.pipeline import Setup
 
 
 @dataclass(frozen=True)
@@ -36,16 +34,22 @@ def simulate_log(
     output: Path | None,
     robot: str,
     options: LogOptions | None = None,
-    differentiator: Differentiator | None = None,
     in_place: bool = False,
+    setup: Setup | None = None,
 ) -> SimulateResult:
     """Write ``output``: ``source`` copied losslessly plus ``options.sim_topic`` with τ̂."""
+    from twincd.io.cdr import joint_state_block
+    from twincd.io.mcap_write import AugmentedMcap
+
     options = options or LogOptions()
+    setup = setup or Setup(options=options, robot=robot)
     source = Path(source)
     if in_place:
         if not (source.is_file() and source.suffix == ".mcap"):
             raise UsageError(
-                "--in-place rewrites bare .mcap files only", str(source), "use -o for other logs"
+                "in-place rewriting works on bare .mcap files only",
+                str(source),
+                "write to another output file",
             )
         target = source
     else:
@@ -54,17 +58,32 @@ def simulate_log(
             raise UsageError(
                 "output would overwrite the input",
                 str(target),
-                "pass --in-place to simulate it again, or -o another file",
+                "simulate it in place, or write another file",
             )
-    states = read_log(source, options)
-    sel, tau_hat, model, _ = twin_effort(states, robot, differentiator, force_simulate=True)
-    assert model is not None
-    messages = (
-        (int(log_time), int(log_time), data)
-        for log_time, data in zip(
-            sel.log_time_ns,
-            joint_state_cdr(sel.stamp_ns, model.joint_names, sel.position, sel.velocity, tau_hat),
-        )
+    stream = setup.open(source, filtered=False, need_effort=False, force_simulate=True)
+    with stream, AugmentedMcap(source, target, replace_topics=[options.sim_topic]) as out:
+        channel = out.add_channel(options.sim_topic, JOINT_STATE)
+        for frame in stream:
+            assert stream.robot is not None  # force_simulate: the twin always has a model
+            payloads = joint_state_block(
+                frame["stamp_ns"],
+                stream.robot.joint_names,
+                frame["position"],
+                frame["velocity"],
+                frame["sim_effort"],
+            )
+            out.write(channel, frame["log_time_ns"], payloads)
+    assert stream.robot is not None
+    return SimulateResult(
+        source, target, stream.samples, stream.robot.joint_names, stream.robot.locked
     )
-    write_augmented(source, target, [NewTopic(options.sim_topic, JOINT_STATE, messages)])
-    return SimulateResult(source, target, len(sel), model.joint_names, model.locked)
+
+
+def simulate_item(
+    item: tuple[Path, Path | None],
+    robot: str,
+    options: LogOptions | None = None,
+    in_place: bool = False,
+) -> SimulateResult:
+    """``simulate_log`` of one (source, output) pair: the per-log step of a multi-log run."""
+    return simulate_log(item[0], item[1], robot, options, in_place=in_place)

@@ -3,52 +3,66 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.calibration import Calibration, Threshold, clean_mask
+from twincd.calibration import Calibration, Threshold, clean_mask, clean_rows
+from twincd.defaults import DEFAULT_K_SIGMA
 from twincd.detection.score import affine_score
 from twincd.errors import DataError
-from twincd.pipeline import PreparedLog
+from twincd.pipeline import PreparedLog, Setup
 
 log = logging.getLogger("twincd")
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-DEFAULT_K_SIGMA = 4.0  # the paper's μ + 4σ
-
 
 @dataclass(frozen=True)
 class ScoreStats:
-    """Mergeable n, Σs, Σs² of scores; μ and σ (population) of everything merged."""
+    """Mergeable count, mean and centred sum of squares of scores (Chan et al.'s update, so
+    merges are exact in any order); μ and σ (population) of everything merged."""
 
     n: int = 0
-    s: float = 0.0
-    ss: float = 0.0
+    mean: float = 0.0
+    m2: float = 0.0  # Σ (s − mean)²
 
     @classmethod
     def from_scores(cls, scores: FloatArray, mask: BoolArray | None = None) -> ScoreStats:
         x = np.asarray(scores, dtype=np.float64)
         if mask is not None:
             x = x[mask]
-        return cls(len(x), float(x.sum()), float((x * x).sum()))
+        if len(x) == 0:
+            return cls()
+        mean = float(x.mean())
+        return cls(len(x), mean, float(((x - mean) ** 2).sum()))
 
     def __add__(self, other: ScoreStats) -> ScoreStats:
-        return ScoreStats(self.n + other.n, self.s + other.s, self.ss + other.ss)
+        if other.n == 0:
+            return self
+        if self.n == 0:
+            return other
+        n = self.n + other.n
+        delta = other.mean - self.mean
+        return ScoreStats(
+            n,
+            self.mean + delta * other.n / n,
+            self.m2 + other.m2 + delta * delta * self.n * other.n / n,
+        )
 
     @property
     def mu(self) -> float:
         self._check()
-        return self.s / self.n
+        return self.mean
 
     @property
     def sigma(self) -> float:
         self._check()
-        return float(np.sqrt(max(self.ss / self.n - self.mu**2, 0.0)))
+        return float(np.sqrt(self.m2 / self.n))
 
     def _check(self) -> None:
         if self.n == 0:
@@ -62,34 +76,35 @@ class ScoreStats:
         return Threshold(k_sigma, self.mu, self.sigma, tuple(logs), self.n)
 
 
-def score_stats(scores: Iterable[tuple[FloatArray, BoolArray | None]]) -> ScoreStats:
-    """Merged statistics of (scores, collision-free mask) per log."""
-    total = ScoreStats()
-    for s, mask in scores:
-        total = total + ScoreStats.from_scores(s, mask)
-    return total
+@dataclass(frozen=True)
+class LogScores:
+    """What one validation log contributes to a threshold (the per-log step)."""
+
+    source: str
+    stats: ScoreStats
 
 
-def threshold_stats(logs: Iterable[PreparedLog], calibration: Calibration) -> ScoreStats:
-    """μ/σ statistics of the calibrated score over the collision-free samples of ``logs``."""
-    return score_stats(
-        (affine_score(lg.effort_f, lg.sim_effort_f, calibration.a, calibration.b), clean_mask(lg))
-        for lg in logs
-    )
+def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogScores:
+    """Stream one log into statistics of its calibrated score on collision-free samples."""
+    stats = ScoreStats()
+    with setup.open(path) as stream:
+        for frame in stream:
+            scores = affine_score(
+                frame["effort_f"], frame["sim_effort_f"], calibration.a, calibration.b
+            )
+            stats = stats + ScoreStats.from_scores(scores, clean_rows(frame.get("labels"), frame.n))
+    return LogScores(str(path), stats)
 
 
-def calibrate_threshold(
-    logs: Iterable[PreparedLog], calibration: Calibration, k_sigma: float = DEFAULT_K_SIGMA
+def with_threshold(
+    parts: Iterable[LogScores], calibration: Calibration, k_sigma: float = DEFAULT_K_SIGMA
 ) -> Calibration:
-    """The calibration with μ + kσ of its score on collision-free ``logs`` (streamed)."""
-    seen: list[str] = []
-
-    def stream() -> Iterator[PreparedLog]:
-        for lg in logs:
-            seen.append(lg.source)
-            yield lg
-
-    stats = threshold_stats(stream(), calibration)
+    """The calibration with μ + kσ from per-log statistics merged in any order."""
+    parts = sorted(parts, key=lambda p: p.source)
+    total = ScoreStats()
+    for p in parts:
+        total = total + p.stats
+    seen = [p.source for p in parts]
     reused = sorted(set(seen) & set(calibration.fit_logs))
     if reused:
         log.warning(
@@ -98,4 +113,31 @@ def calibrate_threshold(
             len(reused),
             reused[0],
         )
-    return calibration.with_threshold(stats.threshold(k_sigma, seen))
+    return calibration.with_threshold(total.threshold(k_sigma, seen))
+
+
+def threshold_calibration(
+    paths: Iterable[str | Path],
+    calibration: Calibration,
+    setup: Setup,
+    k_sigma: float = DEFAULT_K_SIGMA,
+) -> Calibration:
+    """μ + kσ of the calibrated score on collision-free logs, each streamed."""
+    return with_threshold([score_log(p, setup, calibration) for p in paths], calibration, k_sigma)
+
+
+def calibrate_threshold(
+    logs: Iterable[PreparedLog], calibration: Calibration, k_sigma: float = DEFAULT_K_SIGMA
+) -> Calibration:
+    """The same from logs already prepared in memory."""
+    parts = (
+        LogScores(
+            lg.source,
+            ScoreStats.from_scores(
+                affine_score(lg.effort_f, lg.sim_effort_f, calibration.a, calibration.b),
+                clean_mask(lg),
+            ),
+        )
+        for lg in logs
+    )
+    return with_threshold(parts, calibration, k_sigma)

@@ -5,10 +5,12 @@ from twincd.calibration.affine import (
     AffineSolution,
     AffineStats,
     clean_mask,
+    clean_rows,
     solve,
 )
 from twincd.calibration.file import SCHEMA, Calibration, Threshold, calibration_from_fit
-from twincd.calibration.setup import Setup, fit_calibration
+from twincd.calibration.setup import LogFit, fit_calibration, fit_log, merge_fits
+from twincd.pipeline import Setup
 
 __all__ = [
     "SCHEMA",
@@ -16,10 +18,14 @@ __all__ = [
     "AffineSolution",
     "AffineStats",
     "Calibration",
+    "LogFit",
     "Setup",
     "Threshold",
     "calibration_from_fit",
     "clean_mask",
+    "clean_rows",
     "fit_calibration",
+    "fit_log",
+    "merge_fits",
     "solve",
 ]

@@ -32,11 +32,16 @@ BoolArray = NDArray[np.bool_]
 CONDITION_RATIO = 0.1
 
 
+def clean_rows(labels: BoolArray | None, n: int) -> BoolArray:
+    """Rows usable for fitting and thresholds: all, or those labelled collision-free."""
+    if labels is None:
+        return np.ones(n, dtype=bool)
+    return ~np.asarray(labels, dtype=bool)
+
+
 def clean_mask(log_: PreparedLog) -> BoolArray:
-    """Samples usable for fitting and thresholds: all, or those labelled collision-free."""
-    if log_.labels is None:
-        return np.ones(len(log_), dtype=bool)
-    return ~log_.labels
+    """``clean_rows`` of a whole prepared log."""
+    return clean_rows(log_.labels, len(log_))
 
 
 @dataclass(frozen=True)

@@ -69,6 +69,9 @@ class Calibration:
     created: str = ""
     twincd_version: str = __version__
     source: str = ""  # the file it was loaded from, for messages
+    # nominal sampling period of the fitted logs: later logs are filtered at this rate, so that
+    # batch and live detection agree (None in files written before it was recorded)
+    period_s: float | None = None
 
     def require_threshold(self) -> Threshold:
         if self.threshold is None:
@@ -113,7 +116,10 @@ class Calibration:
                 "sim_topic": self.options.sim_topic,
                 "joint_map": dict(self.options.joint_map or {}),
             },
-            "filter": self.lowpass.to_dict(),
+            "filter": {
+                **self.lowpass.to_dict(),
+                "sample_rate_hz": None if self.period_s is None else 1.0 / self.period_s,
+            },
             "model": {
                 "kind": "affine",
                 "joints": {
@@ -181,6 +187,7 @@ class Calibration:
                 a=a,
                 b=b,
                 lowpass=LowPass.from_dict(d["filter"]),
+                period_s=_period(d["filter"].get("sample_rate_hz")),
                 options=options,
                 robot=robot.get("name"),
                 urdf_sha256=robot.get("urdf_sha256"),
@@ -246,6 +253,15 @@ class Calibration:
             stream.write(text.encode("utf-8"))
 
 
+def _period(rate_hz: Any) -> float | None:
+    if rate_hz is None:
+        return None
+    rate = float(rate_hz)
+    if not rate > 0:
+        raise ValueError(f"sample_rate_hz must be positive, not {rate_hz!r}")
+    return 1.0 / rate
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -258,6 +274,7 @@ def calibration_from_fit(
     urdf_sha256: str | None,
     simulated: bool,
     logs: Sequence[str],
+    period_s: float | None = None,
 ) -> Calibration:
     """The calibration file's content from a fitted estimator."""
     estimator._check()
@@ -277,4 +294,5 @@ def calibration_from_fit(
         rmse=estimator.rmse_,
         fit_s=estimator.fit_s_,
         created=_now(),
+        period_s=period_s,
     )

@@ -1,101 +1,98 @@
-"""Running the calibration over logs: how logs become PreparedLogs, and ``fit`` over many."""
+"""``fit`` over many logs: each log streamed block by block into mergeable statistics."""
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field, replace
+import statistics
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
-from twincd.calibration.affine import AffineCalibration
+from twincd.calibration.affine import AffineCalibration, AffineStats, clean_rows
 from twincd.calibration.file import Calibration, calibration_from_fit
-from twincd.io.logs import LogOptions
-from twincd.pipeline import PreparedLog
-from twincd.signal.filters import LowPass
+from twincd.errors import DataError
+from twincd.pipeline import PreparedStream, Setup
 
 log = logging.getLogger("twincd")
 
-_WARNED_URDF: set[str] = set()
-
 
 @dataclass(frozen=True)
-class Setup:
-    """How logs become PreparedLogs: log options, robot, filter and (optionally) joint order.
+class LogFit:
+    """What one log contributes to a fit: small, picklable, mergeable (the per-log step)."""
 
-    ``robot`` None means: use a log's own simulated effort, else simulate with the default
-    robot model.
-    """
+    source: str
+    stats: AffineStats
+    joint_names: tuple[str, ...]
+    period_s: float
+    simulated: bool
+    robot: tuple[str, str] | None  # (name, URDF sha256) when a model was used
+    seconds: float  # time spent in the regression sums, as the paper times training
 
-    options: LogOptions = field(default_factory=LogOptions)
-    robot: str | None = None
-    lowpass: LowPass = field(default_factory=LowPass)
-    joint_names: tuple[str, ...] | None = None
-    urdf_sha256: str | None = None  # the calibration's: a changed URDF gets a warning
 
-    @classmethod
-    def from_calibration(cls, calibration: Calibration) -> Setup:
-        return cls(
-            calibration.options,
-            calibration.robot,
-            calibration.lowpass,
-            calibration.joint_names,
-            calibration.urdf_sha256,
-        )
-
-    def prepare(self, path: str | Path) -> PreparedLog:
-        from twincd.pipeline import prepare
-        from twincd.twin.robot import DEFAULT_ROBOT
-
-        prepared = prepare(
-            path,
-            self.options,
-            self.robot,
-            self.lowpass,
-            self.joint_names,
-            fallback_robot=DEFAULT_ROBOT,
-        )
-        model = prepared.robot
-        if (
-            prepared.simulated
-            and model is not None
-            and self.urdf_sha256
-            and model.urdf_sha256 != self.urdf_sha256
-            and model.urdf_sha256 not in _WARNED_URDF
-        ):
-            _WARNED_URDF.add(model.urdf_sha256)
-            log.warning(
-                "the URDF %s differs from the one the calibration was fitted with; "
-                "re-run `twincd fit` if the model changed",
-                model.urdf_path,
+def fit_log(path: str | Path, setup: Setup) -> LogFit:
+    """Stream one log through read → twin → filter into affine statistics."""
+    stats: AffineStats | None = None
+    seconds = 0.0
+    with setup.open(path) as stream:
+        for frame in stream:
+            start = time.perf_counter()
+            part = AffineStats.from_arrays(
+                frame["sim_effort_f"], frame["effort_f"], clean_rows(frame.get("labels"), frame.n)
             )
-        return prepared
+            stats = part if stats is None else stats + part
+            seconds += time.perf_counter() - start
+        assert stats is not None  # the stream raises on logs without samples
+        return LogFit(
+            source=stream.source,
+            stats=stats,
+            joint_names=stream.joint_names,
+            period_s=stream.period_s,
+            simulated=stream.simulated,
+            robot=_robot_of(stream),
+            seconds=seconds,
+        )
 
-    def prepare_all(self, paths: Iterable[str | Path]) -> Iterator[PreparedLog]:
-        """Prepare logs lazily; the first log pins the joint order when none is set."""
-        setup = self
-        for path in paths:
-            prepared = setup.prepare(path)
-            if setup.joint_names is None:
-                setup = replace(setup, joint_names=prepared.joint_names)
-            yield prepared
+
+def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:
+    if stream.robot is None:
+        return None
+    return stream.robot.name, stream.robot.urdf_sha256
+
+
+def merge_fits(parts: Iterable[LogFit], setup: Setup) -> Calibration:
+    """The calibration from per-log statistics, merged in any order (exact merges)."""
+    parts = sorted(parts, key=lambda p: p.source)  # any completion order gives one answer
+    if not parts:
+        raise DataError("no logs to fit", "fit", "give at least one collision-free log")
+    names = parts[0].joint_names
+    for p in parts[1:]:
+        if p.joint_names != names:
+            raise DataError(
+                "logs with different joints cannot be fitted together",
+                f"{p.source}: {', '.join(p.joint_names)} vs {', '.join(names)}",
+                "fit logs of one robot, or give a joint map",
+            )
+    total = parts[0].stats
+    for p in parts[1:]:
+        total = total + p.stats
+    start = time.perf_counter()
+    estimator = AffineCalibration(names).fit_stats(total)
+    estimator.fit_s_ = sum(p.seconds for p in parts) + time.perf_counter() - start
+    robots = sorted({p.robot for p in parts if p.robot is not None})
+    name, sha = robots[0] if robots else (setup.robot, None)
+    return calibration_from_fit(
+        estimator,
+        setup.lowpass,
+        setup.options,
+        name,
+        sha,
+        any(p.simulated for p in parts),
+        [p.source for p in parts],
+        period_s=statistics.median(p.period_s for p in parts),
+    )
 
 
 def fit_calibration(paths: Iterable[str | Path], setup: Setup) -> Calibration:
-    """Fit a, b over ``paths`` log by log (memory flat in the number of logs)."""
-    seen: list[str] = []
-    robot: list[tuple[str, str]] = []
-    simulated = [False]
-
-    def stream() -> Iterator[PreparedLog]:
-        for prepared in setup.prepare_all(paths):
-            seen.append(prepared.source)
-            simulated[0] = simulated[0] or prepared.simulated
-            if prepared.robot is not None and not robot:
-                robot.append((prepared.robot.name, prepared.robot.urdf_sha256))
-            yield prepared
-
-    estimator = AffineCalibration().fit(stream())
-    name, sha = robot[0] if robot else (setup.robot, None)
-    return calibration_from_fit(
-        estimator, setup.lowpass, setup.options, name, sha, simulated[0], seen
-    )
+    """Fit a, b over ``paths`` log by log (memory flat in the number of logs and samples)."""
+    return merge_fits([fit_log(path, setup) for path in paths], setup)

@@ -1,7 +1,31 @@
-"""Score, flag and group: the paper's residual score, per-sample flags and collision events."""
+"""Score, flag and group: the paper's residual score, per-sample flags, collision events — on
+whole logs, streamed logs and live samples (one code path)."""
 
-from twincd.detection.detect import LogDetection, detect
-from twincd.detection.events import Event, find_events, runs
+from twincd.detection.detect import (
+    DetectionSummary,
+    FrameSink,
+    LogDetection,
+    ScoringStage,
+    detect,
+    detect_file,
+)
+from twincd.detection.events import Event, EventTracker, find_events, runs
+from twincd.detection.online import OnlineDetector, OnlineResult
 from twincd.detection.score import affine_score, residual
 
-__all__ = ["Event", "LogDetection", "affine_score", "detect", "find_events", "residual", "runs"]
+__all__ = [
+    "DetectionSummary",
+    "Event",
+    "EventTracker",
+    "FrameSink",
+    "LogDetection",
+    "OnlineDetector",
+    "OnlineResult",
+    "ScoringStage",
+    "affine_score",
+    "detect",
+    "detect_file",
+    "find_events",
+    "residual",
+    "runs",
+]

@@ -1,19 +1,51 @@
-"""Detection on one log: score, flag where score ≥ μ + kσ, events."""
+"""Detection: score every sample, flag where score ≥ μ + kσ, group flags into events — on a
+whole log in memory, or on a log streamed block by block at flat memory."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.calibration import Calibration
-from twincd.detection.events import Event, find_events
+from twincd.detection.events import Event, EventTracker
 from twincd.detection.score import residual
-from twincd.pipeline import PreparedLog
+from twincd.frames import Frame
+
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration
+    from twincd.pipeline import PreparedLog, Setup
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+
+
+class ScoringStage:
+    """Residual, score and flag per sample, events across blocks (state: one open event)."""
+
+    def __init__(self, calibration: Calibration, joint_names: Sequence[str] | None = None):
+        self.threshold = calibration.require_threshold().value
+        self.a = calibration.a
+        self.b = calibration.b
+        self.events = EventTracker(joint_names or calibration.joint_names)
+
+    def push(self, frame: Frame) -> tuple[Frame, list[Event]]:
+        """``frame`` (with ``effort_f``, ``sim_effort_f``, ``stamp_ns``) plus ``residual``,
+        ``score`` and ``flag`` columns, and the events that closed in it."""
+        r = residual(frame["effort_f"], frame["sim_effort_f"], self.a, self.b)
+        scores: FloatArray = np.einsum("ij,ij->i", r, r)
+        flags = scores >= self.threshold
+        closed = self.events.push(flags, scores, r, frame["stamp_ns"])
+        return frame.with_columns(residual=r, score=scores, flag=flags), closed
+
+    def finish(self) -> list[Event]:
+        return self.events.finish()
+
+
+# ------------------------------------------------------------------ a whole log in memory
 
 
 @dataclass(frozen=True)
@@ -42,9 +74,87 @@ class LogDetection:
 
 def detect(log: PreparedLog, calibration: Calibration) -> LogDetection:
     """Score and flag every sample of ``log`` with a calibration that has a threshold."""
-    threshold = calibration.require_threshold().value
-    r = residual(log.effort_f, log.sim_effort_f, calibration.a, calibration.b)
-    scores: FloatArray = np.einsum("ij,ij->i", r, r)
-    flags = scores >= threshold
-    events = find_events(flags, scores, r, log.states.stamp_ns, log.joint_names)
-    return LogDetection(log, r, scores, flags, threshold, events)
+    stage = ScoringStage(calibration, log.joint_names)
+    frame = Frame(
+        {
+            "stamp_ns": log.states.stamp_ns,
+            "effort_f": log.effort_f,
+            "sim_effort_f": log.sim_effort_f,
+        }
+    )
+    out, events = stage.push(frame)
+    events += stage.finish()
+    return LogDetection(log, out["residual"], out["score"], out["flag"], stage.threshold, events)
+
+
+# ------------------------------------------------------------------ a log streamed
+
+
+class FrameSink(Protocol):
+    """Where per-sample results go while a log streams (an output file)."""
+
+    def write(self, frame: Frame, events: list[Event]) -> None: ...
+
+
+@dataclass
+class DetectionSummary:
+    """What ``detect`` reports of one log: counts and events, never per-sample arrays."""
+
+    source: str
+    threshold: float
+    samples: int = 0
+    collision_samples: int = 0
+    events: list[Event] = field(default_factory=list)
+    joint_names: tuple[str, ...] = ()
+    first_stamp_ns: int = 0
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "path": self.source,
+            "samples": self.samples,
+            "collision_samples": self.collision_samples,
+            "events": [e.to_dict() for e in self.events],
+        }
+
+    def add(self, frame: Frame, events: list[Event]) -> None:
+        self.events.extend(events)
+        if not frame.n:
+            return
+        if not self.samples:
+            self.first_stamp_ns = int(frame["stamp_ns"][0])
+        self.samples += frame.n
+        self.collision_samples += int(frame["flag"].sum())
+
+
+def detect_file(
+    path: str | Path,
+    calibration: Calibration,
+    setup: Setup,
+    sinks: Sequence[FrameSink] = (),
+) -> DetectionSummary:
+    """Detect collisions in one log streamed block by block; every frame of results also goes
+    to ``sinks``. A causal calibration runs through ``OnlineDetector``, so batch and live
+    detection are one code path; a zero-phase one through the same stages with lookahead."""
+    summary = DetectionSummary(str(path), calibration.require_threshold().value)
+    if calibration.lowpass.causal:
+        from twincd.detection.online import detect_file_online
+
+        return detect_file_online(path, calibration, setup, summary, sinks)
+    # the stream's columns follow the calibration's joints (Setup.from_calibration)
+    stage = ScoringStage(calibration)
+    with setup.open(path) as stream:
+        for frame in stream:
+            out, closed = stage.push(frame)
+            _deliver(summary, sinks, out, closed)
+        _deliver(summary, sinks, Frame(), stage.finish())
+        summary.joint_names = stream.joint_names
+    return summary
+
+
+def _deliver(
+    summary: DetectionSummary, sinks: Sequence[FrameSink], frame: Frame, events: list[Event]
+) -> None:
+    summary.add(frame, events)
+    for sink in sinks:
+        sink.write(frame, events)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,7 +24,8 @@ class Event:
     end_ns: int
     peak_score: float
     peak_ns: int
-    joint: str
+    joint: str  # the joint with the largest share of the event's Σ residual²
+    link: str | None = None  # the link most likely touched, when it can be told
 
     @property
     def samples(self) -> int:
@@ -42,6 +44,7 @@ class Event:
             "peak_score": self.peak_score,
             "peak_ns": self.peak_ns,
             "joint": self.joint,
+            "link": self.link,
         }
 
 
@@ -54,6 +57,74 @@ def runs(flags: BoolArray) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), ends.tolist(), strict=True))
 
 
+class EventTracker:
+    """Events from flags that arrive block by block: an event still flagged at the end of a
+    block stays open and continues into the next, so block boundaries never split one.
+
+    State is one open event (a few numbers and a per-joint sum), whatever the log length.
+    """
+
+    def __init__(self, joint_names: Sequence[str]) -> None:
+        self.joint_names = tuple(joint_names)
+        self._offset = 0  # global index of the next sample
+        self._open: dict[str, Any] | None = None
+
+    def push(
+        self, flags: BoolArray, scores: FloatArray, residual_: FloatArray, stamp_ns: IntArray
+    ) -> list[Event]:
+        """The events that closed within this block (an event ending at its last sample closes
+        only when the next sample arrives unflagged, or at ``finish``)."""
+        n = len(flags)
+        closed: list[Event] = []
+        if n and self._open is not None and not flags[0]:
+            closed.append(self._close())
+        for first, last in runs(flags):
+            seg = slice(first, last + 1)
+            peak = first + int(np.argmax(scores[seg]))
+            part = {
+                "first": self._offset + first,
+                "last": self._offset + last,
+                "start_ns": int(stamp_ns[first]),
+                "end_ns": int(stamp_ns[last]),
+                "peak_score": float(scores[peak]),
+                "peak_ns": int(stamp_ns[peak]),
+                "share": (residual_[seg] ** 2).sum(axis=0),
+            }
+            if first == 0 and self._open is not None:  # the open event goes on
+                self._extend(part)
+            else:
+                self._open = part
+            if last < n - 1:
+                closed.append(self._close())
+        self._offset += n
+        return closed
+
+    def finish(self) -> list[Event]:
+        """Close the event still open at the end of the log, if any."""
+        return [self._close()] if self._open is not None else []
+
+    def _extend(self, part: dict[str, Any]) -> None:
+        assert self._open is not None
+        ev = self._open
+        ev["last"], ev["end_ns"] = part["last"], part["end_ns"]
+        ev["share"] = ev["share"] + part["share"]
+        if part["peak_score"] > ev["peak_score"]:  # the first peak wins ties, as argmax does
+            ev["peak_score"], ev["peak_ns"] = part["peak_score"], part["peak_ns"]
+
+    def _close(self) -> Event:
+        assert self._open is not None
+        ev, self._open = self._open, None
+        return Event(
+            first=ev["first"],
+            last=ev["last"],
+            start_ns=ev["start_ns"],
+            end_ns=ev["end_ns"],
+            peak_score=ev["peak_score"],
+            peak_ns=ev["peak_ns"],
+            joint=self.joint_names[int(np.argmax(ev["share"]))],
+        )
+
+
 def find_events(
     flags: BoolArray,
     scores: FloatArray,
@@ -61,21 +132,6 @@ def find_events(
     stamp_ns: IntArray,
     joint_names: Sequence[str],
 ) -> list[Event]:
-    """Events from a flag vector; the joint is the one with the largest share of Σ residual²."""
-    events = []
-    for first, last in runs(flags):
-        seg = slice(first, last + 1)
-        peak = first + int(np.argmax(scores[seg]))
-        share = (residual_[seg] ** 2).sum(axis=0)
-        events.append(
-            Event(
-                first=first,
-                last=last,
-                start_ns=int(stamp_ns[first]),
-                end_ns=int(stamp_ns[last]),
-                peak_score=float(scores[peak]),
-                peak_ns=int(stamp_ns[peak]),
-                joint=joint_names[int(np.argmax(share))],
-            )
-        )
-    return events
+    """Events of a whole flag vector; the joint is the one with the largest share of Σ residual²."""
+    tracker = EventTracker(joint_names)
+    return tracker.push(flags, scores, residual_, stamp_ns) + tracker.finish()

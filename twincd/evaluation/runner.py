@@ -20,12 +20,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.calibration import Calibration, Setup
+from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_REPEATS
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
 from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
 from twincd.evaluation.proposed import ProposedMethod
 from twincd.pipeline import PreparedLog
-from twincd.threshold import DEFAULT_K_SIGMA, ScoreStats
+from twincd.threshold import ScoreStats
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -34,8 +35,6 @@ Progress = Callable[[Sequence[Any], str], Iterable[Any]]
 
 log = logging.getLogger("twincd")
 
-# the paper's Table II reports its deep methods as mean ± std over five runs
-DEFAULT_REPEATS = 5
 
 # figures averaged over repeats; each gets a ``<key>_std`` companion
 _AVERAGED = (

@@ -59,7 +59,6 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
@@ -71,6 +70,7 @@ from numpy.typing import NDArray
 from scipy.interpolate import make_interp_spline
 
 from twincd.errors import DataError, OutputError, UsageError
+from twincd.executors import Executor
 from twincd.io.cdr import TYPESTORE, bool_cdr, header, joint_state_cdr, serialize
 from twincd.twin.dynamics import inverse_dynamics
 from twincd.twin.robot import RobotModel, load_robot
@@ -784,11 +784,7 @@ def write_dataset(
         raise OutputError(
             f"cannot create folder: {exc.strerror}", str(outdir), "pick a writable OUTDIR"
         ) from exc
-    if jobs == 1 or len(tasks) < 2:
-        written = [_make_one(t) for t in tasks]
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            written = list(pool.map(_make_one, tasks))
+    written = Executor(jobs).map(_make_one, tasks)
     if rosbag2_copy and counts[2] > 0:
         run = simulate_path(config, seed, "test", 0)
         (outdir / "rosbag2").mkdir(exist_ok=True)

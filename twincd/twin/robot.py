@@ -16,19 +16,22 @@ import os
 import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 from xml.etree import ElementTree
 
 import numpy as np
-import pinocchio as pin
 from numpy.typing import NDArray
 
+if TYPE_CHECKING:
+    import pinocchio as pin
+
+from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import JointMismatchError, RobotModelError
 
 log = logging.getLogger("twincd")
 
-DEFAULT_ROBOT = "xarm7"
 FloatArray = NDArray[np.float64]
 
 
@@ -119,10 +122,26 @@ class RobotModel:
     def dof(self) -> int:
         return len(self.joints)
 
+    @cached_property
+    def neutral(self) -> FloatArray:
+        import pinocchio as pin
+
+        neutral: FloatArray = pin.neutral(self.model)
+        return neutral
+
+    def pool(self, threads: int) -> Any:
+        """A Pinocchio ModelPool of at least ``threads`` model/data pairs (built once)."""
+        import pinocchio as pin
+
+        pools: dict[int, Any] = self.__dict__.setdefault("_pools", {})
+        if threads not in pools:
+            pools[threads] = pin.ModelPool(self.model, threads)
+        return pools[threads]
+
     def configuration(self, position: FloatArray) -> FloatArray:
         """Pinocchio configurations (N, nq) from joint positions (N, dof) in model order."""
         position = np.atleast_2d(position)
-        q = np.tile(pin.neutral(self.model), (position.shape[0], 1))
+        q = np.tile(self.neutral, (position.shape[0], 1))
         for col, joint in enumerate(self.joints):
             if joint.unbounded:
                 q[:, joint.idx_q] = np.cos(position[:, col])
@@ -178,6 +197,8 @@ def _native_stderr_captured() -> Iterator[list[str]]:
 
 @lru_cache(maxsize=16)
 def _full_model(urdf_path: Path) -> pin.Model:
+    import pinocchio as pin
+
     try:
         ElementTree.parse(urdf_path)  # malformed XML: a clear message before Pinocchio sees it
     except ElementTree.ParseError as exc:
@@ -206,6 +227,8 @@ def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = N
 
     Raises JointMismatchError when ``keep`` shares no joint with the model.
     """
+    import pinocchio as pin
+
     urdf = resolve_urdf(name_or_path)
     full = _full_model(urdf)
     specs = _joint_specs(full)

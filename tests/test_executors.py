@@ -1,0 +1,33 @@
+"""twincd.executors: a pool changes the speed, never the answer or the error."""
+
+from __future__ import annotations
+
+import pickle
+
+import pytest
+
+from twincd.errors import LogReadError, TwincdError
+from twincd.executors import Bound, Executor
+
+
+def _square_or_fail(x: int, bad: int) -> int:
+    if x == bad:
+        raise LogReadError("log is damaged", f"log {x}", "record it again")
+    return x * x
+
+
+def test_errors_survive_pickling_with_their_parts() -> None:
+    err = pickle.loads(pickle.dumps(LogReadError("what", "where", "hint")))
+    assert isinstance(err, LogReadError) and err.message == "what (where) — hint"
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_results_come_back_in_input_order(jobs: int) -> None:
+    items = list(range(9, -1, -1))
+    assert Executor(jobs).map(Bound(_square_or_fail, -1), items) == [x * x for x in items]
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_worker_error_is_raised_as_itself(jobs: int) -> None:
+    with pytest.raises(TwincdError, match="log 3"):
+        Executor(jobs).map(Bound(_square_or_fail, 3), list(range(8)))

@@ -1,0 +1,94 @@
+"""Running per-log work over many logs: serially, or on a pool of local processes.
+
+Every command is one shape: a pure per-log function of (path, settings) that returns a small
+picklable result (fit statistics, score statistics, a detection summary), and a merge that does
+not depend on the order of the results. So a pool changes the speed, never the answer; results
+come back in the order of the logs given.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+from twincd.twin.dynamics import default_threads
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+@dataclass(frozen=True)
+class Executor:
+    """How to run per-log work: ``jobs`` local processes (1: in this process)."""
+
+    jobs: int = 0  # 0: every core this process may use
+
+    @property
+    def workers(self) -> int:
+        return self.jobs if self.jobs > 0 else default_threads()
+
+    def map(
+        self,
+        func: Callable[[T], R],
+        items: Sequence[T],
+        progress: Callable[[int], None] | None = None,
+    ) -> list[R]:
+        """``[func(item) for item in items]``, in that order; the first error is raised once the
+        work already running has stopped (no output of a failed run is left half-written: each
+        writer renames its file into place only when done)."""
+        workers = min(self.workers, len(items))
+        if workers <= 1:
+            out = []
+            for item in items:
+                out.append(func(item))
+                if progress:
+                    progress(1)
+            return out
+        return list(_pooled(func, items, workers, progress))
+
+
+def _pooled(
+    func: Callable[[T], R],
+    items: Sequence[T],
+    workers: int,
+    progress: Callable[[int], None] | None,
+) -> Iterator[R]:
+    # not fork: Pinocchio's batched RNEA runs on OpenMP, and an OpenMP runtime that has run in
+    # the parent deadlocks in a forked child; forkserver children start from a clean process
+    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    context = multiprocessing.get_context(method)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_twin_thread) as pool:
+        futures: list[Future[R]] = [pool.submit(func, item) for item in items]
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+            if progress:
+                progress(len(done))
+            failed = [f for f in done if f.exception() is not None]
+            if failed:
+                for f in pending:
+                    f.cancel()
+                wait(pending)
+                raise failed[0].exception()  # type: ignore[misc]
+        for f in futures:
+            yield f.result()
+
+
+def _one_twin_thread() -> None:
+    """Each worker is one core's worth of work: the twin must not start threads of its own."""
+    os.environ["TWINCD_TWIN_THREADS"] = "1"
+
+
+class Bound(Generic[T, R]):
+    """A picklable ``func(item, *args)`` (a lambda or closure cannot cross to a process)."""
+
+    def __init__(self, func: Callable[..., R], *args: Any) -> None:
+        self.func = func
+        self.args = args
+
+    def __call__(self, item: T) -> R:
+        return self.func(item, *self.args)

@@ -1,0 +1,195 @@
+"""Blocks of samples flowing through stateful stages: the one code path for whole logs, chunked
+logs and live samples.
+
+A ``Frame`` is a block of consecutive samples as named columns (arrays whose first axis is the
+sample). A stage takes frames in and gives frames out; a stage may hold samples back (a centred
+derivative needs a few samples after each one, a zero-phase filter a few seconds), but it always
+emits the oldest samples first, in order, and ``finish()`` flushes the rest. ``Derived`` wraps
+such a signal stage so that the columns of a sample stay with the sample whatever the stage's
+delay, and ``Chain`` runs stages one after the other. Fed the same samples, a chain gives the
+same output whether they come in one frame, in blocks, or one at a time.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[Any]
+
+
+class Frame(Mapping[str, Array]):
+    """Consecutive samples as named columns of equal length (first axis = sample)."""
+
+    __slots__ = ("_columns", "_n")
+
+    def __init__(self, columns: Mapping[str, Array | None] | None = None, n: int | None = None):
+        cols = {k: v for k, v in (columns or {}).items() if v is not None}
+        lengths = {len(v) for v in cols.values()}
+        if n is None:
+            n = lengths.pop() if lengths else 0
+        if lengths - {n}:
+            sizes = {k: len(v) for k, v in cols.items()}
+            raise ValueError(f"columns of different lengths: {sizes}")
+        self._columns: dict[str, Array] = cols
+        self._n = n
+
+    def __getitem__(self, key: str) -> Array:
+        return self._columns[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._columns)
+
+    def __len__(self) -> int:  # the number of columns, as for any mapping
+        return len(self._columns)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return self._n
+
+    def with_columns(self, **columns: Array | None) -> Frame:
+        return Frame({**self._columns, **columns}, self._n)
+
+    def head(self, k: int) -> Frame:
+        return Frame({c: v[:k] for c, v in self._columns.items()}, min(k, self._n))
+
+    def tail(self, k: int) -> Frame:
+        """Everything after the first ``k`` samples."""
+        return Frame({c: v[k:] for c, v in self._columns.items()}, max(self._n - k, 0))
+
+    @staticmethod
+    def concat(frames: Sequence[Frame]) -> Frame:
+        frames = [f for f in frames if f.n]
+        if not frames:
+            return Frame()
+        if len(frames) == 1:
+            return frames[0]
+        keys = list(frames[0])
+        return Frame({k: np.concatenate([f[k] for f in frames]) for k in keys})
+
+
+class Stage(Protocol):
+    """A stateful block transformer: outputs are the oldest not-yet-emitted samples, in order."""
+
+    def push(self, frame: Frame) -> Frame: ...
+
+    def finish(self) -> Frame: ...
+
+
+class SignalStage(Protocol):
+    """What twincd.signal's streaming classes offer: values in, values out, possibly delayed."""
+
+    def push(self, stamp_ns: Array, values: Array) -> Array: ...
+
+    def finish(self) -> Array: ...
+
+
+class _Fifo:
+    """Frames waiting for a delayed stage's output, popped sample-exact."""
+
+    def __init__(self) -> None:
+        self._frames: deque[Frame] = deque()
+        self.n = 0
+
+    def put(self, frame: Frame) -> None:
+        if frame.n:
+            self._frames.append(frame)
+            self.n += frame.n
+
+    def take(self, k: int) -> Frame:
+        parts: list[Frame] = []
+        while k > 0:
+            first = self._frames[0]
+            if first.n <= k:
+                parts.append(self._frames.popleft())
+                k -= first.n
+                self.n -= first.n
+            else:
+                parts.append(first.head(k))
+                self._frames[0] = first.tail(k)
+                self.n -= k
+                k = 0
+        return Frame.concat(parts)
+
+
+class Derived:
+    """Adds column ``out`` = ``signal`` applied to column ``source`` (with the frame's
+    ``stamp_ns``), holding each frame's other columns until the signal stage emits its samples.
+    """
+
+    def __init__(self, signal: SignalStage, source: str, out: str) -> None:
+        self.signal = signal
+        self.source = source
+        self.out = out
+        self._waiting = _Fifo()
+
+    def _emit(self, values: Array) -> Frame:
+        frame = self._waiting.take(len(values))
+        return frame.with_columns(**{self.out: values})
+
+    def push(self, frame: Frame) -> Frame:
+        if not frame.n:
+            return frame
+        self._waiting.put(frame)
+        return self._emit(self.signal.push(frame["stamp_ns"], frame[self.source]))
+
+    def finish(self) -> Frame:
+        values = self.signal.finish()
+        out = self._emit(values)
+        if self._waiting.n:  # a signal stage must give back every sample it took
+            raise RuntimeError(f"stage for {self.out!r} lost {self._waiting.n} sample(s)")
+        return out
+
+    @property
+    def pending(self) -> int:
+        """Samples held back right now (bounded by the stage's lookahead)."""
+        return self._waiting.n
+
+
+class Mapped:
+    """A stage without delay or state: ``func(frame) -> frame``."""
+
+    def __init__(self, func: Callable[[Frame], Frame]) -> None:
+        self.func = func
+
+    def push(self, frame: Frame) -> Frame:
+        return self.func(frame) if frame.n else frame
+
+    def finish(self) -> Frame:
+        return Frame()
+
+
+class Chain:
+    """Stages run in order; ``finish`` flushes each stage into the ones after it."""
+
+    def __init__(self, stages: Iterable[Stage]) -> None:
+        self.stages = list(stages)
+
+    def push(self, frame: Frame) -> Frame:
+        for stage in self.stages:
+            frame = stage.push(frame)
+        return frame
+
+    def finish(self) -> Frame:
+        out: list[Frame] = []
+        for i, stage in enumerate(self.stages):
+            flushed = stage.finish()
+            for later in self.stages[i + 1 :]:
+                flushed = later.push(flushed)
+            out.append(flushed)
+        return Frame.concat(out)
+
+    def run(self, frames: Iterable[Frame]) -> Iterator[Frame]:
+        """Every output frame (non-empty) for ``frames``, then the flush."""
+        for frame in frames:
+            out = self.push(frame)
+            if out.n:
+                yield out
+        out = self.finish()
+        if out.n:
+            yield out
