@@ -11,9 +11,11 @@ from __future__ import annotations
 import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 from twincd.twin.dynamics import default_threads
 
@@ -57,6 +59,8 @@ def _pooled(
     workers: int,
     progress: Callable[[int], None] | None,
 ) -> Iterator[R]:
+    from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+
     # not fork: Pinocchio's batched RNEA runs on OpenMP, and an OpenMP runtime that has run in
     # the parent deadlocks in a forked child; forkserver children start from a clean process
     method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import DataError, JointMismatchError
-from twincd.frames import Chain, Derived, Frame, Mapped, Stage
+from twincd.frames import Chain, Derived, Frame, Mapped, Stage, prefetched
 from twincd.io.logs import JointStates, LogOptions
 from twincd.signal.filters import LowPass
 
@@ -42,7 +42,7 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.intp]
 
-DEFAULT_BLOCK = 65536
+DEFAULT_BLOCK = 16384  # samples per block: bounded memory, per-block Python cost negligible
 # samples looked at before the stages are set up: enough for a stable nominal period
 PEEK_SAMPLES = 1001
 
@@ -103,6 +103,8 @@ def pick_columns(columns: IntArray) -> Mapped:
     def pick(frame: Frame) -> Frame:
         return frame.with_columns(**{k: frame[k][:, columns] for k in _JOINT_COLUMNS if k in frame})
 
+    if np.array_equal(columns, np.arange(len(columns))):
+        return Mapped(lambda frame: frame)  # already in order: no copy
     return Mapped(pick)
 
 
@@ -313,7 +315,7 @@ class PreparedStream:
 
     def __iter__(self) -> Iterator[Frame]:
         assert self._log is not None, "use PreparedStream as a context manager"
-        blocks = iter(self._log)
+        blocks = prefetched(self._log)
         head = self._peek(blocks)
         if not head:
             raise DataError(

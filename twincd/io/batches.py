@@ -37,7 +37,7 @@ from twincd.io.sqlite_read import FETCH, Sqlite3Storage, SqliteDamage
 
 STRING = "std_msgs/msg/String"
 SUPPORTED = (JOINT_STATE, BOOL, STRING)
-DEFAULT_BATCH = 65536
+DEFAULT_BATCH = 16384  # messages decoded at once: 4× smaller peak memory than 65 536, as fast
 _NS = 1_000_000_000
 _END = 2**63 - 1  # the watermark once everything has been read
 

@@ -46,7 +46,7 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
 OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's joint states
-DEFAULT_BLOCK = 65536
+DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
 _END = 2**63 - 1
 _T = TypeVar("_T", bound=np.generic)

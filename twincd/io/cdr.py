@@ -11,23 +11,35 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from rosbags.typesys import Stores, get_typestore
-
-TYPESTORE = get_typestore(Stores.LATEST)
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 BOOL = "std_msgs/msg/Bool"
 FLOAT64 = "std_msgs/msg/Float64"
 
-_Time = TYPESTORE.types["builtin_interfaces/msg/Time"]
-_Header = TYPESTORE.types["std_msgs/msg/Header"]
-_JointState = TYPESTORE.types[JOINT_STATE]
-_Bool = TYPESTORE.types[BOOL]
-_Float64 = TYPESTORE.types[FLOAT64]
+
+@lru_cache(maxsize=1)
+def typestore() -> Any:
+    """rosbags' store of the latest ROS 2 message types, the reference for every byte (built
+    on first use: the fast paths never need it, and it costs 70 ms of start-up)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.LATEST)
+
+
+def _type(name: str) -> Any:
+    return typestore().types[name]
+
+
+def __getattr__(name: str) -> Any:  # ``TYPESTORE``, as the module offered it before
+    if name == "TYPESTORE":
+        return typestore()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -65,7 +77,9 @@ def _count(stats: CdrStats | None, fast: int = 0, fallback: int = 0) -> None:
 
 def header(stamp_ns: int, frame_id: str = "") -> Any:
     sec, nanosec = divmod(int(stamp_ns), _NS)
-    return _Header(stamp=_Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
+    return _type("std_msgs/msg/Header")(
+        stamp=_type("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec), frame_id=frame_id
+    )
 
 
 def _align(offset: int, size: int) -> int:
@@ -82,14 +96,14 @@ def _joint_state_rosbags(
     velocity: NDArray[np.float64],
     effort: NDArray[np.float64],
 ) -> bytes:
-    msg = _JointState(
+    msg = _type(JOINT_STATE)(
         header=header(stamp_ns),
         name=names,
         position=np.ascontiguousarray(position, dtype=np.float64),
         velocity=np.ascontiguousarray(velocity, dtype=np.float64),
         effort=np.ascontiguousarray(effort, dtype=np.float64),
     )
-    return bytes(TYPESTORE.serialize_cdr(msg, JOINT_STATE))
+    return bytes(typestore().serialize_cdr(msg, JOINT_STATE))
 
 
 def _joint_state_layout(names: Sequence[str], counts: Sequence[int]) -> tuple[int, list[int]]:
@@ -193,39 +207,41 @@ def _scalar_block(
     length = 4 + body + width
     if n == 0:
         return np.zeros((0, length), dtype=np.uint8)
-    first = bytes(TYPESTORE.serialize_cdr(make(data[0].item()), msgtype))
+    first = bytes(typestore().serialize_cdr(make(data[0].item()), msgtype))
     if len(first) == length:
         block = np.tile(np.frombuffer(first, dtype=np.uint8), (n, 1))
         block[:, 4 + body :] = data.reshape(n, 1).view(np.uint8)
         if block[0].tobytes() == first:
             _count(stats, fast=n)
             return block
-    rows = [np.frombuffer(TYPESTORE.serialize_cdr(make(v.item()), msgtype), np.uint8) for v in data]
+    rows = [
+        np.frombuffer(typestore().serialize_cdr(make(v.item()), msgtype), np.uint8) for v in data
+    ]
     _count(stats, fallback=n)
     return np.stack(rows)
 
 
 def float64_block(values: Any, stats: CdrStats | None = None) -> ByteArray:
     """CDR std_msgs/msg/Float64 messages as one (n, 12) uint8 array."""
-    return _scalar_block(values, "<f8", FLOAT64, lambda v: _Float64(data=float(v)), stats)
+    return _scalar_block(values, "<f8", FLOAT64, lambda v: _type(FLOAT64)(data=float(v)), stats)
 
 
 def bool_block(values: Any, stats: CdrStats | None = None) -> ByteArray:
     """CDR std_msgs/msg/Bool messages as one (n, 5) uint8 array."""
-    return _scalar_block(values, "u1", BOOL, lambda v: _Bool(data=bool(v)), stats)
+    return _scalar_block(values, "u1", BOOL, lambda v: _type(BOOL)(data=bool(v)), stats)
 
 
 def bool_cdr(value: bool) -> bytes:
-    return bytes(TYPESTORE.serialize_cdr(_Bool(data=bool(value)), BOOL))
+    return bytes(typestore().serialize_cdr(_type(BOOL)(data=bool(value)), BOOL))
 
 
 def float64_cdr(value: float) -> bytes:
-    return bytes(TYPESTORE.serialize_cdr(_Float64(data=float(value)), FLOAT64))
+    return bytes(typestore().serialize_cdr(_type(FLOAT64)(data=float(value)), FLOAT64))
 
 
 def serialize(msg: object, msgtype: str) -> bytes:
     """Any typestore message to CDR bytes."""
-    return bytes(TYPESTORE.serialize_cdr(msg, msgtype))
+    return bytes(typestore().serialize_cdr(msg, msgtype))
 
 
 # ---------------------------------------------------------------- decoders
@@ -361,7 +377,7 @@ def _decode_layout(payloads: ByteArray, rows: NDArray[np.intp], layout: _Layout)
 def _decode_with_rosbags(payloads: ByteArray, rows: NDArray[np.intp]) -> list[JointStateGroup]:
     by_key: dict[tuple[Any, ...], list[tuple[int, Any]]] = {}
     for r in rows.tolist():
-        msg: Any = TYPESTORE.deserialize_cdr(payloads[r].tobytes(), JOINT_STATE)
+        msg: Any = typestore().deserialize_cdr(payloads[r].tobytes(), JOINT_STATE)
         key = (tuple(msg.name), len(msg.position), len(msg.velocity), len(msg.effort))
         by_key.setdefault(key, []).append((r, msg))
     groups = []
@@ -444,7 +460,7 @@ def decode_bools(payloads: ByteArray, stats: CdrStats | None = None) -> BoolArra
         values[fast] = payloads[fast, 4] == 1
     slow = np.flatnonzero(~fast)
     for r in slow.tolist():
-        msg: Any = TYPESTORE.deserialize_cdr(payloads[r].tobytes(), BOOL)
+        msg: Any = typestore().deserialize_cdr(payloads[r].tobytes(), BOOL)
         values[r] = bool(msg.data)
     _count(stats, fast=n - len(slow), fallback=len(slow))
     return values

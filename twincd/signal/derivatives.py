@@ -49,7 +49,7 @@ __all__ = [
 DEFAULT_WINDOW = 9
 DEFAULT_POLYORDER = 3
 # rows per vectorised step: bounds the temporaries on hour-long pushes
-_BLOCK = 4096
+_BLOCK = 16384
 
 
 class SettingsError(UsageError, ValueError):

@@ -53,7 +53,7 @@ __all__ = [
 # (relative to the size of the state error, itself of the order of the signal's range)
 DECAY_TOLERANCE = 1e-12
 # samples emitted per backward pass when much is ready at once: cost (block + margin) / block
-_BLOCK = 65536
+_BLOCK = 16384
 
 
 @dataclass(frozen=True)

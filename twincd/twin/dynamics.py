@@ -69,13 +69,20 @@ def inverse_dynamics(
     if n == 0:
         return np.zeros((0, robot.dof))
     threads = threads or default_threads()
-    # Pinocchio takes one column per sample
-    q = np.asfortranarray(robot.configuration(position).T)
-    v = np.asfortranarray(robot.velocity_vector(velocity).T)
-    a = np.asfortranarray(robot.velocity_vector(acceleration).T)
-    tau = np.zeros((robot.model.nv, n), order="F")
+    # Pinocchio takes one column per sample: the transpose of a C-ordered (N, dof) array is
+    # that, without a copy, when q and v hold the joint values as they are
+    if robot.plain_layout:
+        q, v, a = (
+            np.ascontiguousarray(x, dtype=np.float64).T for x in (position, velocity, acceleration)
+        )
+    else:
+        q = np.asfortranarray(robot.configuration(position).T)
+        v = np.asfortranarray(robot.velocity_vector(velocity).T)
+        a = np.asfortranarray(robot.velocity_vector(acceleration).T)
+    tau = np.empty((robot.model.nv, n), order="F")
     pin.rneaInParallel(threads, robot.pool(threads), q, v, a, tau)
-    return robot.joint_values(tau.T)
+    out: FloatArray = tau.T if robot.plain_layout else robot.joint_values(tau.T)
+    return out
 
 
 def gravity(robot: RobotModel, position: FloatArray) -> FloatArray:

@@ -123,6 +123,15 @@ class RobotModel:
         return len(self.joints)
 
     @cached_property
+    def plain_layout(self) -> bool:
+        """True when q and v are just the joint values in model order (no locked joint left in
+        the vectors, no cos/sin joint): arrays then pass to Pinocchio without conversion."""
+        n = len(self.joints)
+        return self.model.nq == self.model.nv == n and all(
+            j.idx_q == j.idx_v == i and not j.unbounded for i, j in enumerate(self.joints)
+        )
+
+    @cached_property
     def neutral(self) -> FloatArray:
         import pinocchio as pin
 
