@@ -94,11 +94,50 @@ def log_options(
     )
 
 
+# library setting names (TwincdError.option) → the flags that set them; library messages
+# never name a flag, so the CLI adds them here
+FLAGS: dict[str, str] = {
+    "robot": "--robot",
+    "train": "--train",
+    "val": "--val",
+    "test": "--test",
+    "methods": "--methods",
+    "repeats": "--repeats",
+    "label_topic": "--label-topic",
+    "topic": "--topic",
+    "sim_topic": "--sim-topic",
+    "joint_map": "--joint-map",
+    "calibration": "-c/--calibration",
+    "jobs": "--jobs",
+    "seed": "--seed",
+    "min_duration": "--min-duration",
+    "max_duration": "--max-duration",
+    "in_place": "--in-place",
+    "output": "--output",
+}
+
+
+def flag_hint(option: str | None) -> str:
+    """``(option --robot)`` for ``option="robot"``, ``(options --train, --val)`` for
+    ``"train,val"``; an unmapped name becomes ``--name-with-dashes``; empty for None."""
+    names = [n.strip() for n in (option or "").split(",") if n.strip()]
+    if not names:
+        return ""
+    flags = [FLAGS.get(n, "--" + n.replace("_", "-")) for n in names]
+    return f"({'option' if len(flags) == 1 else 'options'} {', '.join(flags)})"
+
+
 def fail(exc: TwincdError, debug: bool) -> None:
-    """Print the one-line error (DESIGN §5) and leave with its exit code."""
+    """Print the one-line error (DESIGN §5), with the flags of the setting it concerns, and
+    leave with its exit code."""
     if debug:
         traceback.print_exception(exc)
-    sys.stderr.write(f"twincd: error: {exc.message}\n")
+    text = exc.message
+    hint = flag_hint(exc.option)
+    if hint:
+        text += f" {hint}"
+    text = " ".join(text.splitlines())  # one line, whatever the parts hold
+    sys.stderr.write(f"twincd: error: {text}\n")
     raise typer.Exit(exc.exit_code)
 
 

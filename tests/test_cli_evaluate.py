@@ -84,20 +84,24 @@ def test_train_val_and_methods(twin_dataset):
     assert result.exit_code == 0, result.output
     doc = json.loads(result.stdout)
     assert len(doc["logs"]["val"]) == 2 and len(doc["logs"]["train"]) == 3
-    assert_one_line_error(
-        run("evaluate", twin_dataset / "test", "--methods", "nope"), "unknown method"
-    )
+    unknown = run("evaluate", twin_dataset / "test", "--methods", "nope")
+    assert_one_line_error(unknown, "unknown method")
+    assert_one_line_error(unknown, "(option --methods)")
 
 
 def test_errors(cal, twin_dataset, tmp_path, twin_log):
     unlabelled = twin_log(tmp_path / "nolabels.mcap", labels=False)
-    assert_one_line_error(run("evaluate", unlabelled, "-c", cal), "no collision labels")
+    unlabelled_run = run("evaluate", unlabelled, "-c", cal)
+    assert_one_line_error(unlabelled_run, "no collision labels")
+    assert_one_line_error(unlabelled_run, "(option --label-topic)")
     assert_one_line_error(
         run("evaluate", twin_dataset / "test", "-c", cal, "--cutoff", "7"), "contradicts"
     )
     fitted_only = tmp_path / "fit.json"
     assert run("fit", twin_dataset / "train", "-o", fitted_only, "-q").exit_code == 0
-    assert_one_line_error(run("evaluate", twin_dataset / "test", "-c", fitted_only), "no threshold")
+    no_threshold = run("evaluate", twin_dataset / "test", "-c", fitted_only)
+    assert_one_line_error(no_threshold, "no threshold")
+    assert_one_line_error(no_threshold, "(option -c/--calibration)")
 
 
 def test_help_has_an_example():

@@ -97,7 +97,9 @@ def test_ragged_arrays(tmp_path):
 
 def test_unknown_robot_and_broken_urdf(tmp_path):
     src = write(tmp_path / "a.mcap", "mcap", joint_recording(n=10))
-    assert_one_line_error(run("simulate", src, "--robot", "nosuchbot"), match="unknown robot")
+    unknown = run("simulate", src, "--robot", "nosuchbot")
+    assert_one_line_error(unknown, match="unknown robot")
+    assert_one_line_error(unknown, match="(option --robot)")  # the CLI names the flag
     urdf = tmp_path / "broken.urdf"
     urdf.write_text("<robot name='x'><joint")
     assert_one_line_error(run("simulate", src, "--robot", urdf), match="URDF")

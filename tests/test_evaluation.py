@@ -136,20 +136,22 @@ def test_skipped_window_and_repeats(calibration, split):
 def test_methods_needing_data_are_skipped(calibration, split):
     setup = Setup.from_calibration(calibration)
     result = evaluate(split["test"], ["proposed", "test-seeded"], setup, calibration)
-    assert result.methods[1].skipped == "needs --train collision-free logs"
+    assert result.methods[1].skipped == "needs collision-free training logs"
 
 
 def test_nothing_to_evaluate_is_an_error_not_a_pass(calibration, split):
     # a CI gate must not pass when no method ran
     setup = Setup.from_calibration(calibration)
-    with pytest.raises(UsageError, match="no method could run"):
+    with pytest.raises(UsageError, match="no method could run") as raised:
         evaluate(split["test"], ["test-seeded"], setup, calibration)
+    assert raised.value.option == "calibration,train,val"
 
 
 def test_test_logs_need_labels(calibration, twin_log, tmp_path):
     path = twin_log(tmp_path / "nolabels.mcap", labels=False)
-    with pytest.raises(DataError, match="no collision labels"):
+    with pytest.raises(DataError, match="no collision labels") as raised:
         evaluate([path], ["proposed"], Setup.from_calibration(calibration), calibration)
+    assert raised.value.option == "label_topic"
 
 
 def test_gates(calibration, split):
@@ -163,8 +165,9 @@ def test_parse_methods():
     assert parse_methods("proposed") == ["proposed"]
     assert parse_methods(None) == ["proposed"]
     assert parse_methods("all")[0] == "proposed"
-    with pytest.raises(UsageError, match="unknown method"):
+    with pytest.raises(UsageError, match="unknown method") as raised:
         parse_methods("proposed,nope")
+    assert raised.value.option == "methods"
 
 
 def test_test_logs_used_for_thresholds_are_flagged(calibration, split, caplog):

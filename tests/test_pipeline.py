@@ -147,3 +147,26 @@ def test_online_detector_skips_bad_samples_without_poisoning_its_state(
     assert np.isnan(out.score[[10, 20]]).all() and not out.flag[[10, 20]].any()
     assert np.isfinite(np.delete(out.score, [10, 20])).all()
     assert det.skipped == 2
+
+
+@pytest.mark.parametrize("form", ["rosbag2-sqlite3", "rosbag2-mcap", "ros1"])
+def test_every_storage_form_streams_like_bare_mcap(tmp_path: Path, form: str) -> None:
+    # the reader runs on a prefetch thread: every backend must work from there
+    from builders import FORMS, SUFFIX
+
+    assert form in FORMS
+    # longer than what opening reads ahead (a batch and the reorder window), so the prefetch
+    # thread reads too
+    bare = jittered_xarm_log(tmp_path / "run.mcap", seconds=40.0, rate_hz=1000.0)
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bare]) as reader:
+        msgs = [
+            Message(c.topic, c.msgtype, t, reader.deserialize(raw, c.msgtype))
+            for c, t, raw in reader.messages()
+        ]
+    other = write(tmp_path / f"run_{form}{SUFFIX[form]}", form, msgs)
+    setup = Setup(robot="xarm7", block_size=500)
+    a, b = setup.prepare(bare), setup.prepare(other)
+    np.testing.assert_array_equal(a.states.stamp_ns, b.states.stamp_ns)
+    np.testing.assert_array_equal(a.effort_f, b.effort_f)

@@ -19,8 +19,9 @@ def test_example_robot_data_names():
 
 
 def test_unknown_robot_suggests_names():
-    with pytest.raises(RobotModelError, match=r"unknown robot 'xarm'.*xarm7"):
+    with pytest.raises(RobotModelError, match=r"unknown robot 'xarm'.*xarm7") as raised:
         resolve_urdf("xarm")
+    assert raised.value.option == "robot" and "--" not in raised.value.message
 
 
 def test_broken_urdf_is_a_clear_error(tmp_path):

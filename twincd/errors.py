@@ -1,7 +1,9 @@
 """One exception root for the whole library; each subclass carries its CLI exit code.
 
 A message reads as ``<what> (<where>) — <what to do>`` so that the CLI can print it on one
-line as ``twincd: error: <message>`` (DESIGN §5).
+line as ``twincd: error: <message>`` (DESIGN §5). Messages speak in library words and never
+name a command-line flag: an error about a setting names it in ``option`` (``"robot"``,
+``"train"``, several joined by commas), and the CLI turns that into its flags.
 """
 
 from __future__ import annotations
@@ -12,15 +14,20 @@ class TwincdError(Exception):
 
     exit_code: int = 2
 
-    def __init__(self, what: str, where: str, hint: str) -> None:
+    def __init__(self, what: str, where: str, hint: str, *, option: str | None = None) -> None:
         self.what = what
         self.where = where
         self.hint = hint
+        # the setting(s) concerned, in library words ("robot", "train,val"); None: no setting
+        self.option = option
         super().__init__(self.message)
 
-    def __reduce__(self) -> tuple[type[TwincdError], tuple[str, str, str]]:
-        # errors cross process boundaries (a pool worker's failure): rebuild from the parts
-        return (type(self), (self.what, self.where, self.hint))
+    def __reduce__(
+        self,
+    ) -> tuple[type[TwincdError], tuple[str, str, str], dict[str, str | None]]:
+        # errors cross process boundaries (a pool worker's failure): rebuild from the parts;
+        # the keyword-only option comes back as state (BaseException.__setstate__)
+        return (type(self), (self.what, self.where, self.hint), {"option": self.option})
 
     @property
     def message(self) -> str:

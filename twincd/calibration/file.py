@@ -79,7 +79,8 @@ class Calibration:
             raise NotFittedError(
                 "the calibration has no threshold",
                 where,
-                f"run `twincd threshold VAL_LOGS -c {where}` on collision-free logs first",
+                "set its threshold on collision-free validation logs first (`twincd threshold`)",
+                option="calibration",
             )
         return self.threshold
 
@@ -226,13 +227,15 @@ class Calibration:
             raise CalibrationError(
                 "calibration is not JSON text (binary content)",
                 str(path),
-                "pass the JSON file written by `twincd fit` to -c",
+                "give the JSON file written by `twincd fit`",
+                option="calibration",
             ) from exc
         except OSError as exc:
             raise CalibrationError(
                 f"cannot read calibration: {exc.strerror or exc}",
                 str(path),
-                "run `twincd fit LOGS -o FILE` first or check -c",
+                "run `twincd fit` first or check the calibration path",
+                option="calibration",
             ) from exc
         try:
             data = json.loads(text)

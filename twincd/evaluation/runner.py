@@ -62,8 +62,9 @@ def parse_methods(text: str | None) -> list[str]:
     if unknown:
         raise UsageError(
             f"unknown method(s) {', '.join(unknown)}",
-            "--methods",
+            "methods",
             f"choose from {', '.join(known)}, all",
+            option="methods",
         )
     return list(dict.fromkeys(names))
 
@@ -165,7 +166,9 @@ def require_labels(logs: Sequence[PreparedLog], option: str) -> None:
             raise DataError(
                 "the log has no collision labels",
                 f"{lg.source}, {option}",
-                "evaluate needs ground truth: record std_msgs/Bool on --label-topic",
+                "evaluate needs ground truth: record std_msgs/Bool collision labels on the "
+                "label topic",
+                option="label_topic",
             )
 
 
@@ -302,11 +305,11 @@ def evaluate_method(
     try:
         probe.check([*train, *val, *test])
         if isinstance(probe, ProposedMethod) and not train and calibration is None:
-            raise MethodSkipped("needs a calibration (-c) or --train and --val logs")
+            raise MethodSkipped("needs a calibration, or training and validation logs")
         if probe.learns and not train and not isinstance(probe, ProposedMethod):
-            raise MethodSkipped("needs --train collision-free logs")
+            raise MethodSkipped("needs collision-free training logs")
         if not val and not (isinstance(probe, ProposedMethod) and not train):
-            raise MethodSkipped("needs --val collision-free logs to set its threshold")
+            raise MethodSkipped("needs collision-free validation logs to set its threshold")
         if isinstance(probe, ProposedMethod) and not train and calibration is not None and not val:
             calibration.require_threshold()
         seeded = _has_seed(probe)
@@ -364,7 +367,9 @@ def evaluate(
     if not test_paths:
         raise UsageError("no test logs given", "evaluate", "pass labelled logs with collisions")
     if repeats < 1:
-        raise UsageError("--repeats must be at least 1", f"--repeats {repeats}", "pass 1 or more")
+        raise UsageError(
+            "repeats must be at least 1", f"repeats={repeats}", "give 1 or more", option="repeats"
+        )
     if k_sigma is None:
         th = calibration.threshold if calibration is not None else None
         k_sigma = th.k_sigma if th is not None else DEFAULT_K_SIGMA
@@ -384,7 +389,8 @@ def evaluate(
         raise UsageError(
             f"no method could run ({reasons})",
             "evaluate",
-            "give -c CALIBRATION, or --train and --val collision-free logs",
+            "give a calibration, or collision-free training and validation logs",
+            option="calibration,train,val",
         )
     return Evaluation(
         samples=sum(len(lg) for lg in test),

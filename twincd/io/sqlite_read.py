@@ -33,7 +33,9 @@ class Sqlite3Storage:
         self.topics: dict[str, str] = {}  # topic -> msgtype (CDR topics only)
         try:
             for p in self.paths:
-                con = sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True)
+                # the reader may run on a prefetch thread; only one thread uses it at a time
+                uri = f"{p.resolve().as_uri()}?mode=ro"
+                con = sqlite3.connect(uri, uri=True, check_same_thread=False)
                 self._cons.append(con)
                 ids: dict[int, str] = {}
                 for tid, name, msgtype, fmt in con.execute(

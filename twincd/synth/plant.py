@@ -196,7 +196,9 @@ def _rng(seed: int, *key: int) -> np.random.Generator:
 
 def _check_seed(seed: int) -> None:
     if seed < 0:
-        raise UsageError(f"seed must be ≥ 0, got {seed}", "--seed", "pass a non-negative integer")
+        raise UsageError(
+            f"seed must be ≥ 0, got {seed}", "seed", "give a non-negative integer", option="seed"
+        )
 
 
 @lru_cache(maxsize=8)
@@ -307,8 +309,9 @@ def make_trajectory(robot: RobotModel, cfg: MotionConfig, rng: np.random.Generat
     if not 2 * cfg.rest_s + 1.0 <= cfg.duration_s[0] <= cfg.duration_s[1]:
         raise UsageError(
             f"bad path duration range {cfg.duration_s[0]}–{cfg.duration_s[1]} s",
-            "--min-duration/--max-duration",
+            "MotionConfig.duration_s",
             f"give {2 * cfg.rest_s + 1.0:g} s ≤ min ≤ max",
+            option="min_duration,max_duration",
         )
     speed = np.deg2rad(cfg.mean_speed_deg_s)
     home_xyz = _flange_positions(robot, np.asarray(cfg.home)[None])[0]
@@ -763,10 +766,13 @@ def write_dataset(
     _check_seed(seed)
     if len(counts) != len(SPLITS) or any(c < 0 for c in counts):
         raise UsageError(
-            "path counts must be three numbers ≥ 0", "--train/--val/--test", "pass 0 or more each"
+            "path counts must be three numbers ≥ 0",
+            "train/val/test counts",
+            "give 0 or more each",
+            option="train,val,test",
         )
     if jobs < 1:
-        raise UsageError(f"jobs must be ≥ 1, got {jobs}", "--jobs", "pass 1 or more")
+        raise UsageError(f"jobs must be ≥ 1, got {jobs}", "jobs", "give 1 or more", option="jobs")
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise OutputError("output exists and is not a folder", str(outdir), "give a folder name")

@@ -42,7 +42,10 @@ def robots_dir() -> Path:
         dist = importlib.metadata.distribution("example-robot-data")
     except importlib.metadata.PackageNotFoundError as exc:
         raise RobotModelError(
-            "example-robot-data is not installed", "--robot", "pip install example-robot-data"
+            "example-robot-data is not installed",
+            "robot",
+            "pip install example-robot-data",
+            option="robot",
         ) from exc
     path = Path(str(dist.locate_file("cmeel.prefix/share/example-robot-data/robots")))
     if not path.is_dir():
@@ -82,11 +85,17 @@ def resolve_urdf(name_or_path: str) -> Path:
     path = Path(name_or_path)
     if path.suffix.lower() == ".urdf" or path.exists():
         if not path.is_file():
-            raise RobotModelError("URDF file not found", str(path), "check the --robot path")
+            raise RobotModelError(
+                "URDF file not found", str(path), "check the robot's URDF path", option="robot"
+            )
         return path
     close = [n for n in robots if name_or_path.lower() in n.lower()][:5]
-    hint = f"did you mean {', '.join(close)}?" if close else "see `twincd simulate --list-robots`"
-    raise RobotModelError(f"unknown robot {name_or_path!r}", "--robot", hint)
+    hint = (
+        f"did you mean {', '.join(close)}?"
+        if close
+        else "give a known example-robot-data name or a URDF path"
+    )
+    raise RobotModelError(f"unknown robot {name_or_path!r}", "robot", hint, option="robot")
 
 
 def file_sha256(path: Path) -> str:
@@ -252,7 +261,8 @@ def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = N
             raise JointMismatchError(
                 "no joint of the log is in the robot model",
                 f"log: {', '.join(sorted(wanted)[:8])}; model: {', '.join(names[:8])}",
-                "pick the right --robot or rename joints with --joint-map old=new",
+                "pick the right robot model or rename the log's joints (old=new)",
+                option="robot,joint_map",
             )
         locked = tuple(n for n in names if n not in wanted)
         if locked:

@@ -102,7 +102,12 @@ class LstmMob(ScoringMethod):
 
     def fit(self, train: Sequence[PreparedLog]) -> LstmMob:
         if not train:
-            raise DataError("lstm-mob needs training logs", "--train", "pass --train PATH")
+            raise DataError(
+                "lstm-mob needs training logs",
+                "training logs",
+                "give collision-free training logs",
+                option="train",
+            )
         self.check(train)
         torch = import_torch()
         names = train[0].joint_names
@@ -111,7 +116,10 @@ class LstmMob(ScoringMethod):
         lengths = np.array([len(x) for x in xs])
         if lengths.max() < 2:
             raise DataError(
-                "the training logs are too short for lstm-mob", "--train", "give longer logs"
+                "the training logs are too short for lstm-mob",
+                "training logs",
+                "give longer logs",
+                option="train",
             )
         in_scaler = MinMaxScaler().fit(np.concatenate(xs))
         out_scaler = MinMaxScaler().fit(np.concatenate(ys))

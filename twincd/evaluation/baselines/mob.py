@@ -108,7 +108,7 @@ def check_mob(logs: Sequence[PreparedLog]) -> None:
         robot = log.robot
         if robot is None:
             raise MethodSkipped(
-                f"the momentum observer needs a robot model ({log.source} has none: pass --robot)"
+                f"the momentum observer needs a robot model ({log.source} has none: give one)"
             )
         if set(robot.joint_names) != set(log.joint_names):
             raise MethodSkipped(
@@ -252,15 +252,21 @@ class MobFeatureMethod(ScoringMethod):
 
     def fit(self, train: Sequence[PreparedLog]) -> MobFeatureMethod:
         if not train:
-            raise DataError(f"{self.name} needs training logs", "--train", "pass --train PATH")
+            raise DataError(
+                f"{self.name} needs training logs",
+                "training logs",
+                "give collision-free training logs",
+                option="train",
+            )
         self.check(train)
         names = train[0].joint_names
         x = np.concatenate([self.features(log, names) for log in train])
         if len(x) == 0:
             raise DataError(
                 f"the training logs are too short for {self.window}-sample windows",
-                "--train",
+                "training logs",
                 "give longer logs",
+                option="train",
             )
         self.note = None
         scaler = MinMaxScaler().fit(x)

@@ -39,13 +39,17 @@ class MinMaxScaler:
         x = np.asarray(x, dtype=np.float64)
         if x.ndim != 2 or len(x) == 0:
             raise DataError(
-                "no training data to normalise", f"shape {x.shape}", "give longer --train logs"
+                "no training data to normalise",
+                f"shape {x.shape}",
+                "give longer training logs",
+                option="train",
             )
         if not np.isfinite(x).all():
             raise DataError(
                 "training data has NaN or infinite values",
                 "min-max normalisation",
-                "check the --train logs for gaps in effort or velocity",
+                "check the training logs for gaps in effort or velocity",
+                option="train",
             )
         lo = x.min(axis=0)
         span = x.max(axis=0) - lo
