@@ -66,6 +66,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from twincd.io.mcap_write import DEFAULT_QOS  # what `ros2 bag record` offers by default
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -87,15 +89,6 @@ REACH = np.array([1.0, 0.6, 1.0, 0.8, 1.0, 0.8, 1.0])  # max |q - home|, well in
 PEAK_SPEED = np.radians(30.0)
 NOISE_NM = 0.05
 
-# The QoS `ros2 bag record` offers for a default publisher; rosbag2 requires the entry.
-QOS_YAML = (
-    "- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n"
-    "  deadline:\n    sec: 9223372036\n    nsec: 854775807\n"
-    "  lifespan:\n    sec: 9223372036\n    nsec: 854775807\n"
-    "  liveliness: 1\n"
-    "  liveliness_lease_duration:\n    sec: 9223372036\n    nsec: 854775807\n"
-    "  avoid_ros_namespace_conventions: false"
-)
 
 # Acceptance of the long-log issue.
 SPEED_TARGETS = {"detect": 5.0, "detect -o out.mcap": 2.0, "simulate": 2.0, "fit": 5.0}
@@ -260,7 +253,7 @@ def build_mcap(path: Path, minutes: float, seed: int) -> None:
             for topic, msgtype in ((LABEL_TOPIC, BOOL), (TOPIC, JOINT_STATE)):
                 msgdef, _ = store.generate_msgdef(msgtype, ros_version=2)
                 schema = writer.register_schema(msgtype, "ros2msg", msgdef.encode())
-                meta = {"offered_qos_profiles": QOS_YAML}
+                meta = {"offered_qos_profiles": DEFAULT_QOS}
                 channels[topic] = writer.register_channel(topic, "cdr", schema, meta)
             sequence = dict.fromkeys(channels.values(), 0)
             for topic, t, data in _messages(minutes, seed):
@@ -289,7 +282,7 @@ def build_sqlite(folder: Path, minutes: float, seed: int) -> None:
         writer = Writer(tmp_parent / folder.name, version=8, storage_plugin=StoragePlugin.SQLITE3)
         writer.open()
         try:
-            qos = parse_qos(QOS_YAML)
+            qos = parse_qos(DEFAULT_QOS)
             conns = {
                 topic: writer.add_connection(
                     topic, msgtype, typestore=store, offered_qos_profiles=qos

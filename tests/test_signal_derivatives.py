@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from streaming import chunked, split_points
 
 from twincd.errors import DataError, UsageError
 from twincd.signal import (
@@ -38,24 +39,6 @@ def make_values(rng: np.random.Generator, n: int, channels: int) -> np.ndarray:
     y = np.cumsum(rng.standard_normal((n, c)), axis=0)
     y += 20 * (rng.uniform(size=(n, c)) < 0.01).cumsum(axis=0)
     return y[:, 0] if channels == 0 else y
-
-
-def chunked(stage, stamps: np.ndarray, values: np.ndarray, cuts: list[int]) -> np.ndarray:
-    """Push in pieces split at ``cuts``, then finish; every output is C-ordered (a layout that
-    followed the chunking would change reductions downstream)."""
-    edges = [0, *sorted(c for c in set(cuts) if 0 < c < len(stamps)), len(stamps)]
-    out = [stage.push(stamps[a:b], values[a:b]) for a, b in itertools.pairwise(edges)]
-    out.append(stage.finish())
-    assert all(o.flags.c_contiguous and o.shape[1:] == values.shape[1:] for o in out)
-    return np.concatenate(out)
-
-
-def split_points(n: int, how: str | int, rng: np.random.Generator) -> list[int]:
-    if how == "whole":
-        return []
-    if how == "random":
-        return sorted(rng.choice(np.arange(1, max(n, 2)), size=min(n - 1, 6), replace=False))
-    return list(range(int(how), n, int(how)))
 
 
 def reference_derivative(

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
+from streaming import chunked, split_points
 
 from twincd.defaults import DEFAULT_CUTOFF_HZ
 from twincd.errors import DataError, UsageError
@@ -37,24 +38,6 @@ def make_values(rng: np.random.Generator, n: int, channels: int) -> np.ndarray:
     y = 50 + np.cumsum(rng.standard_normal((n, c)), axis=0)
     y += 30 * (rng.uniform(size=(n, c)) < 0.005).cumsum(axis=0)
     return y[:, 0] if channels == 0 else y
-
-
-def run(stage: StreamingLowPass, stamps, values, cuts) -> np.ndarray:
-    """Push in pieces split at ``cuts``, then finish; every output is C-ordered (a layout that
-    followed the chunking would change reductions downstream)."""
-    edges = [0, *sorted(c for c in set(cuts) if 0 < c < len(stamps)), len(stamps)]
-    out = [stage.push(stamps[a:b], values[a:b]) for a, b in itertools.pairwise(edges)]
-    out.append(stage.finish())
-    assert all(o.flags.c_contiguous and o.shape[1:] == values.shape[1:] for o in out)
-    return np.concatenate(out)
-
-
-def split_points(n: int, how: str | int, rng: np.random.Generator) -> list[int]:
-    if how == "whole":
-        return []
-    if how == "random":
-        return sorted(rng.choice(np.arange(1, max(n, 2)), size=min(n - 1, 6), replace=False))
-    return list(range(int(how), n, int(how)))
 
 
 def reference(lp: LowPass, stamps, values, period_s: float) -> np.ndarray:
@@ -179,9 +162,9 @@ def test_streamed_equals_scipy_on_each_segment(seed, n, gaps, channels, causal, 
     lp = LowPass(cutoff, order, causal=causal)
     if how == 1:  # one push per sample costs a backward pass each: keep those runs short
         stamps, x = stamps[:400], x[:400]
-    whole = run(StreamingLowPass(lp, period_ns * 1e-9), stamps, x, [])
+    whole = chunked(StreamingLowPass(lp, period_ns * 1e-9), stamps, x, [])
     stage = StreamingLowPass(lp, period_ns * 1e-9)
-    got = run(stage, stamps, x, split_points(len(stamps), how, rng))
+    got = chunked(stage, stamps, x, split_points(len(stamps), how, rng))
     assert got.shape == x.shape
     span = max(float(np.ptp(x)), 1.0)
     if causal:  # carried state: exactly one pass
@@ -253,7 +236,7 @@ def test_the_margin_lets_any_start_up_transient_decay():
 def test_a_step_across_a_gap_does_not_leak(causal):
     stamps = T0_NS + 10_000_000 * np.concatenate((np.arange(2000), np.arange(2100, 4000)))
     x = np.where(np.arange(len(stamps)) < 2000, 1.0, 9.0)
-    got = run(StreamingLowPass(LowPass(2.0, causal=causal), 0.01), stamps, x, [1999, 2001])
+    got = chunked(StreamingLowPass(LowPass(2.0, causal=causal), 0.01), stamps, x, [1999, 2001])
     np.testing.assert_allclose(got, x, rtol=1e-12)
 
 
@@ -265,7 +248,7 @@ def test_short_segments_use_a_shorter_pad():
     rng = np.random.default_rng(2)
     x = make_values(rng, len(stamps), 2)
     lp = LowPass(2.0, 3)
-    got = run(StreamingLowPass(lp, 0.01), stamps, x, [1, 4, 30])
+    got = chunked(StreamingLowPass(lp, 0.01), stamps, x, [1, 4, 30])
     np.testing.assert_allclose(got, reference(lp, stamps, x, 0.01), rtol=0, atol=1e-12)
     assert got[0].tolist() == x[0].tolist()  # a lone sample comes back as it is
 
@@ -277,9 +260,9 @@ def test_apply_is_one_push_with_the_nominal_or_given_period():
     t_s = (stamps - stamps[0]) * 1e-9
     lp = LowPass(2.0)
     period = nominal_period(stamps)
-    whole = run(StreamingLowPass(lp, period), stamps, x, [])
+    whole = chunked(StreamingLowPass(lp, period), stamps, x, [])
     np.testing.assert_array_equal(lp.apply(t_s, x), whole)
-    given_period = run(StreamingLowPass(lp, 0.0095), stamps, x, [])
+    given_period = chunked(StreamingLowPass(lp, 0.0095), stamps, x, [])
     np.testing.assert_array_equal(lp.apply(t_s, x, period_s=0.0095), given_period)
     assert lp.apply(t_s, x[:, 0]).shape == (5000,)
 
@@ -290,7 +273,7 @@ def test_stages_keep_no_reference_to_pushed_arrays(causal):
     stamps = make_stamps(rng, 3000, 10_000_000)
     x = make_values(rng, 3000, 2)
     lp = LowPass(2.0, causal=causal)
-    expect = run(StreamingLowPass(lp, 0.01), stamps, x, [])
+    expect = chunked(StreamingLowPass(lp, 0.01), stamps, x, [])
     stage = StreamingLowPass(lp, 0.01)
     out = []
     for a in (0, 5, 40, 1500):  # a few samples (before the pad is full), then more
