@@ -39,7 +39,8 @@ from .common import (
 )
 
 if TYPE_CHECKING:
-    from twincd.calibration import Calibration, Setup
+    from twincd.calibration import Calibration
+    from twincd.pipeline import Setup
 
 log = logging.getLogger("twincd")
 
@@ -90,8 +91,8 @@ def resolve_setup(
     causal: bool | None = None,
 ) -> Setup:
     """Settings for reading logs: explicit options over the calibration's, never against them."""
-    from twincd.calibration import Setup
     from twincd.io.logs import parse_joint_map
+    from twincd.pipeline import Setup
     from twincd.signal.filters import LowPass
 
     if calibration is None:

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from twincd.calibration import AffineStats, Setup, solve
+from twincd.calibration import AffineStats, solve
 from twincd.detection import affine_score
 from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
 from twincd.io.logs import expand_logs
-from twincd.pipeline import PreparedLog
+from twincd.pipeline import PreparedLog, Setup
 from twincd.signal.filters import LowPass
 from twincd.threshold import ScoreStats
 

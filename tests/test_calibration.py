@@ -14,13 +14,13 @@ from twincd.calibration import (
     AffineCalibration,
     AffineStats,
     Calibration,
-    Setup,
     Threshold,
     fit_calibration,
     solve,
 )
 from twincd.errors import CalibrationError, DataError, NotFittedError
 from twincd.io.logs import LogOptions, expand_logs
+from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass
 
 A = np.array([1.39, 1.17, 21.7])

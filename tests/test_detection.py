@@ -12,13 +12,14 @@ from conftest import DEFAULT_BUMPS, GAINS, TWIN_JOINTS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twincd.calibration import Calibration, Setup, Threshold, fit_calibration
+from twincd.calibration import Calibration, Threshold, fit_calibration
 from twincd.detection import affine_score, detect, find_events, residual, runs
 from twincd.errors import DataError, NotFittedError, OutputError
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.proposed import ProposedMethod
 from twincd.io.logs import expand_logs, read_log
 from twincd.outputs import write_detection
+from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass
 from twincd.threshold import ScoreStats, calibrate_threshold
 

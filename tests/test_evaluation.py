@@ -7,12 +7,12 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
-from twincd.calibration import Setup, fit_calibration
+from twincd.calibration import fit_calibration
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, register
 from twincd.evaluation.runner import evaluate, parse_methods
 from twincd.io.logs import expand_logs
-from twincd.pipeline import PreparedLog
+from twincd.pipeline import PreparedLog, Setup
 from twincd.signal.filters import LowPass
 from twincd.threshold import calibrate_threshold
 

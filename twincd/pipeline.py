@@ -20,7 +20,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,7 +32,6 @@ from twincd.io.logs import JointStates, LogOptions
 from twincd.signal.filters import LowPass
 
 if TYPE_CHECKING:
-    from twincd.calibration import Calibration
     from twincd.io.blocks import LogStream
     from twincd.twin.robot import RobotModel
 
@@ -371,6 +370,23 @@ def _frame(block: Any) -> Frame:
 # ------------------------------------------------------------------ settings
 
 
+class CalibrationSettings(Protocol):
+    """What a calibration records about reading logs (``twincd.calibration.Calibration``)."""
+
+    @property
+    def options(self) -> LogOptions: ...
+    @property
+    def robot(self) -> str | None: ...
+    @property
+    def lowpass(self) -> LowPass: ...
+    @property
+    def joint_names(self) -> tuple[str, ...]: ...
+    @property
+    def urdf_sha256(self) -> str | None: ...
+    @property
+    def period_s(self) -> float | None: ...
+
+
 @dataclass(frozen=True)
 class Setup:
     """How logs become prepared samples: log options, robot, filter and (optionally) joint
@@ -391,7 +407,7 @@ class Setup:
     twin_threads: int | None = None  # None: every core this process may use
 
     @classmethod
-    def from_calibration(cls, calibration: Calibration) -> Setup:
+    def from_calibration(cls, calibration: CalibrationSettings) -> Setup:
         return cls(
             options=calibration.options,
             robot=calibration.robot,

@@ -10,7 +10,6 @@ from twincd.calibration.affine import (
 )
 from twincd.calibration.file import SCHEMA, Calibration, Threshold, calibration_from_fit
 from twincd.calibration.setup import LogFit, fit_calibration, fit_log, merge_fits
-from twincd.pipeline import Setup
 
 __all__ = [
     "SCHEMA",
@@ -19,7 +18,6 @@ __all__ = [
     "AffineStats",
     "Calibration",
     "LogFit",
-    "Setup",
     "Threshold",
     "calibration_from_fit",
     "clean_mask",

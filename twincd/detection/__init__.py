@@ -7,9 +7,9 @@ from twincd.detection.detect import (
     LogDetection,
     ScoringStage,
     detect,
-    detect_file,
 )
 from twincd.detection.events import Event, EventTracker, find_events, runs
+from twincd.detection.files import detect_file
 from twincd.detection.online import OnlineDetector, OnlineResult
 from twincd.detection.score import affine_score, residual
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -17,7 +16,7 @@ from twincd.frames import Frame
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.pipeline import PreparedLog, Setup
+    from twincd.pipeline import PreparedLog
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -125,36 +124,3 @@ class DetectionSummary:
             self.first_stamp_ns = int(frame["stamp_ns"][0])
         self.samples += frame.n
         self.collision_samples += int(frame["flag"].sum())
-
-
-def detect_file(
-    path: str | Path,
-    calibration: Calibration,
-    setup: Setup,
-    sinks: Sequence[FrameSink] = (),
-) -> DetectionSummary:
-    """Detect collisions in one log streamed block by block; every frame of results also goes
-    to ``sinks``. A causal calibration runs through ``OnlineDetector``, so batch and live
-    detection are one code path; a zero-phase one through the same stages with lookahead."""
-    summary = DetectionSummary(str(path), calibration.require_threshold().value)
-    if calibration.lowpass.causal:
-        from twincd.detection.online import detect_file_online
-
-        return detect_file_online(path, calibration, setup, summary, sinks)
-    # the stream's columns follow the calibration's joints (Setup.from_calibration)
-    stage = ScoringStage(calibration)
-    with setup.open(path) as stream:
-        for frame in stream:
-            out, closed = stage.push(frame)
-            _deliver(summary, sinks, out, closed)
-        _deliver(summary, sinks, Frame(), stage.finish())
-        summary.joint_names = stream.joint_names
-    return summary
-
-
-def _deliver(
-    summary: DetectionSummary, sinks: Sequence[FrameSink], frame: Frame, events: list[Event]
-) -> None:
-    summary.add(frame, events)
-    for sink in sinks:
-        sink.write(frame, events)

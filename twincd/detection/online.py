@@ -16,14 +16,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from twincd.defaults import DEFAULT_ROBOT
-from twincd.detection.detect import DetectionSummary, FrameSink, ScoringStage, _deliver
+from twincd.detection.detect import ScoringStage
 from twincd.detection.events import Event
 from twincd.errors import CalibrationError, DataError
 from twincd.frames import Chain, Frame, Stage
@@ -31,7 +30,6 @@ from twincd.pipeline import filter_stages, pick_columns, robot_for, twin_stages
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.pipeline import Setup
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -214,58 +212,3 @@ def _increasing(stamps: IntArray, last: int | None) -> BoolArray:
         prev = np.maximum(prev, last)
     ok: BoolArray = stamps > prev
     return ok
-
-
-def detect_file_online(
-    path: str | Path,
-    calibration: Calibration,
-    setup: Setup,
-    summary: DetectionSummary,
-    sinks: Sequence[FrameSink] = (),
-) -> DetectionSummary:
-    """``detect`` with a causal calibration: the log's blocks pushed into an OnlineDetector."""
-    from twincd.io.blocks import iter_blocks
-
-    with iter_blocks(
-        path,
-        setup.options,
-        joints=calibration.joint_names,
-        block_size=setup.block_size,
-        strict=setup.strict,
-    ) as blocks:
-        detector: OnlineDetector | None = None
-        for block in blocks:
-            if detector is None:
-                if block.effort is None:
-                    raise DataError(
-                        "the log has no measured effort",
-                        f"{path}, {blocks.topic}",
-                        "record JointState.effort; twincd compares it with the twin",
-                    )
-                has_sim = block.sim_effort is not None and bool(np.isfinite(block.sim_effort).all())
-                detector = OnlineDetector(
-                    calibration,
-                    period_s=setup.period_s,
-                    sim_effort=has_sim,
-                    threads=setup.twin_threads or 1,
-                )
-            result = detector.push(
-                block.stamp_ns,
-                block.position,
-                block.velocity,
-                block.effort,
-                block.sim_effort if detector.use_sim else None,
-            )
-            frame = detector.last_frame.with_columns(
-                log_time_ns=block.log_time_ns[np.isfinite(result.score)]
-            )
-            _deliver(summary, sinks, frame, result.events)
-        if detector is None:
-            raise DataError("the log has no joint-state samples", str(path), "record joint states")
-        _deliver(summary, sinks, Frame(), detector.close())
-        summary.joint_names = calibration.joint_names
-        if detector.skipped:
-            summary.warnings.append(
-                f"{path}: skipped {detector.skipped} sample(s) with non-finite values"
-            )
-    return summary

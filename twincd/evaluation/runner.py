@@ -19,13 +19,13 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.calibration import Calibration, Setup
+from twincd.calibration import Calibration
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_REPEATS
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
 from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
 from twincd.evaluation.proposed import ProposedMethod
-from twincd.pipeline import PreparedLog
+from twincd.pipeline import PreparedLog, Setup
 from twincd.threshold import ScoreStats
 
 FloatArray = NDArray[np.float64]

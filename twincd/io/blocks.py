@@ -37,7 +37,7 @@ from twincd.io.batches import (
 from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
 
 if TYPE_CHECKING:
-    from twincd.io.logs import LogOptions
+    from twincd.io.options import LogOptions
 
 log = logging.getLogger("twincd")
 

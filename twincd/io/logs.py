@@ -9,7 +9,7 @@ global state, so per-log work stays pure and can run anywhere.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -17,13 +17,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.errors import JointMismatchError, LogReadError, UsageError
+from twincd.errors import JointMismatchError, LogReadError
 from twincd.io.batches import open_reader as open_reader  # re-exported: older imports
 from twincd.io.blocks import OWN_PREFIX as OWN_PREFIX
 from twincd.io.blocks import choose_topic as choose_topic
 from twincd.io.blocks import iter_blocks
 from twincd.io.cdr import BOOL as BOOL
 from twincd.io.cdr import JOINT_STATE as JOINT_STATE
+from twincd.io.options import DEFAULT_LABEL_TOPIC as DEFAULT_LABEL_TOPIC
+from twincd.io.options import DEFAULT_SIM_TOPIC as DEFAULT_SIM_TOPIC
+from twincd.io.options import DEFAULT_TOPIC as DEFAULT_TOPIC
+from twincd.io.options import LogOptions as LogOptions
+from twincd.io.options import parse_joint_map as parse_joint_map
 from twincd.signal.derivatives import differentiate
 
 log = logging.getLogger("twincd")
@@ -32,35 +37,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-DEFAULT_TOPIC = "/joint_states"
-DEFAULT_LABEL_TOPIC = "/collision_flag"
-DEFAULT_SIM_TOPIC = "/twincd/sim_effort"
 TWIN_SUFFIX = ".twin.mcap"  # what `simulate` writes beside a log
-
-
-@dataclass(frozen=True)
-class LogOptions:
-    """How to read joint states from a log; recorded in the calibration by ``fit``."""
-
-    topic: str = DEFAULT_TOPIC
-    label_topic: str = DEFAULT_LABEL_TOPIC
-    sim_topic: str = DEFAULT_SIM_TOPIC
-    joint_map: Mapping[str, str] | None = None
-
-
-def parse_joint_map(text: str | None) -> dict[str, str]:
-    """``old=new,old2=new2`` to a dict; empty or None gives {}."""
-    if not text:
-        return {}
-    mapping: dict[str, str] = {}
-    for item in text.split(","):
-        old, sep, new = item.partition("=")
-        if not sep or not old.strip() or not new.strip():
-            raise UsageError(
-                f"bad joint map entry {item!r}", "the joint map", "write it as old=new,old2=new2"
-            )
-        mapping[old.strip()] = new.strip()
-    return mapping
 
 
 @dataclass(frozen=True)
