@@ -15,6 +15,7 @@ below it has been yielded. Joining topics by log time (labels) waits for it.
 from __future__ import annotations
 
 import struct
+from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePath
@@ -142,22 +143,22 @@ def _refuse_non_logs(path: Path) -> None:
 # ---------------------------------------------------------------- backends
 
 
-class _Backend:
+class _Backend(ABC):
     """One way of reading a log: its topics, and a stream of raw messages or batches."""
 
     topics: dict[str, str]
     hint = "re-record it or cut the damaged part"
     damage: str | None = None  # found while opening
 
+    @abstractmethod
     def items(self, topics: Sequence[str], batch_size: int) -> Iterator[Any]:
         """``_Raw`` messages, ready ``(topic, Batch)`` pairs, and watermarks (``int``).
 
         A watermark is yielded once every wanted message with an earlier log time has been;
         ``_Damage`` is raised where reading cannot go on.
         """
-        raise NotImplementedError
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - most backends hold nothing to release
         """Release files and connections."""
 
 

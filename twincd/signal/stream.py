@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from abc import ABC, abstractmethod
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -127,7 +128,7 @@ def segment_bounds(
     return [(a, b) for a, b in itertools.pairwise(edges) if b > a]
 
 
-class SegmentedStage:
+class SegmentedStage(ABC):
     """Base of the streaming stages: checks and shapes pushes and splits them at gaps.
 
     Subclasses implement ``_extend`` (samples of the current segment arrive; return the outputs
@@ -213,11 +214,11 @@ class SegmentedStage:
             return flat
         return out
 
-    def _extend(self, t: IntArray, y: FloatArray) -> FloatArray:
-        raise NotImplementedError
+    @abstractmethod
+    def _extend(self, t: IntArray, y: FloatArray) -> FloatArray: ...
 
-    def _end_segment(self) -> FloatArray:
-        raise NotImplementedError
+    @abstractmethod
+    def _end_segment(self) -> FloatArray: ...
 
 
 def run_whole(stage: SegmentedStage, stamp_ns: IntArray, values: FloatArray) -> FloatArray:
