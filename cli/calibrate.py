@@ -191,7 +191,7 @@ def fit(
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
     )
-    parts = run_per_log(Bound(fit_log, setup), paths, jobs, "fitting", quiet)
+    parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet)
     cal = merge_fits(parts, setup)
     cal.save(output)
     stdout.print(fit_table(cal))
@@ -238,7 +238,7 @@ def threshold(
     check_writable(target)
     paths = expand_logs(logs)
     setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
-    parts = run_per_log(Bound(score_log, setup, cal), paths, jobs, "scoring", quiet)
+    parts = run_per_log(Bound(score_log, setup, cal), paths, paths, jobs, "scoring", quiet)
     cal = with_threshold(parts, cal, sigma)
     cal.save(target)
     th = cal.require_threshold()

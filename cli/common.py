@@ -188,13 +188,19 @@ def counter(total: int, description: str, quiet: bool) -> Iterator[Callable[[int
 
 
 def run_per_log(
-    func: Callable[[T], Any], items: Sequence[T], jobs: int, description: str, quiet: bool
+    func: Callable[[T], Any],
+    items: Sequence[T],
+    paths: Sequence[Path],
+    jobs: int,
+    description: str,
+    quiet: bool,
 ) -> list[Any]:
-    """``func`` over ``items`` on ``jobs`` processes, with a progress bar."""
+    """``func`` over ``items`` (one per log of ``paths``) on ``jobs`` processes, with a
+    progress bar."""
     from twincd.executors import Executor
 
     with counter(len(items), description, quiet) as advance:
-        return Executor(jobs).map(func, items, advance)
+        return Executor.for_logs(jobs, paths).map(func, items, advance)
 
 
 @contextlib.contextmanager

@@ -125,7 +125,9 @@ def detect(
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         written.extend(target for target in targets if target is not None)
-        results = run_per_log(Bound(detect_and_write, cal, setup), items, jobs, "detecting", quiet)
+        results = run_per_log(
+            Bound(detect_and_write, cal, setup), items, paths, jobs, "detecting", quiet
+        )
     summaries = [r.to_dict() for r in results]
     for result in results:
         for line in result.warnings:

@@ -94,6 +94,6 @@ def simulate(
         if not in_place:
             written.extend(t if t is not None else default_output(p) for p, t in items)
         work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place)
-        results = run_per_log(work, items, jobs, "simulating", quiet)
+        results = run_per_log(work, items, paths, jobs, "simulating", quiet)
     for result in results:
         stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")

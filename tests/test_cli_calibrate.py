@@ -94,3 +94,17 @@ def test_threshold_on_fit_logs_warns(fitted, twin_dataset, tmp_path):
     result = run("threshold", twin_dataset / "train" / "train_0.mcap", "-c", fitted[0], "-o", out)
     assert result.exit_code == 0
     assert "also used by fit" in result.stderr
+
+
+def test_a_process_pool_gives_the_same_calibration_in_any_log_order(twin_dataset, tmp_path):
+    logs = sorted((twin_dataset / "train").glob("*.mcap"))
+    docs = []
+    for jobs, order in (("1", logs), ("2", logs[::-1])):
+        out = tmp_path / f"cal{jobs}.json"
+        assert run("fit", *order, "-o", out, "-j", jobs).exit_code == 0
+        assert run("threshold", twin_dataset / "val", "-c", out, "-j", jobs).exit_code == 0
+        docs.append(json.loads(out.read_text()))
+    serial, pooled = docs
+    assert pooled["model"] == serial["model"]
+    for key in ("mu", "sigma", "value"):
+        assert pooled["threshold"][key] == pytest.approx(serial["threshold"][key], rel=1e-12)

@@ -100,9 +100,10 @@ def test_a_failing_log_removes_the_run_outputs(cal, twin_dataset, tmp_path):
     data = good.read_bytes()
     cut.write_bytes(data[: len(data) // 2])
     out = tmp_path / "out"
-    result = run("detect", good, cut, "-c", cal, "-o", out, "--json")
-    assert_one_line_error(result)
-    assert list(out.iterdir()) == []
+    for jobs in ("1", "2"):  # in this process and on a pool: the same clean failure
+        result = run("detect", good, cut, "-c", cal, "-o", out, "--json", "-j", jobs)
+        assert_one_line_error(result)
+        assert list(out.iterdir()) == []
 
 
 def test_unwritable_output_fails_before_any_work(cal, twin_dataset, tmp_path):

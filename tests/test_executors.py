@@ -31,3 +31,14 @@ def test_results_come_back_in_input_order(jobs: int) -> None:
 def test_a_worker_error_is_raised_as_itself(jobs: int) -> None:
     with pytest.raises(TwincdError, match="log 3"):
         Executor(jobs).map(Bound(_square_or_fail, 3), list(range(8)))
+
+
+def test_automatic_jobs_keep_a_few_small_logs_in_this_process(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    logs = []
+    for i in range(3):
+        logs.append(tmp_path / f"{i}.mcap")
+        logs[-1].write_bytes(b"x" * 1000)
+    assert Executor.for_logs(0, logs).workers == 1
+    assert Executor.for_logs(2, logs).workers == 2  # asked for explicitly: as asked
+    many = logs * 3  # nine logs: worth a pool
+    assert Executor.for_logs(0, many).workers == Executor(0).workers

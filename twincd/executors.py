@@ -12,6 +12,7 @@ import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 if TYPE_CHECKING:
@@ -20,6 +21,18 @@ if TYPE_CHECKING:
 from twincd.twin.dynamics import default_threads
 
 T = TypeVar("T")
+# below both, an automatic run stays serial (measured on sample-sized logs, 2 cores)
+POOL_MIN_LOGS = 8
+POOL_MIN_BYTES = 100_000_000
+# what a worker needs for any command; importing them starts no OpenMP thread
+PRELOAD = (
+    "numpy",
+    "scipy.signal",
+    "pinocchio",
+    "twincd.pipeline",
+    "twincd.outputs",
+    "twincd.threshold",
+)
 R = TypeVar("R")
 
 
@@ -32,6 +45,14 @@ class Executor:
     @property
     def workers(self) -> int:
         return self.jobs if self.jobs > 0 else default_threads()
+
+    @classmethod
+    def for_logs(cls, jobs: int, paths: Sequence[Path]) -> Executor:
+        """``jobs`` processes; with 0 (every core), a run of a few small logs stays in this
+        process: starting a worker costs about a second, more than it would save there."""
+        if jobs == 0 and len(paths) < POOL_MIN_LOGS and _size(paths) < POOL_MIN_BYTES:
+            return cls(1)
+        return cls(jobs)
 
     def map(
         self,
@@ -65,6 +86,9 @@ def _pooled(
     # the parent deadlocks in a forked child; forkserver children start from a clean process
     method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
     context = multiprocessing.get_context(method)
+    if method == "forkserver":
+        # import the heavy modules once in the server, not once per worker (≈ 1 s each)
+        context.set_forkserver_preload(list(PRELOAD))
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_twin_thread) as pool:
         futures: list[Future[R]] = [pool.submit(func, item) for item in items]
         pending = set(futures)
@@ -80,6 +104,15 @@ def _pooled(
                 raise failed[0].exception()  # type: ignore[misc]
         for f in futures:
             yield f.result()
+
+
+def _size(paths: Sequence[Path]) -> int:
+    """Bytes of the logs (a folder: its files)."""
+    total = 0
+    for path in paths:
+        files = [path] if path.is_file() else [f for f in path.rglob("*") if f.is_file()]
+        total += sum(f.stat().st_size for f in files)
+    return total
 
 
 def _one_twin_thread() -> None:
