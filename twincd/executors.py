@@ -27,7 +27,7 @@ POOL_MIN_BYTES = 100_000_000
 # what a worker needs for any command; importing them starts no OpenMP thread
 PRELOAD = (
     "numpy",
-    "scipy.signal",
+    "scipy.linalg.lapack",
     "pinocchio",
     "twincd.pipeline",
     "twincd.outputs",

@@ -2,7 +2,7 @@
 
 A Butterworth filter as second-order sections, run zero-phase (the result of
 ``scipy.signal.sosfiltfilt`` with an odd-extension pad of ``padlen`` samples at each segment's
-ends; the default for offline logs) or causal (``sosfilt`` forward only, started in steady state
+ends; the default for offline logs) or causal (forward only, started in steady state
 at each segment's first value: what a live detector sees). Streams are cut at gaps
 (twincd.signal.stream.Segmenter) and each segment is filtered on its own; the sampling rate is
 the nominal one given by the caller, never estimated from a whole log.
@@ -15,7 +15,8 @@ transient to decay below 1e-12 (``decay_margin``); at a segment's end the true e
 used. So a sample is emitted ``margin`` samples late, memory stays bounded by block + margin,
 and the result equals the whole-segment ``sosfiltfilt`` to ~1e-12 of the signal's range.
 
-scipy.signal takes seconds to import: it is imported inside the functions that need it.
+The design and the recursion are twincd.signal.iir's (scipy.signal's results without its
+import cost).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from numpy.typing import ArrayLike
 
 from twincd.defaults import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from twincd.errors import DataError, UsageError
+from twincd.signal.iir import butter_lowpass_sos, rest_state, sosfilt
 from twincd.signal.stream import (
     DEFAULT_GAP_FACTOR,
     FloatArray,
@@ -77,16 +79,13 @@ class LowPass:
 
     def sos(self, fs_hz: float) -> FloatArray:
         """Second-order sections of the filter at sampling rate ``fs_hz``."""
-        from scipy import signal
-
         if self.cutoff_hz >= fs_hz / 2:
             raise UsageError(
                 f"cut-off {self.cutoff_hz} Hz is not below the Nyquist rate {fs_hz / 2:.3g} Hz",
                 "filter settings",
                 "pick a lower cut-off",
             )
-        sos: FloatArray = signal.butter(self.order, self.cutoff_hz, fs=fs_hz, output="sos")
-        return sos
+        return butter_lowpass_sos(self.order, self.cutoff_hz, fs_hz)
 
     def padlen(self, fs_hz: float) -> int:
         """Zero-phase edge pad: about one period of the cut-off (scipy's default of a few
@@ -131,22 +130,21 @@ class LowPass:
 def decay_margin(sos: FloatArray, tolerance: float = DECAY_TOLERANCE) -> int:
     """Samples after which any start-up transient of ``sos`` stays below ``tolerance`` × the
     initial state error: the last sample where the summed |zero-input response| to a unit error
-    in each state exceeds it, plus one. Sized by the slowest pole, checked by simulation."""
-    from scipy import signal
-
+    in each value of the filter's history exceeds it, plus one. Sized by the slowest pole,
+    checked by simulation."""
     poles = np.concatenate([np.roots(section[3:]) for section in sos])
     radius = float(np.abs(poles).max()) if len(poles) else 0.0
     if radius >= 1:
         raise UsageError("the filter is unstable", "filter settings", "pick another cut-off")
     if radius == 0:
         return len(sos) * 2
-    states = 2 * len(sos)
-    zi = np.zeros((len(sos), 2, states))
+    states = 4 * len(sos)
+    history = np.zeros((len(sos), 4, states))
     for j in range(states):
-        zi[j // 2, j % 2, j] = 1.0
+        history[j // 4, j % 4, j] = 1.0
     length = math.ceil(math.log(tolerance) / math.log(radius)) + 64
     while True:
-        h, _ = signal.sosfilt(sos, np.zeros((length, states)), axis=0, zi=zi)
+        h, _ = sosfilt(sos, np.zeros((length, states)), history)
         above = np.flatnonzero(np.abs(h).sum(axis=1) > tolerance)
         last = int(above[-1]) + 1 if len(above) else 0
         if last < length * 3 // 4:  # the tail of the simulation is well below: settled
@@ -172,14 +170,11 @@ class StreamingLowPass(SegmentedStage):
     def __init__(
         self, lowpass: LowPass, period_s: float, gap_factor: float = DEFAULT_GAP_FACTOR
     ) -> None:
-        from scipy import signal
-
         super().__init__(period_s, gap_factor)
         self.lowpass = lowpass
         self.causal = lowpass.causal
         fs = 1.0 / self.period_s
         self.sos = lowpass.sos(fs)
-        self._zi: FloatArray = signal.sosfilt_zi(self.sos)  # steady state for a unit input
         self.padlen = lowpass.padlen(fs)
         self.margin = 0 if self.causal else max(decay_margin(self.sos), self.padlen)
         self.lookahead = self.margin
@@ -192,7 +187,7 @@ class StreamingLowPass(SegmentedStage):
         self._next = 0  # segment index of the next sample to emit
         self._x = np.zeros((0, max(self._width, 1)))  # raw values (zero-phase)
         self._yf: FloatArray | None = None  # forward-pass output, aligned with _x
-        self._zf: FloatArray | None = None  # forward state after the last sample seen
+        self._zf: FloatArray | None = None  # forward history after the last sample seen
         self._pad = 0  # the segment's pad length, once known
 
     @property
@@ -202,14 +197,10 @@ class StreamingLowPass(SegmentedStage):
 
     def _steady(self, value: FloatArray) -> FloatArray:
         """Filter state at rest on ``value`` (one per channel)."""
-        state: FloatArray = self._zi[:, :, None] * value[None, None, :]
-        return state
+        return rest_state(self.sos, value)
 
-    def _filter(self, x: FloatArray, zi: FloatArray) -> tuple[FloatArray, FloatArray]:
-        from scipy import signal
-
-        y, zf = signal.sosfilt(self.sos, x, axis=0, zi=zi)
-        return y, zf
+    def _filter(self, x: FloatArray, state: FloatArray) -> tuple[FloatArray, FloatArray]:
+        return sosfilt(self.sos, x, state)
 
     def _extend(self, t: IntArray, y: FloatArray) -> FloatArray:
         if self.causal:
