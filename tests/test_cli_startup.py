@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -39,3 +40,21 @@ def test_library_import_is_light() -> None:
     probe = f"import sys, twincd; print([m for m in sys.modules if m.split('.')[0] in {HEAVY!r}])"
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
     assert done.stdout.strip() == "[]"
+
+
+def test_detect_on_an_mcap_loads_only_what_it_uses() -> None:
+    # scipy.signal (84 MB, 0.55 s) and rosbags' type stores (70 ms) are not needed to read
+    # bare MCAP and filter: the numpy CDR path and twincd.signal.iir do that
+    sample_logs = Path(__file__).resolve().parent.parent / "sample_logs"
+    log = sample_logs / "test" / "test_000.mcap"
+    cal = sample_logs / "calibration.json"
+    probe = PROBE % (HEAVY,)
+    done = subprocess.run(
+        [sys.executable, "-c", probe, "detect", str(log), "-c", str(cal), "-q"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    loaded = set(json.loads(done.stdout.strip().splitlines()[-1]))
+    assert "pinocchio" in loaded  # it did run the twin
+    assert not {m for m in loaded if m.startswith(("scipy.signal", "rosbags.typesys.stores"))}

@@ -28,10 +28,10 @@ from twincd.errors import LogReadError, TopicError, TwincdError
 from twincd.io.cdr import (
     BOOL,
     JOINT_STATE,
-    TYPESTORE,
     CdrStats,
     decode_bools,
     decode_joint_states,
+    typestore,
 )
 from twincd.io.mcap_read import MAGIC, McapDamage, McapFile
 from twincd.io.sqlite_read import FETCH, Sqlite3Storage, SqliteDamage
@@ -118,7 +118,7 @@ def open_reader(path: Path) -> Any:
     _refuse_non_logs(path)
     try:
         # Humble-era rosbag2 bags store no message definitions: bring the standard ones
-        reader = AnyReader([path], default_typestore=TYPESTORE)
+        reader = AnyReader([path], default_typestore=typestore())
         reader.open()
     except Exception as exc:  # the I/O edge: every reader failure becomes one line
         raise LogReadError(
@@ -513,7 +513,7 @@ class TopicReader:
                 return [BoolBatch(log_time, decode_bools(payloads, self.stats))]
             values = []
             for row in payloads:
-                msg: Any = TYPESTORE.deserialize_cdr(row.tobytes(), STRING)
+                msg: Any = typestore().deserialize_cdr(row.tobytes(), STRING)
                 values.append(str(msg.data))
             self.stats.add(fallback=len(values))
             return [StringBatch(log_time, values)]

@@ -69,7 +69,7 @@ from numpy.typing import NDArray
 from twincd import __version__
 from twincd.errors import LogReadError, OutputError, TwincdError
 from twincd.io.atomic import atomic_output, check_writable
-from twincd.io.cdr import TYPESTORE
+from twincd.io.cdr import typestore
 
 __all__ = [
     "DEFAULT_QOS",
@@ -295,7 +295,7 @@ class _Output:
         return self._channel_ids[key]
 
     def ros2_channel(self, topic: str, msgtype: str) -> int:
-        msgdef, _ = TYPESTORE.generate_msgdef(msgtype, ros_version=2)
+        msgdef, _ = typestore().generate_msgdef(msgtype, ros_version=2)
         schema_id = self.schema(msgtype, "ros2msg", msgdef.encode())
         channel_id = self.channel(topic, schema_id, "cdr", {QOS_KEY: DEFAULT_QOS})
         self.declare(channel_id)
@@ -921,8 +921,8 @@ def _copy_via_rosbags(source: Path, out: _Output, replaced: frozenset[str]) -> N
             if conn.topic in replaced:
                 continue
             store = reader.typestore
-            if not reader.is2 and conn.msgtype in TYPESTORE.fielddefs:
-                store = TYPESTORE
+            if not reader.is2 and conn.msgtype in typestore().fielddefs:
+                store = typestore()
             to_ros2[conn.msgtype] = (store, conn.msgtype)
             try:
                 msgdef, _ = store.generate_msgdef(conn.msgtype, ros_version=2)
