@@ -100,18 +100,23 @@ def sosfilt(sos: FloatArray, x: FloatArray, state: FloatArray) -> tuple[FloatArr
     if n == 0:
         return y.copy(), new
     band = np.empty((3, n + 2))
+    # column-major throughout: LAPACK takes and gives Fortran order, so no copies per section
+    inputs = np.empty((n + 2, *y.shape[1:]), order="F")
     for i, (b0, b1, b2, _, a1, a2) in enumerate(np.asarray(sos, dtype=np.float64)):
-        inputs = np.concatenate((state[i, :2], y))
-        rhs = b0 * inputs
+        inputs[:2] = state[i, :2]
+        inputs[2:] = y
+        rhs = np.multiply(b0, inputs, order="F")
         rhs[1:] += b1 * inputs[:-1]
         rhs[2:] += b2 * inputs[:-2]
         rhs[:2] = state[i, 2:]  # y[−2], y[−1]: known
         band[0], band[1], band[2] = 1.0, a1, a2
         band[1, 0] = 0.0  # y[−1] does not follow from y[−2]: it is given
-        out, info = dtbtrs(band, np.asfortranarray(rhs), uplo="L", diag="U", overwrite_b=1)
+        out, info = dtbtrs(band, rhs, uplo="L", diag="U", overwrite_b=1)
         if info != 0:  # cannot happen with a unit diagonal; a guard on LAPACK all the same
             raise RuntimeError(f"LAPACK dtbtrs failed with info={info}")
         new[i, :2] = inputs[-2:]
         new[i, 2:] = out[-2:]
         y = out[2:]
+        if i + 1 < len(sos):
+            inputs = np.empty_like(inputs)  # y is a view into out, not into inputs
     return np.ascontiguousarray(y), new
