@@ -91,6 +91,9 @@ class DaskExecutor:
                 processes=True,
                 host="127.0.0.1",
                 dashboard_address=None,
+                # the scheduler's HTTP routes still listen: on a free loopback port, so a
+                # second cluster on the machine brings no "port 8787 in use" warning
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                 # a log's error reaches the user once, as twincd's line, not as worker logs
                 silence_logs=logging.CRITICAL,
             )
