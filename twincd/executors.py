@@ -84,7 +84,7 @@ def _pooled(
     workers: int,
     progress: Progress | None,
 ) -> Iterator[R]:
-    from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     # not fork: Pinocchio's batched RNEA runs on OpenMP, and an OpenMP runtime that has run in
     # the parent deadlocks in a forked child; forkserver children start from a clean process
@@ -97,7 +97,7 @@ def _pooled(
         futures: list[Future[R]] = [pool.submit(func, item) for item in items]
         pending = set(futures)
         while pending:
-            done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)  # progress as logs finish
             failed = [f for f in done if f.exception() is not None]
             if progress:
                 progress(len(done), sum(samples_in(f.result()) for f in done if f not in failed))
