@@ -160,27 +160,34 @@ class DaskExecutor:
             return
         distributed = _require_dask()
         run = f"twincd-{uuid.uuid4().hex}"
-        stop = distributed.Event(f"{run}-stop", client=self._client) if stop_on_error else None
+        # set on a failure (with stop_on_error) or an interruption: logs not started are skipped
+        stop = distributed.Event(f"{run}-stop", client=self._client)
         futures = self._client.map(
             _on_worker,
             items,
             work=func,
-            stop=stop.name if stop is not None else None,
+            stop=stop.name,
             key=[f"{run}-{i}" for i in range(len(items))],
             pure=False,
         )
         index = {f.key: i for i, f in enumerate(futures)}
         first_error: Outcome[R] | None = None
-        for future in distributed.as_completed(futures, loop=self._client.loop):
-            outcome = self._outcome(future, index[future.key], items)
-            if progress and outcome.error is None and not outcome.skipped:
-                progress(1, samples_in(outcome.result))
-            if outcome.error is not None and stop is not None:
-                if first_error is None:
-                    first_error = outcome
-                    stop.set()
-                continue
-            yield outcome
+        try:
+            for future in distributed.as_completed(futures, loop=self._client.loop):
+                outcome = self._outcome(future, index[future.key], items)
+                if progress and outcome.error is None and not outcome.skipped:
+                    progress(1, samples_in(outcome.result))
+                if outcome.error is not None and stop_on_error:
+                    if first_error is None:
+                        first_error = outcome
+                        stop.set()
+                    continue
+                yield outcome
+        except BaseException:  # interrupted (Ctrl-C, SIGTERM): start nothing more
+            with contextlib.suppress(Exception):
+                stop.set()
+                self._client.cancel(futures)
+            raise
         if first_error is not None:
             yield first_error
 
@@ -211,10 +218,10 @@ def _log_path(item: Any) -> Path | None:
     return item if isinstance(item, Path) else None
 
 
-def _on_worker(item: T, work: Callable[[T], R], stop: str | None) -> R:
-    """One log on a worker: skipped once the run has failed; a log this worker cannot see is
-    an error naming it and the worker's host."""
-    if stop is not None and _require_dask().Event(stop).is_set():
+def _on_worker(item: T, work: Callable[[T], R], stop: str) -> R:
+    """One log on a worker: skipped once the run has failed or was interrupted; a log this
+    worker cannot see is an error naming it and the worker's host."""
+    if _require_dask().Event(stop).is_set():
         raise Skipped
     # one core's worth of work per task: the twin must not start threads of its own
     os.environ["TWINCD_TWIN_THREADS"] = "1"
