@@ -281,3 +281,34 @@ def test_a_log_that_keeps_killing_workers_fails_in_one_line_leaving_nothing(
     assert_one_line_error(result, match="workers died while processing the log")
     assert str(log) in result.stderr
     assert list(out.iterdir()) == []
+
+
+def test_simulate_on_a_running_cluster_writes_what_one_process_writes(cluster, tmp_path):
+    logs = sorted((TESTS.parent / "sample_logs" / "test").glob("*.mcap"))[:2]
+    outputs = {}
+    for name, executor in (
+        ("serial", ["-j", "1"]),
+        ("cluster", ["--scheduler", cluster["address"]]),
+    ):
+        out = tmp_path / name
+        out.mkdir()
+        result = run("simulate", *logs[::-1], "-o", out, *executor)
+        assert result.exit_code == 0, result.stderr
+        outputs[name] = {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+    assert len(outputs["serial"]) == 2 and outputs["cluster"] == outputs["serial"]
+
+
+def test_progress_shows_logs_done_and_samples_per_second(monkeypatch):
+    import io
+
+    from rich.console import Console
+    from twincd_cli import common
+
+    sink = io.StringIO()
+    monkeypatch.setattr(common, "show_progress", lambda quiet: True)
+    monkeypatch.setattr(common, "stderr", Console(file=sink, force_terminal=True, width=100))
+    with common.counter(3, "fitting", quiet=False) as advance:
+        advance(1, 3000)
+        advance(2, 6000)
+    shown = sink.getvalue()
+    assert "3/3" in shown and "samples/s" in shown
