@@ -84,19 +84,27 @@ class DaskExecutor:
         if self.address == LOCAL:
             from twincd.twin.dynamics import default_threads
 
-            # loopback only, no dashboard: a run opens no port another machine could reach
-            self._cluster = distributed.LocalCluster(
-                n_workers=self.workers or default_threads(),
-                threads_per_worker=1,
-                processes=True,
-                host="127.0.0.1",
-                dashboard_address=None,
-                # the scheduler's HTTP routes still listen: on a free loopback port, so a
-                # second cluster on the machine brings no "port 8787 in use" warning
-                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                # a log's error reaches the user once, as twincd's line, not as worker logs
-                silence_logs=logging.CRITICAL,
-            )
+            try:
+                # loopback only, no dashboard: a run opens no port another machine could reach
+                self._cluster = distributed.LocalCluster(
+                    n_workers=self.workers or default_threads(),
+                    threads_per_worker=1,
+                    processes=True,
+                    host="127.0.0.1",
+                    dashboard_address=None,
+                    # the scheduler's HTTP routes still listen: on a free loopback port, so a
+                    # second cluster on the machine brings no "port 8787 in use" warning
+                    scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                    # a log's error reaches the user once, as twincd's line, not as worker logs
+                    silence_logs=logging.CRITICAL,
+                )
+            except Exception as exc:
+                raise ClusterError(
+                    "cannot start a local Dask cluster",
+                    " ".join(str(exc).split())[:120] or type(exc).__name__,
+                    "run on local processes instead, or check the Dask installation",
+                    option="scheduler",
+                ) from exc
             address = self._cluster.scheduler_address
         else:
             if self.workers:
