@@ -30,6 +30,7 @@ from .common import (
     Logs,
     Quiet,
     Robot,
+    Scheduler,
     SimTopic,
     Topic,
     command,
@@ -170,6 +171,7 @@ def fit(
     filter_order: FilterOrder = None,
     causal: Causal = None,
     jobs: Jobs = 0,
+    scheduler: Scheduler = None,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -191,7 +193,7 @@ def fit(
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
     )
-    parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet)
+    parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet, scheduler)
     cal = merge_fits(parts, setup)
     cal.save(output)
     stdout.print(fit_table(cal))
@@ -216,6 +218,7 @@ def threshold(
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
     jobs: Jobs = 0,
+    scheduler: Scheduler = None,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -238,7 +241,9 @@ def threshold(
     check_writable(target)
     paths = expand_logs(logs)
     setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
-    parts = run_per_log(Bound(score_log, setup, cal), paths, paths, jobs, "scoring", quiet)
+    parts = run_per_log(
+        Bound(score_log, setup, cal), paths, paths, jobs, "scoring", quiet, scheduler
+    )
     cal = with_threshold(parts, cal, sigma)
     cal.save(target)
     th = cal.require_threshold()

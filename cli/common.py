@@ -20,6 +20,7 @@ from twincd.defaults import DEFAULT_LABEL_TOPIC, DEFAULT_ROBOT, DEFAULT_SIM_TOPI
 from twincd.errors import TwincdError
 
 if TYPE_CHECKING:
+    from twincd.executors import MapExecutor
     from twincd.io.logs import LogOptions
 
 T = TypeVar("T")
@@ -53,6 +54,14 @@ Jobs = Annotated[
     int,
     typer.Option(
         "--jobs", "-j", help="Logs processed at once in local processes (0: every core).", min=0
+    ),
+]
+Scheduler = Annotated[
+    str | None,
+    typer.Option(
+        "--scheduler",
+        help="Run on a Dask cluster: a scheduler address (tcp://host:8786), or 'local' for a "
+        "LocalCluster of -j workers. Logs must be at the same path on every worker.",
     ),
 ]
 Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")]
@@ -109,6 +118,7 @@ FLAGS: dict[str, str] = {
     "joint_map": "--joint-map",
     "calibration": "-c/--calibration",
     "jobs": "--jobs",
+    "scheduler": "--scheduler",
     "seed": "--seed",
     "min_duration": "--min-duration",
     "max_duration": "--max-duration",
@@ -174,17 +184,33 @@ def progress(items: Sequence[T], description: str, quiet: bool) -> Iterator[T]:
 
 
 @contextlib.contextmanager
-def counter(total: int, description: str, quiet: bool) -> Iterator[Callable[[int], None]]:
-    """A progress bar over ``total`` logs that the work advances by calling the yielded
-    function with the number just done (only when stderr is a terminal)."""
+def counter(total: int, description: str, quiet: bool) -> Iterator[Callable[[int, int], None]]:
+    """A progress bar over ``total`` logs (logs done / total, samples/s) that the work advances
+    by calling the yielded function with the logs just done and their samples (only when
+    stderr is a terminal)."""
     if not show_progress(quiet) or total < 2:
-        yield lambda _done: None
+        yield lambda _logs, _samples: None
         return
-    from rich.progress import Progress
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-    with Progress(console=stderr, transient=True) as bar:
-        task = bar.add_task(description, total=total)
-        yield lambda done: bar.advance(task, done)
+    started = time.perf_counter()
+    samples = 0
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("logs  {task.fields[rate]}"),
+    )
+    with Progress(*columns, console=stderr, transient=True) as bar:
+        task = bar.add_task(description, total=total, rate="")
+
+        def advance(logs: int, done_samples: int) -> None:
+            nonlocal samples
+            samples += done_samples
+            rate = samples / max(time.perf_counter() - started, 1e-9)
+            bar.update(task, advance=logs, rate=f"{rate:,.0f} samples/s")
+
+        yield advance
 
 
 def run_per_log(
@@ -194,13 +220,26 @@ def run_per_log(
     jobs: int,
     description: str,
     quiet: bool,
+    scheduler: str | None = None,
 ) -> list[Any]:
-    """``func`` over ``items`` (one per log of ``paths``) on ``jobs`` processes, with a
-    progress bar."""
-    from twincd.executors import Executor
+    """``func`` over ``items`` (one per log of ``paths``) on ``jobs`` processes or the Dask
+    cluster at ``scheduler``, with a progress bar."""
+    from twincd.executors import open_executor
 
+    with open_executor(jobs, scheduler, paths) as executor:
+        return map_per_log(executor, func, items, description, quiet)
+
+
+def map_per_log(
+    executor: MapExecutor,
+    func: Callable[[T], Any],
+    items: Sequence[T],
+    description: str,
+    quiet: bool,
+) -> list[Any]:
+    """``executor.map(func, items)`` with a progress bar."""
     with counter(len(items), description, quiet) as advance:
-        return Executor.for_logs(jobs, paths).map(func, items, advance)
+        return executor.map(func, items, advance)
 
 
 @contextlib.contextmanager
@@ -208,6 +247,8 @@ def all_or_nothing() -> Iterator[list[Path]]:
     """Collects the files a multi-log run may write; if the run fails, those it wrote are
     removed again (files older than the run are left alone), so a failed run leaves nothing
     behind (DESIGN §5)."""
+    from twincd.io.atomic import remove_temporaries
+
     started = time.time_ns()
     written: list[Path] = []
     try:
@@ -218,3 +259,7 @@ def all_or_nothing() -> Iterator[list[Path]]:
                 if path.stat().st_mtime_ns >= started:
                     path.unlink()
         raise
+    finally:
+        # what a worker killed mid-write left (its log was then written again elsewhere)
+        for path in written:
+            remove_temporaries(path)

@@ -24,6 +24,7 @@ from .common import (
     Logs,
     Quiet,
     Robot,
+    Scheduler,
     SimTopic,
     Topic,
     all_or_nothing,
@@ -96,6 +97,7 @@ def detect(
     joint_map: JointMap = None,
     causal: Causal = None,
     jobs: Jobs = 0,
+    scheduler: Scheduler = None,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -126,7 +128,7 @@ def detect(
     with all_or_nothing() as written:
         written.extend(target for target in targets if target is not None)
         results = run_per_log(
-            Bound(detect_and_write, cal, setup), items, paths, jobs, "detecting", quiet
+            Bound(detect_and_write, cal, setup), items, paths, jobs, "detecting", quiet, scheduler
         )
     summaries = [r.to_dict() for r in results]
     for result in results:

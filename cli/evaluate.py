@@ -6,7 +6,7 @@ import json
 import logging
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich import box
@@ -17,17 +17,23 @@ from twincd.defaults import DEFAULT_REPEATS
 from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
 from .common import (
     Debug,
+    Jobs,
     JointMap,
     LabelTopic,
     Logs,
     Quiet,
     Robot,
+    Scheduler,
     SimTopic,
     Topic,
     command,
+    map_per_log,
     progress,
     stdout,
 )
+
+if TYPE_CHECKING:
+    from twincd.pipeline import PreparedLog, Setup
 
 log = logging.getLogger("twincd")
 
@@ -90,6 +96,8 @@ def evaluate(
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
     causal: Causal = None,
+    jobs: Jobs = 0,
+    scheduler: Scheduler = None,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -107,8 +115,10 @@ def evaluate(
     from twincd.evaluation.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
     from twincd.evaluation.runner import evaluate as run_evaluation
     from twincd.evaluation.runner import parse_methods
+    from twincd.executors import Bound, open_executor
     from twincd.io.logs import expand_logs
     from twincd.io.mcap_write import atomic_output, check_writable
+    from twincd.pipeline import prepare_log
 
     cal = Calibration.load(calibration) if calibration is not None else None
     names = parse_methods(methods)
@@ -124,17 +134,24 @@ def evaluate(
     def bar(items: Sequence[Any], desc: str) -> Iterable[Any]:
         return progress(items, desc, quiet)
 
-    result = run_evaluation(
-        test_paths,
-        names,
-        setup,
-        calibration=cal,
-        train_paths=train_paths,
-        val_paths=val_paths,
-        k_sigma=sigma,
-        repeats=repeats,
-        progress=bar,
-    )
+    every_log = [*test_paths, *train_paths, *val_paths]
+    with open_executor(jobs, scheduler, every_log) as executor:
+
+        def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:
+            return map_per_log(executor, Bound(prepare_log, setup), paths, desc, quiet)
+
+        result = run_evaluation(
+            test_paths,
+            names,
+            setup,
+            calibration=cal,
+            train_paths=train_paths,
+            val_paths=val_paths,
+            k_sigma=sigma,
+            repeats=repeats,
+            progress=bar,
+            load=load,
+        )
     if result.positives == 0:
         log.warning(
             "no test sample is labelled as a collision: F1 is 0 and AUC undefined "

@@ -17,6 +17,7 @@ from .common import (
     LabelTopic,
     Quiet,
     Robot,
+    Scheduler,
     SimTopic,
     Topic,
     all_or_nothing,
@@ -49,6 +50,7 @@ def simulate(
         bool, typer.Option("--list-robots", help="List the robot names --robot accepts.")
     ] = False,
     jobs: Jobs = 0,
+    scheduler: Scheduler = None,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -94,6 +96,6 @@ def simulate(
         if not in_place:
             written.extend(t if t is not None else default_output(p) for p, t in items)
         work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place)
-        results = run_per_log(work, items, paths, jobs, "simulating", quiet)
+        results = run_per_log(work, items, paths, jobs, "simulating", quiet, scheduler)
     for result in results:
         stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")

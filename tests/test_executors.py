@@ -42,3 +42,20 @@ def test_automatic_jobs_keep_a_few_small_logs_in_this_process(tmp_path) -> None:
     assert Executor.for_logs(2, logs).workers == 2  # asked for explicitly: as asked
     many = logs * 3  # nine logs: worth a pool
     assert Executor.for_logs(0, many).workers == Executor(0).workers
+
+
+class _Counted:
+    def __init__(self, samples: int) -> None:
+        self.samples = samples
+
+
+def _counted(n: int) -> _Counted:
+    return _Counted(n)
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_progress_counts_logs_and_their_samples(jobs: int) -> None:
+    calls: list[tuple[int, int]] = []
+    results = Executor(jobs).map(_counted, [10, 20, 30], lambda logs, n: calls.append((logs, n)))
+    assert [r.samples for r in results] == [10, 20, 30]
+    assert sum(c[0] for c in calls) == 3 and sum(c[1] for c in calls) == 60

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -170,3 +171,56 @@ def test_every_storage_form_streams_like_bare_mcap(tmp_path: Path, form: str) ->
     a, b = setup.prepare(bare), setup.prepare(other)
     np.testing.assert_array_equal(a.states.stamp_ns, b.states.stamp_ns)
     np.testing.assert_array_equal(a.effort_f, b.effort_f)
+
+
+# ------------------------------------------------------------------ joint order
+
+
+def test_joint_order_comes_from_names_not_from_the_first_log(twin_log, tmp_path: Path) -> None:
+    """Logs that carry their own twin effort and no robot model: whatever order their messages
+    list the joints in, and whichever log comes first, the columns are in one order."""
+    from twincd.calibration import fit_log, merge_fits
+    from twincd.io.logs import read_log
+
+    a = twin_log(tmp_path / "a.mcap", seed=1, joints=("j1", "j2", "j3"))
+    b = twin_log(tmp_path / "b.mcap", seed=2, joints=("j3", "j1", "j2"))
+    setup = Setup()
+    prepared = setup.prepare(b)
+    raw = read_log(b)
+    assert prepared.joint_names == ("j1", "j2", "j3")
+    for i, name in enumerate(prepared.joint_names):  # each column follows its name
+        np.testing.assert_array_equal(
+            prepared.effort[:, i], raw.effort[:, raw.joint_names.index(name)]
+        )
+    parts = [fit_log(p, setup) for p in (a, b)]
+    one, other = merge_fits(parts, setup), merge_fits(parts[::-1], setup)
+    assert one.joint_names == other.joint_names == ("j1", "j2", "j3")
+    np.testing.assert_array_equal(one.a, other.a)
+    np.testing.assert_array_equal(one.b, other.b)
+
+
+def test_joint_order_puts_the_model_first_then_names_naturally() -> None:
+    from types import SimpleNamespace
+
+    from twincd.pipeline import joint_order
+
+    names = ["joint10", "grip", "joint2", "joint1"]
+    assert joint_order(names, None) == ("grip", "joint1", "joint2", "joint10")
+    model: Any = SimpleNamespace(joint_names=("joint2", "joint1", "joint3"))
+    assert joint_order(names, model) == ("joint2", "joint1", "grip", "joint10")
+
+
+def test_logs_with_other_joints_are_refused_together(tmp_path: Path) -> None:
+    from types import SimpleNamespace
+
+    from twincd.errors import JointMismatchError
+    from twincd.pipeline import same_joints
+
+    logs: list[Any] = [
+        SimpleNamespace(source="b", joint_names=("j1", "j2")),
+        SimpleNamespace(source="a", joint_names=("j1", "j2")),
+    ]
+    assert same_joints(logs) == ("j1", "j2")
+    logs.append(SimpleNamespace(source="c", joint_names=("j1", "k2")))
+    with pytest.raises(JointMismatchError, match="different joints"):
+        same_joints(logs)

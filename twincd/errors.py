@@ -73,3 +73,7 @@ class OutputError(TwincdError):
 
 class DataError(TwincdError):
     """Data that is valid on disk but unusable for the method (too short, no labels, ...)."""
+
+
+class ClusterError(TwincdError):
+    """A Dask cluster that cannot be reached, or whose workers keep dying on a log."""

@@ -1,4 +1,5 @@
-"""Running per-log work over many logs: serially, or on a pool of local processes.
+"""Running per-log work over many logs: serially, on a pool of local processes, or (in
+twincd.cluster) on a Dask cluster.
 
 Every command is one shape: a pure per-log function of (path, settings) that returns a small
 picklable result (fit statistics, score statistics, a detection summary), and a merge that does
@@ -8,12 +9,13 @@ come back in the order of the logs given.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 if TYPE_CHECKING:
     from concurrent.futures import Future
@@ -21,6 +23,8 @@ if TYPE_CHECKING:
 from twincd.twin.dynamics import default_threads
 
 T = TypeVar("T")
+# logs just finished, and the samples they held: what a progress display shows
+Progress = Callable[[int, int], None]
 # below both, an automatic run stays serial (measured on sample-sized logs, 2 cores)
 POOL_MIN_LOGS = 8
 POOL_MIN_BYTES = 100_000_000
@@ -58,7 +62,7 @@ class Executor:
         self,
         func: Callable[[T], R],
         items: Sequence[T],
-        progress: Callable[[int], None] | None = None,
+        progress: Progress | None = None,
     ) -> list[R]:
         """``[func(item) for item in items]``, in that order; the first error is raised once the
         work already running has stopped (no output of a failed run is left half-written: each
@@ -69,7 +73,7 @@ class Executor:
             for item in items:
                 out.append(func(item))
                 if progress:
-                    progress(1)
+                    progress(1, samples_in(out[-1]))
             return out
         return list(_pooled(func, items, workers, progress))
 
@@ -78,9 +82,9 @@ def _pooled(
     func: Callable[[T], R],
     items: Sequence[T],
     workers: int,
-    progress: Callable[[int], None] | None,
+    progress: Progress | None,
 ) -> Iterator[R]:
-    from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     # not fork: Pinocchio's batched RNEA runs on OpenMP, and an OpenMP runtime that has run in
     # the parent deadlocks in a forked child; forkserver children start from a clean process
@@ -93,10 +97,10 @@ def _pooled(
         futures: list[Future[R]] = [pool.submit(func, item) for item in items]
         pending = set(futures)
         while pending:
-            done, pending = wait(pending, return_when=FIRST_EXCEPTION)
-            if progress:
-                progress(len(done))
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)  # progress as logs finish
             failed = [f for f in done if f.exception() is not None]
+            if progress:
+                progress(len(done), sum(samples_in(f.result()) for f in done if f not in failed))
             if failed:
                 for f in pending:
                     f.cancel()
@@ -129,3 +133,34 @@ class Bound(Generic[T, R]):
 
     def __call__(self, item: T) -> R:
         return self.func(item, *self.args)
+
+
+# ------------------------------------------------------------------ one interface, two backends
+
+
+class MapExecutor(Protocol):
+    """What every backend offers (local processes here, a Dask cluster in twincd.cluster)."""
+
+    def map(
+        self, func: Callable[[T], R], items: Sequence[T], progress: Progress | None = None
+    ) -> list[R]: ...
+
+
+def samples_in(result: object) -> int:
+    """The samples a per-log result covers (its ``samples``), for progress in samples/s."""
+    samples = getattr(result, "samples", 0)
+    return samples if isinstance(samples, int) else 0
+
+
+@contextlib.contextmanager
+def open_executor(jobs: int, scheduler: str | None, paths: Sequence[Path]) -> Iterator[MapExecutor]:
+    """The executor a run asks for: ``scheduler`` (a Dask scheduler's address, or ``"local"``
+    for a LocalCluster of ``jobs`` workers) when given, else ``jobs`` local processes; a
+    cluster started here is shut down when the block ends."""
+    if scheduler is None:
+        yield Executor.for_logs(jobs, paths)
+        return
+    from twincd.cluster import DaskExecutor
+
+    with DaskExecutor(scheduler, workers=jobs) as executor:
+        yield executor

@@ -16,8 +16,9 @@ interval longer than 5 periods; stages restart after it.
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -82,6 +83,10 @@ class PreparedLog:
         return self.states.effort
 
     def __len__(self) -> int:
+        return len(self.states)
+
+    @property
+    def samples(self) -> int:
         return len(self.states)
 
 
@@ -273,6 +278,7 @@ class PreparedStream:
             self.simulated = False
             robot = robot_for(setup.robot, twin_names) if setup.robot else None
             model = None
+            twin_names = joint_order(twin_names, robot)
         else:
             robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
             twin_names = model.joint_names
@@ -429,13 +435,56 @@ class Setup:
             return prepared_log(stream, whole, self.lowpass)
 
     def prepare_all(self, paths: Iterable[str | Path]) -> Iterator[PreparedLog]:
-        """Prepare logs lazily; the first log pins the joint order when none is set."""
-        setup = self
+        """Prepare logs lazily, each on its own (see ``joint_order``; ``same_joints`` checks
+        that they agree)."""
         for path in paths:
-            prepared = setup.prepare(path)
-            if setup.joint_names is None:
-                setup = replace(setup, joint_names=prepared.joint_names)
-            yield prepared
+            yield self.prepare(path)
+
+
+def prepare_log(path: str | Path, setup: Setup) -> PreparedLog:
+    """``setup.prepare(path)``: the per-log step of ``evaluate``, for any executor."""
+    return setup.prepare(path)
+
+
+# ------------------------------------------------------------------ joint order
+
+
+def _natural_key(name: str) -> list[Any]:
+    """``joint2`` before ``joint10``."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
+
+
+def joint_order(names: Iterable[str], robot: RobotModel | None) -> tuple[str, ...]:
+    """The order of a log's joints: the robot model's, then any the model lacks by name
+    (natural order) — never the order of a log's messages, so every log of a robot, read in
+    any order and on any worker, gives the same columns."""
+    names = list(names)
+    first = [n for n in robot.joint_names if n in names] if robot is not None else []
+    return (*first, *sorted((n for n in names if n not in first), key=_natural_key))
+
+
+class HasJoints(Protocol):
+    @property
+    def source(self) -> str: ...
+    @property
+    def joint_names(self) -> tuple[str, ...]: ...
+
+
+def same_joints(logs: Iterable[HasJoints]) -> tuple[str, ...]:
+    """The joints (in order) every log has; logs with other joints are an error. The order
+    comes from the robot model or the calibration, so it does not depend on which log came
+    first."""
+    by_source = sorted(logs, key=lambda lg: lg.source)
+    orders = sorted({lg.joint_names for lg in by_source})
+    if len(orders) > 1:
+        odd = next(lg for lg in by_source if lg.joint_names != orders[0])
+        raise JointMismatchError(
+            "logs with different joints cannot be used together",
+            f"{odd.source}: {', '.join(odd.joint_names)} vs {', '.join(orders[0])}",
+            "give logs of one robot, or a joint map",
+            option="joint_map",
+        )
+    return orders[0] if orders else ()
 
 
 _WARNED_URDF: set[str] = set()

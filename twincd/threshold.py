@@ -82,6 +82,7 @@ class LogScores:
 
     source: str
     stats: ScoreStats
+    samples: int = 0  # every sample read (labelled ones too): what progress counts
 
 
 def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogScores:
@@ -93,7 +94,7 @@ def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogSc
                 frame["effort_f"], frame["sim_effort_f"], calibration.a, calibration.b
             )
             stats = stats + ScoreStats.from_scores(scores, clean_rows(frame.get("labels"), frame.n))
-    return LogScores(str(path), stats)
+    return LogScores(str(path), stats, stream.samples)
 
 
 def with_threshold(

@@ -12,7 +12,7 @@ from pathlib import Path
 from twincd.calibration.affine import AffineCalibration, AffineStats, clean_rows
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.errors import DataError
-from twincd.pipeline import PreparedStream, Setup
+from twincd.pipeline import PreparedStream, Setup, same_joints
 
 log = logging.getLogger("twincd")
 
@@ -28,6 +28,7 @@ class LogFit:
     simulated: bool
     robot: tuple[str, str] | None  # (name, URDF sha256) when a model was used
     seconds: float  # time spent in the regression sums, as the paper times training
+    samples: int = 0  # every sample read (labelled ones too): what progress counts
 
 
 def fit_log(path: str | Path, setup: Setup) -> LogFit:
@@ -51,6 +52,7 @@ def fit_log(path: str | Path, setup: Setup) -> LogFit:
             simulated=stream.simulated,
             robot=_robot_of(stream),
             seconds=seconds,
+            samples=stream.samples,
         )
 
 
@@ -65,14 +67,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup) -> Calibration:
     parts = sorted(parts, key=lambda p: p.source)  # any completion order gives one answer
     if not parts:
         raise DataError("no logs to fit", "fit", "give at least one collision-free log")
-    names = parts[0].joint_names
-    for p in parts[1:]:
-        if p.joint_names != names:
-            raise DataError(
-                "logs with different joints cannot be fitted together",
-                f"{p.source}: {', '.join(p.joint_names)} vs {', '.join(names)}",
-                "fit logs of one robot, or give a joint map",
-            )
+    names = same_joints(parts)  # from the robot model (or by name), whichever log is first
     total = parts[0].stats
     for p in parts[1:]:
         total = total + p.stats

@@ -12,7 +12,7 @@ import inspect
 import logging
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -25,13 +25,14 @@ from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
 from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
 from twincd.evaluation.proposed import ProposedMethod
-from twincd.pipeline import PreparedLog, Setup
+from twincd.pipeline import PreparedLog, Setup, same_joints
 from twincd.threshold import ScoreStats
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 T = TypeVar("T")
 Progress = Callable[[Sequence[Any], str], Iterable[Any]]
+Loader = Callable[[Sequence[Path], Setup, str], list[PreparedLog]]
 
 log = logging.getLogger("twincd")
 
@@ -328,6 +329,12 @@ def load_logs(
     return list(progress_iter(setup.prepare_all(paths), len(paths), desc, progress))
 
 
+def _by_source(logs: Iterable[PreparedLog]) -> list[PreparedLog]:
+    """Logs in one order whatever order they were given or prepared in: methods that learn
+    (and sums over logs) then see the same sequence on every run."""
+    return sorted(logs, key=lambda lg: lg.source)
+
+
 def progress_iter(items: Iterable[T], total: int, desc: str, progress: Progress) -> Iterable[T]:
     """Drive a lazy iterable through a progress callback that wants a sized sequence."""
     iterator = iter(items)
@@ -362,8 +369,12 @@ def evaluate(
     k_sigma: float | None = None,
     repeats: int = DEFAULT_REPEATS,
     progress: Progress = _no_progress,
+    load: Loader | None = None,
 ) -> Evaluation:
-    """Every method in ``methods`` over the same prepared logs."""
+    """Every method in ``methods`` over the same prepared logs.
+
+    ``load(paths, setup, description)`` prepares logs (default: one after another here; the
+    CLI passes one that maps ``prepare_log`` over local processes or a cluster)."""
     if not test_paths:
         raise UsageError("no test logs given", "evaluate", "pass labelled logs with collisions")
     if repeats < 1:
@@ -374,12 +385,18 @@ def evaluate(
         th = calibration.threshold if calibration is not None else None
         k_sigma = th.k_sigma if th is not None else DEFAULT_K_SIGMA
     _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
-    test = load_logs(test_paths, setup, progress, "reading test logs")
+    if load is None:
+
+        def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:
+            return load_logs(paths, setup, progress, desc)
+
+    test = _by_source(load(test_paths, setup, "reading test logs"))
     require_labels(test, "test")
-    # train/val share the test logs' joint order so that every method sees the same columns
-    pinned = replace(setup, joint_names=test[0].joint_names)
-    train = load_logs(train_paths, pinned, progress, "reading train logs")
-    val = load_logs(val_paths, pinned, progress, "reading val logs")
+    train = _by_source(load(train_paths, setup, "reading train logs"))
+    val = _by_source(load(val_paths, setup, "reading val logs"))
+    # every method must see the same columns: the order comes from the robot model or the
+    # calibration, so logs of one robot agree whatever their message order
+    same_joints([*test, *train, *val])
     results = [
         evaluate_method(name, train, val, test, calibration, k_sigma, repeats)
         for name in progress(list(methods), "evaluating")

@@ -7,6 +7,7 @@ only when complete, so an interrupted run leaves no partial output.
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,6 +20,16 @@ def temporary_path(target: Path) -> Path:
     """Where ``target`` is written before the rename: hidden, beside it, named by process."""
     target = Path(target)
     return target.with_name(f".{target.name}.{os.getpid()}.tmp")
+
+
+def remove_temporaries(target: Path) -> None:
+    """Remove what writers of ``target`` that were killed mid-write left beside it (a run
+    that owns ``target`` calls this once its workers are done)."""
+    target = Path(target)
+    with contextlib.suppress(OSError):
+        for stale in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
+            with contextlib.suppress(OSError):
+                stale.unlink()
 
 
 def check_writable(target: Path) -> None:

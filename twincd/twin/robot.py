@@ -147,6 +147,11 @@ class RobotModel:
         neutral: FloatArray = pin.neutral(self.model)
         return neutral
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # a ModelPool does not pickle, and a Pinocchio model need not travel between processes
+        # (evaluate's prepared logs do): the receiving process loads the same URDF again
+        return (_reloaded, (self.name, self.joint_names))
+
     def pool(self, threads: int) -> Any:
         """A Pinocchio ModelPool of at least ``threads`` model/data pairs (built once)."""
         import pinocchio as pin
@@ -178,6 +183,11 @@ class RobotModel:
     def joint_values(self, tangent: FloatArray) -> FloatArray:
         """Per-joint values (N, dof) from tangent-space arrays (N, nv), e.g. torques."""
         return np.atleast_2d(tangent)[:, [j.idx_v for j in self.joints]]
+
+
+@lru_cache(maxsize=16)
+def _reloaded(name: str, joints: tuple[str, ...]) -> RobotModel:
+    return load_robot(name, keep=joints)
 
 
 def _joint_specs(model: pin.Model) -> tuple[JointSpec, ...]:
