@@ -160,8 +160,11 @@ class AffineCalibration:
     ``stats_`` (the merged AffineStats, for further merging) and ``fit_s_`` (fit time).
     """
 
-    def __init__(self, joint_names: Sequence[str] | None = None) -> None:
+    def __init__(
+        self, joint_names: Sequence[str] | None = None, warn_ill_conditioned: bool = True
+    ) -> None:
         self.joint_names = joint_names
+        self.warn_ill_conditioned = warn_ill_conditioned
 
     def fit(self, logs: Iterable[PreparedLog]) -> AffineCalibration:
         """Fit on collision-free samples of ``logs``, consumed one at a time (may be lazy)."""
@@ -195,7 +198,7 @@ class AffineCalibration:
         self.n_samples_ = stats.n
         self.fit_s_ = 0.0
         names = list(self.joint_names or [f"#{i}" for i in range(len(sol.a))])
-        for i in np.flatnonzero(sol.ill_conditioned):
+        for i in np.flatnonzero(sol.ill_conditioned & self.warn_ill_conditioned):
             log.warning(
                 "joint %s is badly conditioned: its twin effort barely varies "
                 "(std %.3g vs measured %.3g), so a = %.3g is unreliable",
