@@ -122,12 +122,9 @@ class FrictionStats:
             return other
         if other.n == 0:
             return self
-        if self.mean.shape != other.mean.shape:
-            raise DataError(
-                "logs with different joint counts cannot be fitted together",
-                f"{self.mean.shape[1]} vs {other.mean.shape[1]} joints",
-                "fit logs of one robot",
-            )
+        from twincd.calibration.affine import same_joints
+
+        same_joints(self.mean.shape[1], other.mean.shape[1])
         n = self.n + other.n
         delta = other.mean - self.mean
         return FrictionStats(
@@ -152,12 +149,9 @@ class FrictionSolution:
 
 def solve_friction(stats: FrictionStats) -> FrictionSolution:
     """Least squares per joint and ε from merged statistics; per joint the ε of least error."""
-    if stats.n < 5:
-        raise DataError(
-            "too few collision-free samples to fit",
-            f"{stats.n} sample(s)",
-            "give longer logs, or logs with collision-free parts",
-        )
+    from twincd.calibration.affine import require_samples
+
+    require_samples(stats.n, 5)
     cxx = stats.cross[..., :3, :3]  # (E, D, 3, 3)
     cxy = stats.cross[..., :3, 3]  # (E, D, 3)
     cyy = stats.cross[..., 3, 3]  # (E, D)
