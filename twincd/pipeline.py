@@ -63,7 +63,7 @@ class PreparedLog:
     # the filter behind effort_f: methods that filter other inputs do it alike
     lowpass: LowPass = field(default_factory=LowPass)
     period_s: float | None = None
-    velocity_f: FloatArray | None = None  # q̇̃, the velocity through the same filter
+    velocity_f: FloatArray | None = None  # q̇̃, the velocity through the same filter (friction)
     coulomb_f: FloatArray | None = None  # filtered tanh(q̇/ε), (N, E, joints), ε in coulomb_eps
     coulomb_eps: tuple[float, ...] = ()
 
@@ -155,29 +155,33 @@ def twin_stages(
 def filter_stages(
     lowpass: LowPass, period_s: float, coulomb_eps: Sequence[float] = ()
 ) -> list[Stage]:
-    """τ̃, τ̂̃ and q̇̃: measured and twin effort, and the velocity (the friction models' input,
-    so that it lags as the efforts do), through the same low-pass filter in one pass; with
-    ``coulomb_eps``, also tanh(q̇/ε) for each ε (``coulomb_f``, (N, E, joints)): the Coulomb
-    friction steps where a joint turns, and only the step itself filtered matches the filtered
-    effort (tanh of the filtered velocity steps too sharply there)."""
+    """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
+
+    With ``coulomb_eps`` (friction models), also the velocity (``velocity_f``) and tanh(q̇/ε)
+    for each ε (``coulomb_f``, (N, E, joints)) through the same filter, so that they lag as the
+    efforts do: the Coulomb friction steps where a joint turns, and only the step itself
+    filtered matches the filtered effort (tanh of the filtered velocity steps too sharply
+    there). Without, nothing more is filtered: the seed's model costs what it did."""
     from twincd.signal.filters import StreamingLowPass
 
     eps = tuple(float(e) for e in coulomb_eps)
+    extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
 
     def stack(frame: Frame) -> Frame:
         v = frame["velocity"]
-        both = np.hstack((frame["effort"], frame["sim_effort"], v, *(np.tanh(v / e) for e in eps)))
-        return frame.with_columns(both=both)
+        friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
+        return frame.with_columns(both=np.hstack((frame["effort"], frame["sim_effort"], *friction)))
 
     def split(frame: Frame) -> Frame:
         both = frame["both_f"]
-        d = both.shape[1] // (3 + len(eps))
+        d = both.shape[1] // (2 + extra)
         rest = {k: v for k, v in frame.items() if k not in ("both", "both_f")}
-        out = Frame(rest).with_columns(
-            effort_f=both[:, :d], sim_effort_f=both[:, d : 2 * d], velocity_f=both[:, 2 * d : 3 * d]
-        )
+        out = Frame(rest).with_columns(effort_f=both[:, :d], sim_effort_f=both[:, d : 2 * d])
         if eps:
-            out = out.with_columns(coulomb_f=both[:, 3 * d :].reshape(len(both), len(eps), d))
+            out = out.with_columns(
+                velocity_f=both[:, 2 * d : 3 * d],
+                coulomb_f=both[:, 3 * d :].reshape(len(both), len(eps), d),
+            )
         return out
 
     return [

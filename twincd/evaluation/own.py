@@ -42,8 +42,6 @@ class ModelMethod(ScoringMethod):
         self.kappa = kappa
 
     def check(self, logs: Sequence[PreparedLog]) -> None:
-        if any(lg.velocity_f is None for lg in logs):
-            raise MethodSkipped("needs logs prepared with their filtered velocity")
         if uses_friction(self.model_kind) and any(lg.coulomb_eps != EPSILON_GRID for lg in logs):
             raise MethodSkipped("needs logs prepared with every ε candidate's Coulomb feature")
 
