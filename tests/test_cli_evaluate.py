@@ -139,12 +139,3 @@ def test_event_metrics_and_isolation_on_synth_logs_with_contact_links():
     assert friction["isolation_accuracy"] is not None
     assert rows["proposed"]["isolation_accuracy"] is None  # the seed's method names no link
     assert friction["delay_ms_median"] is not None and friction["val_false_alarms"] >= 0
-
-
-@pytest.mark.skipif(not (SAMPLE / "test").exists(), reason="no shipped sample logs")
-def test_detect_names_the_link_of_each_event(tmp_path):
-    cal = SAMPLE / "calibration.friction.json"
-    result = run("detect", SAMPLE / "test" / "test_001.mcap", "-c", cal, "--json")
-    assert result.exit_code == 1, result.output
-    events = json.loads(result.stdout)["logs"][0]["events"]
-    assert events and all(e["link"] in {f"link{i}" for i in range(1, 8)} for e in events)
