@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from sklearn.metrics import f1_score, precision_score, recall_score, roc_auc_score
 
+from twincd.detection.events import runs
 from twincd.evaluation.metrics import (
     SWEEP_K,
     EventCounts,
@@ -123,3 +126,27 @@ def test_event_counts_add_up_over_logs():
     assert two.false_alarms_per_hour == pytest.approx(one.false_alarms_per_hour)
     assert EventCounts().to_dict()["delay_ms_median"] is None
     assert EventCounts().false_alarms_per_hour is None
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    labels=st.lists(st.booleans(), min_size=1, max_size=120),
+    flags=st.lists(st.booleans(), min_size=120, max_size=120),
+    extra=st.integers(0, 119),
+)
+def test_event_count_invariants(labels: list[bool], flags: list[bool], extra: int) -> None:
+    n = len(labels)
+    stamps = _stamps(n)
+    lab = np.array(labels)
+    flag = np.array(flags[:n])
+    perfect = event_counts(stamps, lab, stamps, lab)
+    assert perfect.events_detected == perfect.events_total
+    assert perfect.false_alarms == 0 and all(d == 0.0 for d in perfect.delays_ms)
+    none = event_counts(stamps, lab, stamps, np.zeros(n, dtype=bool))
+    assert none.events_detected == 0 and none.false_alarms == 0
+    counts = event_counts(stamps, lab, stamps, flag)
+    assert 0 <= counts.events_detected <= counts.events_total
+    assert counts.false_alarms <= len(runs(flag))
+    more = flag.copy()
+    more[extra % n] = True  # one more flag never loses an event
+    assert event_counts(stamps, lab, stamps, more).events_detected >= counts.events_detected
