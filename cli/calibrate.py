@@ -146,13 +146,18 @@ def _same_robot(a: str, b: str) -> bool:
 
 
 def fit_table(cal: Calibration) -> Table:
-    table = Table(title=f"affine twin calibration ({cal.fit_samples} samples)")
-    for col in ("joint", "a", "b", "R²", "RMSE (N·m)"):
+    table = Table(title=f"{cal.kind} twin calibration ({cal.fit_samples} samples)")
+    friction = cal.c is not None and cal.d is not None and cal.epsilon is not None
+    extra = ("c (N·m)", "d (N·m·s)", "ε (rad/s)") if friction else ()
+    for col in ("joint", "a", "b", *extra, "R²", "RMSE (N·m)"):
         table.add_column(col, justify="left" if col == "joint" else "right")
     for i, name in enumerate(cal.joint_names):
         r2 = "n/a" if cal.r2 is None else f"{cal.r2[i]:.3f}"
         rmse = "n/a" if cal.rmse is None else f"{cal.rmse[i]:.3g}"
-        table.add_row(name, f"{cal.a[i]:.3f}", f"{cal.b[i]:+.3f}", r2, rmse)
+        more = []
+        if cal.c is not None and cal.d is not None and cal.epsilon is not None:
+            more = [f"{cal.c[i]:+.3f}", f"{cal.d[i]:+.3f}", f"{cal.epsilon[i]:g}"]
+        table.add_row(name, f"{cal.a[i]:.3f}", f"{cal.b[i]:+.3f}", *more, r2, rmse)
     return table
 
 
@@ -170,6 +175,14 @@ def fit(
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
     causal: Causal = None,
+    model: Annotated[
+        str,
+        typer.Option(
+            "--model",
+            help="Calibration model: affine (the paper's a·twin + b), affine-whitened, "
+            "friction (+ c·tanh(q̇/ε) + d·q̇), friction-whitened (score weighted per joint).",
+        ),
+    ] = "affine",
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
     quiet: Quiet = False,
@@ -184,6 +197,7 @@ def fit(
     Example: twincd fit logs/train/*.mcap -o calibration.json
     """
     from twincd.calibration import fit_log, merge_fits
+    from twincd.calibration.setup import setup_for_model
     from twincd.executors import Bound
     from twincd.io.logs import expand_logs
     from twincd.io.mcap_write import check_writable
@@ -193,8 +207,9 @@ def fit(
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
     )
+    setup = setup_for_model(setup, model)
     parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet, scheduler)
-    cal = merge_fits(parts, setup)
+    cal = merge_fits(parts, setup, model)
     cal.save(output)
     stdout.print(fit_table(cal))
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))

@@ -124,6 +124,8 @@ FLAGS: dict[str, str] = {
     "max_duration": "--max-duration",
     "in_place": "--in-place",
     "output": "--output",
+    "model": "--model",
+    "link_topic": "--link-topic",
 }
 
 

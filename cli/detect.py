@@ -62,8 +62,10 @@ def events_table(result: DetectionSummary) -> Table:
         title=f"{result.source}: {len(result.events)} collision event(s), "
         f"{result.collision_samples}/{result.samples} samples flagged"
     )
-    for col in ("#", "start (s)", "end (s)", "duration (s)", "peak score", "joint"):
-        table.add_column(col, justify="left" if col == "joint" else "right")
+    links = any(e.link is not None for e in result.events)
+    columns = ("#", "start (s)", "end (s)", "duration (s)", "peak score", "joint")
+    for col in (*columns, "link") if links else columns:
+        table.add_column(col, justify="left" if col in ("joint", "link") else "right")
     for i, e in enumerate(result.events, 1):
         table.add_row(
             str(i),
@@ -72,6 +74,7 @@ def events_table(result: DetectionSummary) -> Table:
             f"{e.duration_s:.3f}",
             f"{e.peak_score:.4g}",
             e.joint,
+            *((e.link or "",) if links else ()),
         )
     return table
 

@@ -12,7 +12,7 @@ import typer
 from rich import box
 from rich.table import Table
 
-from twincd.defaults import DEFAULT_REPEATS
+from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 
 from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
 from .common import (
@@ -98,6 +98,13 @@ def evaluate(
     causal: Causal = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
+    link_topic: Annotated[
+        str,
+        typer.Option(
+            "--link-topic",
+            help="std_msgs/String contact link (isolation ground truth), when logs have it.",
+        ),
+    ] = DEFAULT_LINK_TOPIC,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -112,7 +119,13 @@ def evaluate(
     Example: twincd evaluate logs/test -c calibration.json --report report.md
     """
     from twincd.calibration import Calibration
-    from twincd.evaluation.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
+    from twincd.evaluation.reports import (
+        SHORT_COLUMNS,
+        SHORT_EVENT_COLUMNS,
+        evaluation_markdown,
+        evaluation_rows,
+        event_rows,
+    )
     from twincd.evaluation.runner import evaluate as run_evaluation
     from twincd.evaluation.runner import parse_methods
     from twincd.executors import Bound, open_executor
@@ -151,6 +164,7 @@ def evaluate(
             repeats=repeats,
             progress=bar,
             load=load,
+            link_topic=link_topic,
         )
     if result.positives == 0:
         log.warning(
@@ -176,14 +190,15 @@ def evaluate(
             else None,
         )
         rows = [[c.replace(" + ", "+") for c in row] for row in evaluation_rows(result)]
-        for i, col in enumerate(SHORT_COLUMNS):
-            width = max([len(col)] + [len(r[i]) for r in rows])
-            table.add_column(
-                col, justify="left" if i == 0 else "right", no_wrap=True, min_width=width
-            )
-        for row in rows:
-            table.add_row(*row)
-        stdout.print(table)
+        stdout.print(_fill(table, SHORT_COLUMNS, rows))
+        events = Table(
+            title="events at the threshold (FA: false alarms, count and per hour)",
+            box=box.SIMPLE_HEAD,
+            show_edge=False,
+            padding=(0, 1),
+            pad_edge=False,
+        )
+        stdout.print(_fill(events, SHORT_EVENT_COLUMNS, event_rows(result)))
         for m in result.methods:
             if m.note:
                 stdout.print(f"note: {m.name}: {m.note}")
@@ -194,3 +209,12 @@ def evaluate(
         for line in missed:
             log.warning("gate missed: %s", line)
         raise typer.Exit(1)
+
+
+def _fill(table: Table, columns: Sequence[str], rows: list[list[str]]) -> Table:
+    for i, col in enumerate(columns):
+        width = max([len(col)] + [len(r[i]) for r in rows])
+        table.add_column(col, justify="left" if i == 0 else "right", no_wrap=True, min_width=width)
+    for row in rows:
+        table.add_row(*row)
+    return table

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from clitools import assert_one_line_error, run
@@ -114,3 +115,17 @@ def test_unwritable_output_fails_before_any_work(cal, twin_dataset, tmp_path):
     result = run("fit", twin_dataset / "train", "-o", tmp_path / "no" / "cal.json")
     assert_one_line_error(result, match="folder does not exist")
     assert result.stdout == ""  # no fit table: nothing was fitted
+
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs"
+
+
+@pytest.mark.skipif(not (SAMPLE / "test").exists(), reason="no shipped sample logs")
+def test_detect_names_the_link_of_each_event(tmp_path):
+    cal = SAMPLE / "calibration.friction.json"
+    result = run("detect", SAMPLE / "test" / "test_001.mcap", "-c", cal, "--json")
+    assert result.exit_code == 1, result.output
+    events = json.loads(result.stdout)["logs"][0]["events"]
+    assert events and all(e["link"] in {f"link{i}" for i in range(1, 8)} for e in events)
+    table = run("detect", SAMPLE / "test" / "test_001.mcap", "-c", cal)
+    assert "link" in table.stdout and events[0]["link"] in table.stdout

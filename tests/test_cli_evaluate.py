@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from clitools import assert_one_line_error, run
@@ -107,3 +108,34 @@ def test_errors(cal, twin_dataset, tmp_path, twin_log):
 def test_help_has_an_example():
     result = run("evaluate", "--help")
     assert result.exit_code == 0 and "Example: twincd evaluate" in result.stdout
+
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs"
+
+
+@pytest.mark.skipif(not (SAMPLE / "test").exists(), reason="no shipped sample logs")
+def test_event_metrics_and_isolation_on_synth_logs_with_contact_links():
+    result = run(
+        "evaluate",
+        SAMPLE / "test" / "test_000.mcap",
+        "--train",
+        SAMPLE / "train" / "train_000.mcap",
+        "--train",
+        SAMPLE / "train" / "train_001.mcap",
+        "--val",
+        SAMPLE / "val" / "val_000.mcap",
+        "-m",
+        "proposed,friction",
+        "--json",
+        "-q",
+    )
+    assert result.exit_code == 0, result.output
+    rows = {m["name"]: m for m in json.loads(result.stdout)["methods"]}
+    friction = rows["friction"]
+    # test_000 has presses on the link topic: force events counted, links judged
+    assert friction["force_events_total"] >= 1
+    assert 0 <= friction["force_events_detected"] <= friction["force_events_total"]
+    assert friction["events_total"] >= friction["force_events_total"]
+    assert friction["isolation_accuracy"] is not None
+    assert rows["proposed"]["isolation_accuracy"] is None  # the seed's method names no link
+    assert friction["delay_ms_median"] is not None and friction["val_false_alarms"] >= 0

@@ -4,9 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from sklearn.metrics import f1_score, precision_score, recall_score, roc_auc_score
 
-from twincd.evaluation.metrics import SWEEP_K, at_threshold, auc, best_of, f1_sweep
+from twincd.detection.events import runs
+from twincd.evaluation.metrics import (
+    SWEEP_K,
+    EventCounts,
+    at_threshold,
+    auc,
+    best_of,
+    event_counts,
+    f1_sweep,
+)
 
 Y = np.array([0, 0, 1, 1, 0, 1, 0, 1, 1, 0], dtype=bool)
 S = np.array([0.1, 0.4, 0.35, 0.8, 0.2, 0.9, 0.7, 0.3, 0.95, 0.05])
@@ -45,3 +56,97 @@ def test_auc_matches_sklearn_and_is_none_for_one_class():
     assert auc(Y, S) == pytest.approx(roc_auc_score(Y, S))
     assert auc(np.zeros(4, dtype=bool), np.arange(4.0)) is None
     assert auc(np.ones(4, dtype=bool), np.arange(4.0)) is None
+
+
+# ---------------------------------------------------------------- event metrics (DESIGN §6)
+
+MS = 1_000_000
+
+
+def _stamps(n: int) -> np.ndarray:
+    return 5 * 10**18 + np.arange(n, dtype=np.int64) * 10 * MS  # 100 Hz
+
+
+def test_events_found_delays_and_false_alarms_by_hand():
+    n = 400
+    stamps = _stamps(n)
+    labels = np.zeros(n, dtype=bool)
+    labels[100:150] = True  # event 1: found 30 ms after it starts
+    labels[200:220] = True  # event 2: found 150 ms after its end (inside the 200 ms tolerance)
+    labels[300:320] = True  # event 3: missed
+    flags = np.zeros(n, dtype=bool)
+    flags[103:140] = True
+    flags[234:236] = True
+    flags[50:52] = True  # a false alarm, far from any event
+    flags[78:81] = True  # ends 200 ms before event 1: touches it, not a false alarm
+    flags[370:372] = True  # a second false alarm, 500 ms after event 3
+    counts = event_counts(stamps, labels, stamps, flags)
+    assert (counts.events_total, counts.events_detected, counts.false_alarms) == (3, 2, 2)
+    assert counts.delays_ms == (30.0, 340.0)
+    assert counts.unlabelled_s == pytest.approx((n - 90) * 0.01)
+    d = counts.to_dict()
+    assert d["delay_ms_median"] == pytest.approx(185.0)
+    assert d["false_alarms_per_hour"] == pytest.approx(2 * 3600 / 3.1)
+    assert "isolation_accuracy" not in d  # no link labels given
+
+
+def test_flag_at_window_end_times_and_isolation():
+    n = 200
+    stamps = _stamps(n)
+    labels = np.zeros(n, dtype=bool)
+    labels[20:60] = True
+    labels[120:160] = True
+    links = [""] * n
+    links[20:60] = ["link4"] * 40
+    # event 2 has no link: the switch went on, nothing was touched
+    # a window method decides at each window's last sample (every 16 samples here)
+    unit_stamps = stamps[15::16]
+    unit_flags = np.zeros(len(unit_stamps), dtype=bool)
+    unit_flags[[1, 2, 8]] = True  # windows ending at samples 31, 47 and 143
+    named = [None] * len(unit_stamps)
+    named[1], named[2] = "link4", "link3"
+    counts = event_counts(stamps, labels, unit_stamps, unit_flags, links, named)
+    assert counts.events_detected == 2 and counts.delays_ms == (110.0, 230.0)
+    assert (counts.force_total, counts.force_detected) == (1, 1)
+    assert (counts.isolation_total, counts.isolation_right) == (1, 1)  # the first flag's link
+    d = counts.to_dict()
+    assert d["isolation_accuracy"] == 1.0 and d["force_events_detected"] == 1
+
+
+def test_event_counts_add_up_over_logs():
+    stamps = _stamps(100)
+    labels = np.zeros(100, dtype=bool)
+    labels[40:60] = True
+    flags = labels.copy()
+    flags[5] = True
+    one = event_counts(stamps, labels, stamps, flags)
+    two = one + EventCounts() + one
+    assert (two.events_total, two.events_detected, two.false_alarms) == (2, 2, 2)
+    assert two.unlabelled_s == pytest.approx(2 * one.unlabelled_s)
+    assert two.false_alarms_per_hour == pytest.approx(one.false_alarms_per_hour)
+    assert EventCounts().to_dict()["delay_ms_median"] is None
+    assert EventCounts().false_alarms_per_hour is None
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    labels=st.lists(st.booleans(), min_size=1, max_size=120),
+    flags=st.lists(st.booleans(), min_size=120, max_size=120),
+    extra=st.integers(0, 119),
+)
+def test_event_count_invariants(labels: list[bool], flags: list[bool], extra: int) -> None:
+    n = len(labels)
+    stamps = _stamps(n)
+    lab = np.array(labels)
+    flag = np.array(flags[:n])
+    perfect = event_counts(stamps, lab, stamps, lab)
+    assert perfect.events_detected == perfect.events_total
+    assert perfect.false_alarms == 0 and all(d == 0.0 for d in perfect.delays_ms)
+    none = event_counts(stamps, lab, stamps, np.zeros(n, dtype=bool))
+    assert none.events_detected == 0 and none.false_alarms == 0
+    counts = event_counts(stamps, lab, stamps, flag)
+    assert 0 <= counts.events_detected <= counts.events_total
+    assert counts.false_alarms <= len(runs(flag))
+    more = flag.copy()
+    more[extra % n] = True  # one more flag never loses an event
+    assert event_counts(stamps, lab, stamps, more).events_detected >= counts.events_detected

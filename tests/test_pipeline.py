@@ -69,10 +69,12 @@ def test_block_size_does_not_change_the_answer(
     _close(parts.sim_effort_f, whole.sim_effort_f, rel)
 
 
-@pytest.fixture(scope="module")
-def causal_calibration(twin_dataset: Path):  # type: ignore[no-untyped-def]
+@pytest.fixture(scope="module", params=["affine", "friction-whitened"])
+def causal_calibration(twin_dataset: Path, request):  # type: ignore[no-untyped-def]
+    # every calibration model runs live: the friction model's Coulomb features stream too
     setup = Setup(lowpass=CAUSAL)
-    cal = fit_calibration(sorted((twin_dataset / "train").glob("*.mcap")), setup)
+    train = sorted((twin_dataset / "train").glob("*.mcap"))
+    cal = fit_calibration(train, setup, request.param)
     val = sorted((twin_dataset / "val").glob("*.mcap"))
     return threshold_calibration(val, cal, Setup.from_calibration(cal), 3.0)
 

@@ -15,3 +15,4 @@ DEFAULT_CAUSAL_CUTOFF_HZ = 3.0
 
 DEFAULT_K_SIGMA = 4.0  # the paper's μ + 4σ
 DEFAULT_REPEATS = 5  # the paper's Table II: deep methods as mean ± std over five runs
+DEFAULT_LINK_TOPIC = "/collision_link"

@@ -64,6 +64,9 @@ class PreparedLog:
     # the filter behind effort_f: methods that filter other inputs do it alike
     lowpass: LowPass = field(default_factory=LowPass)
     period_s: float | None = None
+    velocity_f: FloatArray | None = None  # q̇̃, the velocity through the same filter (friction)
+    coulomb_f: FloatArray | None = None  # filtered tanh(q̇/ε), (N, E, joints), ε in coulomb_eps
+    coulomb_eps: tuple[float, ...] = ()
 
     @property
     def source(self) -> str:
@@ -154,18 +157,37 @@ def twin_stages(
     return [*stages, Derived(ddq, "velocity", "ddq"), Mapped(twin)]
 
 
-def filter_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
-    """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass."""
+def filter_stages(
+    lowpass: LowPass, period_s: float, coulomb_eps: Sequence[float] = ()
+) -> list[Stage]:
+    """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
+
+    With ``coulomb_eps`` (friction models), also the velocity (``velocity_f``) and tanh(q̇/ε)
+    for each ε (``coulomb_f``, (N, E, joints)) through the same filter, so that they lag as the
+    efforts do: the Coulomb friction steps where a joint turns, and only the step itself
+    filtered matches the filtered effort (tanh of the filtered velocity steps too sharply
+    there). Without, nothing more is filtered: the seed's model costs what it did."""
     from twincd.signal.filters import StreamingLowPass
 
+    eps = tuple(float(e) for e in coulomb_eps)
+    extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
+
     def stack(frame: Frame) -> Frame:
-        return frame.with_columns(both=np.hstack((frame["effort"], frame["sim_effort"])))
+        v = frame["velocity"]
+        friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
+        return frame.with_columns(both=np.hstack((frame["effort"], frame["sim_effort"], *friction)))
 
     def split(frame: Frame) -> Frame:
         both = frame["both_f"]
-        d = both.shape[1] // 2
+        d = both.shape[1] // (2 + extra)
         rest = {k: v for k, v in frame.items() if k not in ("both", "both_f")}
-        return Frame(rest).with_columns(effort_f=both[:, :d], sim_effort_f=both[:, d:])
+        out = Frame(rest).with_columns(effort_f=both[:, :d], sim_effort_f=both[:, d : 2 * d])
+        if eps:
+            out = out.with_columns(
+                velocity_f=both[:, 2 * d : 3 * d],
+                coulomb_f=both[:, 3 * d :].reshape(len(both), len(eps), d),
+            )
+        return out
 
     return [
         Mapped(stack),
@@ -215,6 +237,7 @@ class PreparedStream:
         self.samples = 0
         self.dropped_bad = 0
         self.velocity_from_position = False
+        self.coulomb_eps = setup.coulomb_eps if filtered else ()
         self._log: LogStream | None = None
 
     @property
@@ -314,7 +337,7 @@ class PreparedStream:
             pick_columns(to_final),
         ]
         if self.filtered:
-            stages += filter_stages(setup.lowpass, self.period_s)
+            stages += filter_stages(setup.lowpass, self.period_s, setup.coulomb_eps)
         self.velocity_from_position = fill
         return Chain(stages), to_twin
 
@@ -390,6 +413,8 @@ class CalibrationSettings(Protocol):
     @property
     def urdf_sha256(self) -> str | None: ...
     @property
+    def coulomb_eps(self) -> tuple[float, ...]: ...
+    @property
     def period_s(self) -> float | None: ...
 
 
@@ -411,6 +436,7 @@ class Setup:
     block_size: int = DEFAULT_BLOCK
     strict: bool = True
     twin_threads: int | None = None  # None: every core this process may use
+    coulomb_eps: tuple[float, ...] = ()  # ε of the filtered Coulomb features (friction models)
 
     @classmethod
     def from_calibration(cls, calibration: CalibrationSettings) -> Setup:
@@ -421,6 +447,7 @@ class Setup:
             joint_names=calibration.joint_names,
             urdf_sha256=calibration.urdf_sha256,
             period_s=calibration.period_s,
+            coulomb_eps=calibration.coulomb_eps,
         )
 
     def open(self, path: str | Path, **kwargs: Any) -> PreparedStream:
@@ -525,6 +552,9 @@ def prepared_log(stream: PreparedStream, whole: Frame, lowpass: LowPass) -> Prep
         sim_effort=whole["sim_effort"],
         effort_f=whole["effort_f"],
         sim_effort_f=whole["sim_effort_f"],
+        velocity_f=whole.get("velocity_f"),
+        coulomb_f=whole.get("coulomb_f"),
+        coulomb_eps=stream.coulomb_eps,
         robot=stream.robot,
         simulated=stream.simulated,
         lowpass=lowpass,

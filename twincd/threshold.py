@@ -11,8 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.calibration import Calibration, Threshold, clean_mask, clean_rows
+from twincd.calibration.models import model_inputs
 from twincd.defaults import DEFAULT_K_SIGMA
-from twincd.detection.score import affine_score
 from twincd.errors import DataError
 from twincd.pipeline import PreparedLog, Setup
 
@@ -90,9 +90,7 @@ def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogSc
     stats = ScoreStats()
     with setup.open(path) as stream:
         for frame in stream:
-            scores = affine_score(
-                frame["effort_f"], frame["sim_effort_f"], calibration.a, calibration.b
-            )
+            scores = calibration.model.scores({**frame, "coulomb_eps": stream.coulomb_eps})
             stats = stats + ScoreStats.from_scores(scores, clean_rows(frame.get("labels"), frame.n))
     return LogScores(str(path), stats, stream.samples)
 
@@ -135,7 +133,7 @@ def calibrate_threshold(
         LogScores(
             lg.source,
             ScoreStats.from_scores(
-                affine_score(lg.effort_f, lg.sim_effort_f, calibration.a, calibration.b),
+                calibration.model.scores(model_inputs(lg)),
                 clean_mask(lg),
             ),
         )

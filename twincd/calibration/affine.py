@@ -44,6 +44,16 @@ def clean_mask(log_: PreparedLog) -> BoolArray:
     return clean_rows(log_.labels, len(log_))
 
 
+def same_joints(mine: int, theirs: int) -> None:
+    """Statistics of logs with different joint counts do not merge."""
+    if mine != theirs:
+        raise DataError(
+            "logs with different joint counts cannot be fitted together",
+            f"{mine} vs {theirs} joints",
+            "fit logs of one robot",
+        )
+
+
 @dataclass(frozen=True)
 class AffineStats:
     """Mergeable sufficient statistics of a per-joint regression y ≈ a·x + b.
@@ -96,12 +106,7 @@ class AffineStats:
             return other
         if other.n == 0:
             return self
-        if self.mean_x.shape != other.mean_x.shape:
-            raise DataError(
-                "logs with different joint counts cannot be fitted together",
-                f"{self.mean_x.shape[0]} vs {other.mean_x.shape[0]} joints",
-                "fit logs of one robot",
-            )
+        same_joints(self.mean_x.shape[0], other.mean_x.shape[0])
         n = self.n + other.n
         dx = other.mean_x - self.mean_x
         dy = other.mean_y - self.mean_y
@@ -124,6 +129,15 @@ class AffineStats:
         return self.cyy / self.n
 
 
+def require_samples(n: int, minimum: int) -> None:
+    if n < minimum:
+        raise DataError(
+            "too few collision-free samples to fit",
+            f"{n} sample(s)",
+            "give longer logs, or logs with collision-free parts",
+        )
+
+
 @dataclass(frozen=True)
 class AffineSolution:
     a: FloatArray
@@ -135,12 +149,7 @@ class AffineSolution:
 
 def solve(stats: AffineStats) -> AffineSolution:
     """Least squares per joint from merged statistics (closed form of eq. 3)."""
-    if stats.n < 2:
-        raise DataError(
-            "too few collision-free samples to fit",
-            f"{stats.n} sample(s)",
-            "give longer logs, or logs with collision-free parts",
-        )
+    require_samples(stats.n, 2)
     n = stats.n
     cxx, cyy, cxy = stats.cxx, stats.cyy, stats.cxy
     degenerate = cxx <= 1e-12 * np.maximum(cyy, 1e-300)
@@ -160,8 +169,11 @@ class AffineCalibration:
     ``stats_`` (the merged AffineStats, for further merging) and ``fit_s_`` (fit time).
     """
 
-    def __init__(self, joint_names: Sequence[str] | None = None) -> None:
+    def __init__(
+        self, joint_names: Sequence[str] | None = None, warn_ill_conditioned: bool = True
+    ) -> None:
         self.joint_names = joint_names
+        self.warn_ill_conditioned = warn_ill_conditioned
 
     def fit(self, logs: Iterable[PreparedLog]) -> AffineCalibration:
         """Fit on collision-free samples of ``logs``, consumed one at a time (may be lazy)."""
@@ -195,7 +207,7 @@ class AffineCalibration:
         self.n_samples_ = stats.n
         self.fit_s_ = 0.0
         names = list(self.joint_names or [f"#{i}" for i in range(len(sol.a))])
-        for i in np.flatnonzero(sol.ill_conditioned):
+        for i in np.flatnonzero(sol.ill_conditioned & self.warn_ill_conditioned):
             log.warning(
                 "joint %s is badly conditioned: its twin effort barely varies "
                 "(std %.3g vs measured %.3g), so a = %.3g is unreliable",

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from twincd import __version__
 from twincd.calibration.affine import AffineCalibration
+from twincd.calibration.models import AFFINE, MODEL_KINDS, ResidualModel
 from twincd.errors import CalibrationError, NotFittedError
 from twincd.io.logs import LogOptions
 from twincd.signal.filters import LowPass
@@ -72,6 +73,25 @@ class Calibration:
     # nominal sampling period of the fitted logs: later logs are filtered at this rate, so that
     # batch and live detection agree (None in files written before it was recorded)
     period_s: float | None = None
+    # the calibration model (DESIGN §4 ``model``): the seed's affine map, or one of MODEL_KINDS
+    kind: str = AFFINE
+    c: FloatArray | None = None  # friction models: Coulomb coefficient of tanh(q̇̃/ε)
+    d: FloatArray | None = None  # friction models: viscous coefficient of q̇̃
+    epsilon: FloatArray | None = None  # friction models: ε (rad/s) chosen on the training logs
+    scale: FloatArray | None = None  # whitened models: residual RMS per joint on training logs
+    # the body each joint moves (its child link), for naming the link an event touched
+    links: tuple[str, ...] | None = None
+    depths: tuple[int, ...] | None = None  # each joint's depth in the kinematic tree
+
+    @property
+    def coulomb_eps(self) -> tuple[float, ...]:
+        """The ε whose filtered Coulomb features scoring needs (none for non-friction models)."""
+        return () if self.epsilon is None else tuple(sorted({float(e) for e in self.epsilon}))
+
+    @property
+    def model(self) -> ResidualModel:
+        """The map and score that detection applies."""
+        return ResidualModel(self.kind, self.a, self.b, self.c, self.d, self.epsilon, self.scale)
 
     def require_threshold(self) -> Threshold:
         if self.threshold is None:
@@ -110,6 +130,8 @@ class Calibration:
                 "urdf_sha256": self.urdf_sha256,
                 "joint_names": names,
                 "simulated": self.simulated,
+                **({} if self.links is None else {"links": list(self.links)}),
+                **({} if self.depths is None else {"depths": list(self.depths)}),
             },
             "log_options": {
                 "topic": self.options.topic,
@@ -122,14 +144,20 @@ class Calibration:
                 "sample_rate_hz": None if self.period_s is None else 1.0 / self.period_s,
             },
             "model": {
-                "kind": "affine",
-                "joints": {
-                    n: {"a": float(self.a[i]), "b": float(self.b[i])} for i, n in enumerate(names)
-                },
+                "kind": self.kind,
+                "joints": {n: self._coefficients(i) for i, n in enumerate(names)},
             },
             "fit": fit,
             "threshold": None if self.threshold is None else self.threshold.to_dict(),
         }
+
+    def _coefficients(self, i: int) -> dict[str, float]:
+        out = {"a": float(self.a[i]), "b": float(self.b[i])}
+        for key in ("c", "d", "epsilon", "scale"):
+            values = getattr(self, key)
+            if values is not None:
+                out[key] = float(values[i])
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str = "") -> Calibration:
@@ -151,13 +179,26 @@ class Calibration:
             robot = d["robot"]
             names = tuple(str(n) for n in robot["joint_names"])
             model = d["model"]
-            if model.get("kind") != "affine":
+            kind = model.get("kind")
+            if kind not in MODEL_KINDS:
                 raise CalibrationError(
-                    f"unknown model kind {model.get('kind')!r}", where, "re-run `twincd fit`"
+                    f"unknown model kind {kind!r} (this twincd knows {', '.join(MODEL_KINDS)})",
+                    where,
+                    "re-run `twincd fit`",
                 )
             coeff = model["joints"]
             a = np.array([float(coeff[n]["a"]) for n in names])
             b = np.array([float(coeff[n]["b"]) for n in names])
+            extra = {
+                key: _optional_column(coeff, names, key) for key in ("c", "d", "epsilon", "scale")
+            }
+            _require_coefficients(str(kind), extra, where)
+            links, depths = robot.get("links"), robot.get("depths")
+            for key, values in (("links", links), ("depths", depths)):
+                if values is not None and len(values) != len(names):
+                    raise ValueError(
+                        f"robot.{key} has {len(values)} entries for {len(names)} joints"
+                    )
             fit = d.get("fit") or {}
             per_joint = fit.get("joints") or {}
 
@@ -202,6 +243,10 @@ class Calibration:
                 created=str(d.get("created", "")),
                 twincd_version=str(d.get("twincd_version", "")),
                 source=source,
+                kind=str(kind),
+                links=None if links is None else tuple(str(x) for x in links),
+                depths=None if depths is None else tuple(int(x) for x in depths),
+                **extra,
             )
         except CalibrationError:
             raise
@@ -263,6 +308,34 @@ def _period(rate_hz: Any) -> float | None:
     if not rate > 0:
         raise ValueError(f"sample_rate_hz must be positive, not {rate_hz!r}")
     return 1.0 / rate
+
+
+def _optional_column(coeff: Mapping[str, Any], names: Sequence[str], key: str) -> FloatArray | None:
+    """A per-joint coefficient that only some models have: all joints or none."""
+    values = [coeff[n].get(key) for n in names]
+    if all(v is None for v in values):
+        return None
+    if any(v is None for v in values):
+        raise ValueError(f"coefficient {key!r} is missing for some joints")
+    return np.array([float(v) for v in values])
+
+
+def _require_coefficients(kind: str, extra: Mapping[str, FloatArray | None], where: str) -> None:
+    from twincd.calibration.models import is_whitened, uses_friction
+
+    needed = (["c", "d", "epsilon"] if uses_friction(kind) else []) + (
+        ["scale"] if is_whitened(kind) else []
+    )
+    missing = [k for k in needed if extra.get(k) is None]
+    if missing:
+        raise CalibrationError(
+            f"the {kind} model lacks its coefficient(s) {', '.join(missing)}",
+            where,
+            "re-run `twincd fit`",
+        )
+    eps, scale = extra.get("epsilon"), extra.get("scale")
+    if (eps is not None and not np.all(eps > 0)) or (scale is not None and not np.all(scale > 0)):
+        raise CalibrationError("epsilon and scale must be positive", where, "re-run `twincd fit`")
 
 
 def _now() -> str:

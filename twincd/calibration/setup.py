@@ -6,12 +6,20 @@ import logging
 import statistics
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from twincd.calibration.affine import AffineCalibration, AffineStats, clean_rows
 from twincd.calibration.file import Calibration, calibration_from_fit
-from twincd.errors import DataError
+from twincd.calibration.models import (
+    AFFINE,
+    EPSILON_GRID,
+    MODEL_KINDS,
+    FrictionStats,
+    fit_model,
+    uses_friction,
+)
+from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedStream, Setup, same_joints
 
 log = logging.getLogger("twincd")
@@ -23,6 +31,7 @@ class LogFit:
 
     source: str
     stats: AffineStats
+    friction: FrictionStats | None  # every ε candidate at once, when prepared with them
     joint_names: tuple[str, ...]
     period_s: float
     simulated: bool
@@ -34,19 +43,29 @@ class LogFit:
 def fit_log(path: str | Path, setup: Setup) -> LogFit:
     """Stream one log through read → twin → filter into affine statistics."""
     stats: AffineStats | None = None
+    friction: FrictionStats | None = None
     seconds = 0.0
     with setup.open(path) as stream:
         for frame in stream:
             start = time.perf_counter()
-            part = AffineStats.from_arrays(
-                frame["sim_effort_f"], frame["effort_f"], clean_rows(frame.get("labels"), frame.n)
-            )
+            clean = clean_rows(frame.get("labels"), frame.n)
+            part = AffineStats.from_arrays(frame["sim_effort_f"], frame["effort_f"], clean)
             stats = part if stats is None else stats + part
             seconds += time.perf_counter() - start
+            if stream.coulomb_eps == EPSILON_GRID:
+                more = FrictionStats.from_arrays(
+                    frame["sim_effort_f"],
+                    frame["velocity_f"],
+                    frame["coulomb_f"],
+                    frame["effort_f"],
+                    clean,
+                )
+                friction = more if friction is None else friction + more
         assert stats is not None  # the stream raises on logs without samples
         return LogFit(
             source=stream.source,
             stats=stats,
+            friction=friction,
             joint_names=stream.joint_names,
             period_s=stream.period_s,
             simulated=stream.simulated,
@@ -62,8 +81,25 @@ def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:
     return stream.robot.name, stream.robot.urdf_sha256
 
 
-def merge_fits(parts: Iterable[LogFit], setup: Setup) -> Calibration:
+def check_model(model: str) -> None:
+    if model not in MODEL_KINDS:
+        raise UsageError(
+            f"unknown calibration model {model!r}",
+            "fit",
+            f"choose one of {', '.join(MODEL_KINDS)}",
+            option="model",
+        )
+
+
+def setup_for_model(setup: Setup, model: str) -> Setup:
+    """The setup that prepares what fitting ``model`` needs (friction: every ε candidate)."""
+    check_model(model)
+    return replace(setup, coulomb_eps=EPSILON_GRID if uses_friction(model) else ())
+
+
+def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Calibration:
     """The calibration from per-log statistics, merged in any order (exact merges)."""
+    check_model(model)
     parts = sorted(parts, key=lambda p: p.source)  # any completion order gives one answer
     if not parts:
         raise DataError("no logs to fit", "fit", "give at least one collision-free log")
@@ -72,11 +108,12 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup) -> Calibration:
     for p in parts[1:]:
         total = total + p.stats
     start = time.perf_counter()
-    estimator = AffineCalibration(names).fit_stats(total)
+    # a friction model's slope a is conditioned by its other terms too: no affine warning
+    estimator = AffineCalibration(names, not uses_friction(model)).fit_stats(total)
     estimator.fit_s_ = sum(p.seconds for p in parts) + time.perf_counter() - start
     robots = sorted({p.robot for p in parts if p.robot is not None})
     name, sha = robots[0] if robots else (setup.robot, None)
-    return calibration_from_fit(
+    cal = calibration_from_fit(
         estimator,
         setup.lowpass,
         setup.options,
@@ -86,8 +123,54 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup) -> Calibration:
         [p.source for p in parts],
         period_s=statistics.median(p.period_s for p in parts),
     )
+    links, depths = _chain(name, names)
+    cal = replace(cal, kind=model, links=links, depths=depths)
+    if model != AFFINE:
+        start = time.perf_counter()
+        friction = FrictionStats.zeros(len(names))
+        for p in parts:
+            if p.friction is None and uses_friction(model):
+                raise DataError(
+                    f"the {model} model needs Coulomb features for every ε candidate",
+                    p.source,
+                    "prepare the logs with setup_for_model(setup, model)",
+                )
+            friction = friction if p.friction is None else friction + p.friction
+        fitted = fit_model(model, total, friction)
+        m = fitted.model
+        cal = replace(
+            cal,
+            a=m.a,
+            b=m.b,
+            c=m.c,
+            d=m.d,
+            epsilon=m.epsilon,
+            scale=m.scale,
+            r2=fitted.r2,
+            rmse=fitted.rmse,
+            fit_s=cal.fit_s + time.perf_counter() - start,
+        )
+    return cal
 
 
-def fit_calibration(paths: Iterable[str | Path], setup: Setup) -> Calibration:
-    """Fit a, b over ``paths`` log by log (memory flat in the number of logs and samples)."""
-    return merge_fits([fit_log(path, setup) for path in paths], setup)
+def _chain(
+    robot: str | None, names: tuple[str, ...]
+) -> tuple[tuple[str, ...] | None, tuple[int, ...] | None]:
+    """Each joint's child link and depth, when the robot model can be loaded (else None: logs
+    with their own twin effort need no model, and isolation then names joints' links less)."""
+    from twincd.errors import TwincdError
+    from twincd.pipeline import robot_for
+    from twincd.twin.robot import child_links
+
+    if robot is None:
+        return None, None
+    try:
+        return child_links(robot_for(robot, names), names)
+    except TwincdError:
+        return None, None
+
+
+def fit_calibration(paths: Iterable[str | Path], setup: Setup, model: str = AFFINE) -> Calibration:
+    """Fit ``model`` over ``paths`` log by log (memory flat in the number of logs and samples)."""
+    setup = setup_for_model(setup, model)
+    return merge_fits([fit_log(path, setup) for path in paths], setup, model)

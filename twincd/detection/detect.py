@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.detection.events import Event, EventTracker
-from twincd.detection.score import residual
+from twincd.detection.isolation import isolator_for
 from twincd.frames import Frame
 
 if TYPE_CHECKING:
@@ -25,17 +25,29 @@ BoolArray = NDArray[np.bool_]
 class ScoringStage:
     """Residual, score and flag per sample, events across blocks (state: one open event)."""
 
-    def __init__(self, calibration: Calibration, joint_names: Sequence[str] | None = None):
+    def __init__(
+        self,
+        calibration: Calibration,
+        joint_names: Sequence[str] | None = None,
+        coulomb_eps: Sequence[float] | None = None,
+    ):
+        """``coulomb_eps``: the ε of the frames' ``coulomb_f`` (default: the calibration's)."""
         self.threshold = calibration.require_threshold().value
-        self.a = calibration.a
-        self.b = calibration.b
-        self.events = EventTracker(joint_names or calibration.joint_names)
+        self.model = calibration.model
+        self.coulomb_eps = tuple(calibration.coulomb_eps if coulomb_eps is None else coulomb_eps)
+        isolator = isolator_for(
+            calibration.links,
+            calibration.depths,
+            calibration.scale if calibration.scale is not None else calibration.rmse,
+        )
+        self.events = EventTracker(joint_names or calibration.joint_names, isolator)
 
     def push(self, frame: Frame) -> tuple[Frame, list[Event]]:
-        """``frame`` (with ``effort_f``, ``sim_effort_f``, ``stamp_ns``) plus ``residual``,
-        ``score`` and ``flag`` columns, and the events that closed in it."""
-        r = residual(frame["effort_f"], frame["sim_effort_f"], self.a, self.b)
-        scores: FloatArray = np.einsum("ij,ij->i", r, r)
+        """``frame`` (with ``effort_f``, ``sim_effort_f``, ``stamp_ns``, and ``velocity_f`` and
+        ``coulomb_f`` for friction models) plus ``residual``, ``score`` and ``flag`` columns,
+        and the events that closed in it."""
+        r = self.model.residual({**frame, "coulomb_eps": self.coulomb_eps})
+        scores = self.model.score(r)
         flags = scores >= self.threshold
         closed = self.events.push(flags, scores, r, frame["stamp_ns"])
         return frame.with_columns(residual=r, score=scores, flag=flags), closed
@@ -73,12 +85,14 @@ class LogDetection:
 
 def detect(log: PreparedLog, calibration: Calibration) -> LogDetection:
     """Score and flag every sample of ``log`` with a calibration that has a threshold."""
-    stage = ScoringStage(calibration, log.joint_names)
+    stage = ScoringStage(calibration, log.joint_names, log.coulomb_eps)
     frame = Frame(
         {
             "stamp_ns": log.states.stamp_ns,
             "effort_f": log.effort_f,
             "sim_effort_f": log.sim_effort_f,
+            "velocity_f": log.velocity_f,
+            "coulomb_f": log.coulomb_f,
         }
     )
     out, events = stage.push(frame)

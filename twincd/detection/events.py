@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -12,6 +12,9 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
+
+if TYPE_CHECKING:
+    from twincd.detection.isolation import LinkIsolator
 
 
 @dataclass(frozen=True)
@@ -61,11 +64,13 @@ class EventTracker:
     """Events from flags that arrive block by block: an event still flagged at the end of a
     block stays open and continues into the next, so block boundaries never split one.
 
-    State is one open event (a few numbers and a per-joint sum), whatever the log length.
+    State is one open event (a few numbers, a per-joint sum and maximum), whatever the log
+    length.
     """
 
-    def __init__(self, joint_names: Sequence[str]) -> None:
+    def __init__(self, joint_names: Sequence[str], isolator: LinkIsolator | None = None) -> None:
         self.joint_names = tuple(joint_names)
+        self.isolator = isolator
         self._offset = 0  # global index of the next sample
         self._open: dict[str, Any] | None = None
 
@@ -89,6 +94,7 @@ class EventTracker:
                 "peak_score": float(scores[peak]),
                 "peak_ns": int(stamp_ns[peak]),
                 "share": (residual_[seg] ** 2).sum(axis=0),
+                "absmax": np.abs(residual_[seg]).max(axis=0),
             }
             if first == 0 and self._open is not None:  # the open event goes on
                 self._extend(part)
@@ -108,12 +114,14 @@ class EventTracker:
         ev = self._open
         ev["last"], ev["end_ns"] = part["last"], part["end_ns"]
         ev["share"] = ev["share"] + part["share"]
+        ev["absmax"] = np.maximum(ev["absmax"], part["absmax"])
         if part["peak_score"] > ev["peak_score"]:  # the first peak wins ties, as argmax does
             ev["peak_score"], ev["peak_ns"] = part["peak_score"], part["peak_ns"]
 
     def _close(self) -> Event:
         assert self._open is not None
         ev, self._open = self._open, None
+        link = None if self.isolator is None else self.isolator.link(ev["absmax"])
         return Event(
             first=ev["first"],
             last=ev["last"],
@@ -122,6 +130,7 @@ class EventTracker:
             peak_score=ev["peak_score"],
             peak_ns=ev["peak_ns"],
             joint=self.joint_names[int(np.argmax(ev["share"]))],
+            link=link,
         )
 
 
@@ -131,7 +140,8 @@ def find_events(
     residual_: FloatArray,
     stamp_ns: IntArray,
     joint_names: Sequence[str],
+    isolator: LinkIsolator | None = None,
 ) -> list[Event]:
     """Events of a whole flag vector; the joint is the one with the largest share of Σ residual²."""
-    tracker = EventTracker(joint_names)
+    tracker = EventTracker(joint_names, isolator)
     return tracker.push(flags, scores, residual_, stamp_ns) + tracker.finish()

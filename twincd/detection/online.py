@@ -120,7 +120,9 @@ class OnlineDetector:
                 *twin_stages(robot, self.period_s, True, fill, self._threads),
                 pick_columns(back),
             ]
-        stages += filter_stages(self.calibration.lowpass, self.period_s)
+        stages += filter_stages(
+            self.calibration.lowpass, self.period_s, self.calibration.coulomb_eps
+        )
         return Chain(stages)
 
     def _columns(self, values: object, n: int, what: str) -> FloatArray:

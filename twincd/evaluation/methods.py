@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,8 +19,12 @@ from numpy.typing import NDArray
 from twincd.errors import UsageError
 from twincd.pipeline import PreparedLog
 
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration
+
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+IntArray = NDArray[np.int64]
 
 # DESIGN §7, in the paper's Table II order (ours first)
 METHOD_NAMES = (
@@ -32,6 +36,10 @@ METHOD_NAMES = (
     "lstm-mob",
     "window-ocsvm",
     "window-ae",
+    # our own calibration models (DESIGN §4 ``model``), beyond the paper
+    "affine-whitened",
+    "friction",
+    "friction-whitened",
 )
 
 
@@ -45,6 +53,13 @@ class ScoringMethod(ABC):
     name: ClassVar[str]
     unit: ClassVar[str] = "sample"  # or "window"
     learns: ClassVar[bool] = True  # False: needs no training logs
+    # True: the method is a calibration model; without training logs it comes from the file
+    calibrated: ClassVar[bool] = False
+    model_kind: ClassVar[str] = ""  # the calibration's ``model.kind`` it stands for
+
+    def from_calibration(self, calibration: Calibration) -> ScoringMethod:
+        """The method fitted as ``calibration`` is (calibrated methods only)."""
+        raise MethodSkipped(f"{self.name} cannot be read from a calibration")
 
     def check(self, logs: Sequence[PreparedLog]) -> None:
         """Raise MethodSkipped when the method cannot run on these logs."""
@@ -64,6 +79,14 @@ class ScoringMethod(ABC):
             return np.zeros(len(log), dtype=bool)
         return log.labels
 
+    def unit_stamps(self, log: PreparedLog) -> IntArray:
+        """When each unit's decision is known: its sample's stamp (a window's last sample)."""
+        return log.states.stamp_ns
+
+    def flag_links(self, log: PreparedLog, flags: BoolArray) -> list[str | None] | None:
+        """The link a method names for each flagged unit; None: it does not isolate."""
+        return None
+
 
 # The built-in methods, name -> "module:attribute" of a factory, written out here so the
 # registry never depends on which modules happen to be imported; a module is imported only
@@ -77,6 +100,9 @@ BUILTIN: dict[str, str] = {
     "lstm-mob": "twincd.evaluation.baselines.lstm:LstmMob",
     "window-ocsvm": "twincd.evaluation.baselines.ocsvm:WindowOcsvm",
     "window-ae": "twincd.evaluation.baselines.autoencoder:WindowAE",
+    "affine-whitened": "twincd.evaluation.own:AffineWhitened",
+    "friction": "twincd.evaluation.own:Friction",
+    "friction-whitened": "twincd.evaluation.own:FrictionWhitened",
 }
 _REGISTRY: dict[str, str] = dict(BUILTIN)
 

@@ -13,6 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 from sklearn.metrics import precision_recall_fscore_support, roc_auc_score
 
+from twincd.detection.events import runs
+
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
@@ -56,3 +58,147 @@ def auc(labels: BoolArray, scores: FloatArray) -> float | None:
     if y.all() or not y.any():
         return None
     return float(roc_auc_score(y, np.asarray(scores, dtype=np.float64)))
+
+
+# ------------------------------------------------------------------ event metrics (DESIGN §6)
+
+EVENT_TOLERANCE_NS = 200_000_000  # a flag up to 200 ms after a labelled event still finds it
+
+
+@dataclass(frozen=True)
+class EventCounts:
+    """Event-level counts of one or more logs, mergeable with ``+`` (DESIGN §6).
+
+    A labelled event is a maximal run of labelled samples; it is detected when a flag falls
+    inside it or within 200 ms after its end, its delay running from its first labelled sample
+    to that first flag. A false alarm is a maximal run of flags touching no labelled event
+    (± 200 ms). Events whose ground-truth link is named (``/collision_link``) are the presses
+    that exert force; isolation is judged on those that were detected.
+    """
+
+    events_total: int = 0
+    events_detected: int = 0
+    delays_ms: tuple[float, ...] = ()
+    false_alarms: int = 0
+    unlabelled_s: float = 0.0
+    force_total: int = 0
+    force_detected: int = 0
+    force_delays_ms: tuple[float, ...] = ()
+    isolation_total: int = 0
+    isolation_right: int = 0
+    has_links: bool = False
+
+    def __add__(self, other: EventCounts) -> EventCounts:
+        return EventCounts(
+            self.events_total + other.events_total,
+            self.events_detected + other.events_detected,
+            self.delays_ms + other.delays_ms,
+            self.false_alarms + other.false_alarms,
+            self.unlabelled_s + other.unlabelled_s,
+            self.force_total + other.force_total,
+            self.force_detected + other.force_detected,
+            self.force_delays_ms + other.force_delays_ms,
+            self.isolation_total + other.isolation_total,
+            self.isolation_right + other.isolation_right,
+            self.has_links or other.has_links,
+        )
+
+    @property
+    def false_alarms_per_hour(self) -> float | None:
+        if self.unlabelled_s <= 0:
+            return None
+        return self.false_alarms * 3600.0 / self.unlabelled_s
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        def pct(values: tuple[float, ...], q: float) -> float | None:
+            return float(np.percentile(values, q)) if values else None
+
+        out: dict[str, float | int | None] = {
+            "events_total": self.events_total,
+            "events_detected": self.events_detected,
+            "delay_ms_median": pct(self.delays_ms, 50),
+            "delay_ms_p95": pct(self.delays_ms, 95),
+            "false_alarms": self.false_alarms,
+            "false_alarms_per_hour": self.false_alarms_per_hour,
+        }
+        if self.has_links:
+            out.update(
+                force_events_total=self.force_total,
+                force_events_detected=self.force_detected,
+                force_delay_ms_median=pct(self.force_delays_ms, 50),
+                isolation_accuracy=(
+                    self.isolation_right / self.isolation_total if self.isolation_total else None
+                ),
+            )
+        return out
+
+
+def event_counts(
+    stamp_ns: NDArray[np.int64],
+    labels: BoolArray,
+    flag_ns: NDArray[np.int64],
+    flags: BoolArray,
+    links: Sequence[str] | None = None,
+    flag_links: Sequence[str | None] | None = None,
+    tolerance_ns: int = EVENT_TOLERANCE_NS,
+) -> EventCounts:
+    """Event counts of one log.
+
+    ``stamp_ns``/``labels``: the samples and their labels; ``flag_ns``/``flags``: when each
+    unit's decision is known (a sample's stamp, a window's last sample) and the flags.
+    ``links``: the true link per sample ("" where none); ``flag_links``: the link a detector
+    names for each flagged unit.
+    """
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+    labels = np.asarray(labels, dtype=bool)
+    flag_ns = np.asarray(flag_ns, dtype=np.int64)
+    flags = np.asarray(flags, dtype=bool)
+    flagged = np.flatnonzero(flags)
+    flag_times = flag_ns[flagged]
+    events = runs(labels)
+    windows = [(int(stamp_ns[a]), int(stamp_ns[b]) + tolerance_ns) for a, b in events]
+    detected = force_total = force_detected = iso_total = iso_right = 0
+    delay_list: list[float] = []
+    force_delays: list[float] = []
+    for (a, b), (lo, hi) in zip(events, windows, strict=True):
+        k = int(np.searchsorted(flag_times, lo, side="left"))
+        hit = k < len(flag_times) and flag_times[k] <= hi
+        true_link = ""
+        if links is not None:
+            named = [x for x in links[a : b + 1] if x]
+            true_link = max(set(named), key=named.count) if named else ""
+        if true_link:
+            force_total += 1
+        if not hit:
+            continue
+        detected += 1
+        delay = (int(flag_times[k]) - lo) / 1e6
+        delay_list.append(delay)
+        if true_link:
+            force_detected += 1
+            force_delays.append(delay)
+            if flag_links is not None:
+                iso_total += 1
+                iso_right += int(flag_links[int(flagged[k])] == true_link)
+    # false alarms: runs of flags whose times touch no labelled event widened by the tolerance
+    false_alarms = 0
+    starts = np.array([lo - tolerance_ns for lo, _ in windows], dtype=np.int64)
+    ends = np.array([hi for _, hi in windows], dtype=np.int64)
+    for a, b in runs(flags):
+        t0, t1 = int(flag_ns[a]), int(flag_ns[b])
+        if not np.any((starts <= t1) & (ends >= t0)):
+            false_alarms += 1
+    period_s = float(np.median(np.diff(stamp_ns))) / 1e9 if len(stamp_ns) > 1 else 0.0
+    return EventCounts(
+        events_total=len(events),
+        events_detected=detected,
+        delays_ms=tuple(delay_list),
+        false_alarms=false_alarms,
+        unlabelled_s=float((~labels).sum()) * period_s,
+        force_total=force_total,
+        force_detected=force_detected,
+        force_delays_ms=tuple(force_delays),
+        isolation_total=iso_total,
+        isolation_right=iso_right,
+        has_links=links is not None,
+    )

@@ -22,6 +22,8 @@ class ProposedMethod(ScoringMethod):
     name = "proposed"
     unit = "sample"
     learns = True
+    calibrated = True
+    model_kind = "affine"
 
     def __init__(self, a: Sequence[float] | None = None, b: Sequence[float] | None = None):
         self.a = a
@@ -30,9 +32,8 @@ class ProposedMethod(ScoringMethod):
             self.a_: FloatArray = np.asarray(a, dtype=np.float64)
             self.b_: FloatArray = np.asarray(b, dtype=np.float64)
 
-    @classmethod
-    def from_calibration(cls, calibration: Calibration) -> ProposedMethod:
-        return cls(list(calibration.a), list(calibration.b))
+    def from_calibration(self, calibration: Calibration) -> ProposedMethod:
+        return type(self)(list(calibration.a), list(calibration.b))
 
     def fit(self, train: Sequence[PreparedLog]) -> ProposedMethod:
         est = AffineCalibration().fit(train)

@@ -75,6 +75,55 @@ def evaluation_rows(result: Evaluation) -> list[list[str]]:
     return rows
 
 
+EVENT_COLUMNS = (
+    "method",
+    "events found",
+    "delay median (ms)",
+    "delay p95 (ms)",
+    "false alarms (/h)",
+    "val false alarms (/h)",
+    "presses with force found",
+    "isolation",
+)
+SHORT_EVENT_COLUMNS = ("method", "found", "delay", "p95", "FA (/h)", "val FA", "force", "isol.")
+
+
+def _count(m: MethodResult, found: str, total: str) -> str:
+    a, b = m.events.get(found), m.events.get(total)
+    if a is None or b is None:
+        return "n/a"
+    return f"{a:g}/{b:g}"
+
+
+def _per_hour(m: MethodResult, count: str) -> str:
+    n, rate = m.events.get(count), m.events.get(f"{count}_per_hour")
+    if n is None:
+        return "n/a"
+    return f"{n:g} ({fmt(rate, 0)})"
+
+
+def event_rows(result: Evaluation) -> list[list[str]]:
+    """Event metrics (DESIGN §6) as text cells, one row per method that ran."""
+    rows = []
+    for m in result.methods:
+        if m.skipped is not None:
+            continue
+        iso = m.events.get("isolation_accuracy")
+        rows.append(
+            [
+                m.name if m.unit == "sample" else f"{m.name}*",
+                _count(m, "events_detected", "events_total"),
+                fmt(m.events.get("delay_ms_median"), 0),
+                fmt(m.events.get("delay_ms_p95"), 0),
+                _per_hour(m, "false_alarms"),
+                _per_hour(m, "val_false_alarms"),
+                _count(m, "force_events_detected", "force_events_total"),
+                "n/a" if iso is None else f"{100 * iso:.0f} %",
+            ]
+        )
+    return rows
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
@@ -92,6 +141,12 @@ def evaluation_markdown(result: Evaluation, missed: Sequence[str] = ()) -> str:
         f"Threshold: {threshold_text(k)}; F1 (best) over μ + iσ, i = 0, 0.1, …, 1, 2, 3, 4, 5.",
         "",
         _table(EVALUATION_COLUMNS, evaluation_rows(result)),
+        "",
+        "Events at the threshold (a labelled event is found by a flag inside it or within "
+        "200 ms after; delay from its first labelled sample; a false alarm is a run of flags "
+        "away from every labelled event, per hour of unlabelled time):",
+        "",
+        _table(EVENT_COLUMNS, event_rows(result)),
         "",
     ]
     if any(m.unit != "sample" for m in result.methods):

@@ -12,7 +12,7 @@ import inspect
 import logging
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -20,11 +20,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.calibration import Calibration
-from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_REPEATS
+from twincd.calibration.models import EPSILON_GRID, uses_friction
+from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
-from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
-from twincd.evaluation.proposed import ProposedMethod
+from twincd.evaluation.metrics import (
+    EventCounts,
+    at_threshold,
+    auc,
+    best_of,
+    event_counts,
+    f1_sweep,
+)
+from twincd.io.links import read_links
 from twincd.pipeline import PreparedLog, Setup, same_joints
 from twincd.threshold import ScoreStats
 
@@ -47,6 +55,22 @@ _AVERAGED = (
     "train_s",
     "test_s",
 )
+# event metrics (DESIGN §6), averaged over repeats like the figures above
+EVENT_KEYS = (
+    "events_total",
+    "events_detected",
+    "delay_ms_median",
+    "delay_ms_p95",
+    "false_alarms",
+    "false_alarms_per_hour",
+    "force_events_total",
+    "force_events_detected",
+    "force_delay_ms_median",
+    "isolation_accuracy",
+    "val_false_alarms",
+    "val_false_alarms_per_hour",
+)
+Links = dict[str, "tuple[str, ...] | None"]
 
 
 def _no_progress(items: Sequence[Any], _desc: str) -> Iterable[Any]:
@@ -95,6 +119,7 @@ class MethodResult:
     repeats: int = 1
     std: dict[str, float | None] = field(default_factory=dict)
     note: str | None = None  # what the method had to do differently (e.g. subsampling)
+    events: dict[str, float | None] = field(default_factory=dict)  # EVENT_KEYS present
 
     def to_dict(self) -> dict[str, Any]:
         if self.skipped is not None:
@@ -119,6 +144,7 @@ class MethodResult:
             "positives",
         ):
             d[key] = getattr(self, key)
+        d.update(self.events)
         d["sweep"] = [{"k": k, "f1": f} for k, f in self.sweep]
         if self.note:
             d["note"] = self.note
@@ -177,12 +203,34 @@ def _has_seed(method: ScoringMethod) -> bool:
     return "seed" in inspect.signature(type(method)).parameters
 
 
-def _val_stats(method: ScoringMethod, val: Sequence[PreparedLog]) -> ScoreStats:
+def _val_stats(
+    method: ScoringMethod, val: Sequence[PreparedLog]
+) -> tuple[ScoreStats, list[FloatArray]]:
     total = ScoreStats()
+    scores = []
     for lg in val:
-        scores = method.score(lg)
+        scores.append(method.score(lg))
         mask = ~method.unit_labels(lg) if lg.labels is not None else None
-        total = total + ScoreStats.from_scores(scores, mask)
+        total = total + ScoreStats.from_scores(scores[-1], mask)
+    return total, scores
+
+
+def _events(
+    method: ScoringMethod,
+    logs: Sequence[PreparedLog],
+    scores: Sequence[FloatArray],
+    threshold: float,
+    links: Links,
+) -> EventCounts:
+    """Event counts of ``logs`` flagged at ``threshold``, merged over the logs."""
+    total = EventCounts()
+    for lg, score in zip(logs, scores, strict=True):
+        flags = np.asarray(score) >= threshold
+        labels = lg.labels if lg.labels is not None else np.zeros(len(lg), dtype=bool)
+        truth = links.get(lg.source)
+        named = method.flag_links(lg, flags) if truth is not None else None
+        stamps = lg.states.stamp_ns
+        total = total + event_counts(stamps, labels, method.unit_stamps(lg), flags, truth, named)
     return total
 
 
@@ -205,8 +253,9 @@ def _run_once(
     test: Sequence[PreparedLog],
     calibration: Calibration | None,
     k_sigma: float,
+    links: Links,
 ) -> _Run:
-    from_calibration = isinstance(method, ProposedMethod) and not train
+    from_calibration = method.calibrated and not train
     train_s: float | None = None
     if from_calibration:
         assert calibration is not None
@@ -217,12 +266,13 @@ def _run_once(
         train_s = time.perf_counter() - start
     else:
         method.fit(train)
+    val_scores: list[FloatArray] = []
     if from_calibration and not val:
         assert calibration is not None
         th = calibration.require_threshold()
         mu, sigma = th.mu, th.sigma
     else:
-        stats = _val_stats(method, val)
+        stats, val_scores = _val_stats(method, val)
         mu, sigma = stats.mu, stats.sigma
     start = time.perf_counter()
     scores = [method.score(lg) for lg in test]
@@ -250,6 +300,11 @@ def _run_once(
         "train_s": train_s,
         "test_s": test_s,
     }
+    figures.update(_events(method, test, scores, threshold, links).to_dict())
+    if val_scores:
+        on_val = _events(method, val, val_scores, threshold, {})
+        figures["val_false_alarms"] = on_val.false_alarms
+        figures["val_false_alarms_per_hour"] = on_val.false_alarms_per_hour
     note = getattr(method, "note", None)
     return _Run(sweep, figures, mu, sigma, threshold, len(y_true), int(y_true.sum()), note)
 
@@ -281,6 +336,9 @@ def _combine(name: str, unit: str, k_sigma: float, runs: list[_Run]) -> MethodRe
         mean, std = _mean_std([r.figures[key] for r in runs])
         setattr(result, key, mean)
         result.std[key] = std
+    for key in EVENT_KEYS:
+        if key in first.figures:
+            result.events[key] = _mean_std([r.figures.get(key) for r in runs])[0]
     result.mu = float(np.mean([r.mu for r in runs]))
     result.sigma = float(np.mean([r.sigma for r in runs]))
     result.threshold = float(np.mean([r.threshold for r in runs]))
@@ -295,29 +353,40 @@ def evaluate_method(
     calibration: Calibration | None = None,
     k_sigma: float = DEFAULT_K_SIGMA,
     repeats: int = DEFAULT_REPEATS,
+    links: Links | None = None,
 ) -> MethodResult:
-    """One method's figures; a method that cannot run comes back with ``skipped`` set."""
-    probe: ScoringMethod
-    if name == "proposed" and not train and calibration is not None:
-        probe = ProposedMethod.from_calibration(calibration)
-    else:
-        probe = make_method(name)
+    """One method's figures; a method that cannot run comes back with ``skipped`` set.
+
+    ``links``: the true contact link per sample of each test log (by source), for isolation.
+    """
+    probe = make_method(name)
     unit = probe.unit
     try:
-        probe.check([*train, *val, *test])
-        if isinstance(probe, ProposedMethod) and not train and calibration is None:
+        # a calibrated method without training logs is the calibration's own model
+        own = probe.calibrated and not train
+        if own and calibration is None:
             raise MethodSkipped("needs a calibration, or training and validation logs")
-        if probe.learns and not train and not isinstance(probe, ProposedMethod):
+        if own:
+            assert calibration is not None
+            if calibration.kind != probe.model_kind:
+                raise MethodSkipped(
+                    f"the calibration holds the {calibration.kind} model, not "
+                    f"{probe.model_kind}; give training and validation logs to fit it"
+                )
+            probe = probe.from_calibration(calibration)
+        probe.check([*train, *val, *test])
+        if probe.learns and not train and not own:
             raise MethodSkipped("needs collision-free training logs")
-        if not val and not (isinstance(probe, ProposedMethod) and not train):
+        if not val and not own:
             raise MethodSkipped("needs collision-free validation logs to set its threshold")
-        if isinstance(probe, ProposedMethod) and not train and calibration is not None and not val:
+        if own and not val:
+            assert calibration is not None
             calibration.require_threshold()
         seeded = _has_seed(probe)
         runs = []
         for seed in range(repeats if seeded else 1):
             method = make_method(name, seed=seed) if seeded else probe
-            runs.append(_run_once(method, train, val, test, calibration, k_sigma))
+            runs.append(_run_once(method, train, val, test, calibration, k_sigma, links or {}))
     except MethodSkipped as exc:
         return MethodResult(name=name, unit=unit, skipped=str(exc) or "cannot run on these logs")
     return _combine(name, unit, k_sigma, runs)
@@ -370,8 +439,10 @@ def evaluate(
     repeats: int = DEFAULT_REPEATS,
     progress: Progress = _no_progress,
     load: Loader | None = None,
+    link_topic: str = DEFAULT_LINK_TOPIC,
 ) -> Evaluation:
-    """Every method in ``methods`` over the same prepared logs.
+    """Every method in ``methods`` over the same prepared logs; isolation is judged where the
+    test logs carry the contact link on ``link_topic``.
 
     ``load(paths, setup, description)`` prepares logs (default: one after another here; the
     CLI passes one that maps ``prepare_log`` over local processes or a cluster)."""
@@ -385,6 +456,8 @@ def evaluate(
         th = calibration.threshold if calibration is not None else None
         k_sigma = th.k_sigma if th is not None else DEFAULT_K_SIGMA
     _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
+    if any(uses_friction(name) for name in methods):
+        setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
     if load is None:
 
         def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:
@@ -392,13 +465,14 @@ def evaluate(
 
     test = _by_source(load(test_paths, setup, "reading test logs"))
     require_labels(test, "test")
+    links = {lg.source: read_links(lg.source, link_topic, lg.states.log_time_ns) for lg in test}
     train = _by_source(load(train_paths, setup, "reading train logs"))
     val = _by_source(load(val_paths, setup, "reading val logs"))
     # every method must see the same columns: the order comes from the robot model or the
     # calibration, so logs of one robot agree whatever their message order
     same_joints([*test, *train, *val])
     results = [
-        evaluate_method(name, train, val, test, calibration, k_sigma, repeats)
+        evaluate_method(name, train, val, test, calibration, k_sigma, repeats, links)
         for name in progress(list(methods), "evaluating")
     ]
     if all(r.skipped is not None for r in results):

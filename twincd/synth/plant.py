@@ -8,11 +8,13 @@ once per run set from the seed (``make_plant``):
   inertias scaled with the mass; an unmodelled 0.25 kg payload (a solid cylinder, r = 3 cm) whose
   centre is 6 cm beyond the flange, rigidly on link 7;
 - joint friction fc·tanh(q̇/0.02) + fv·q̇ per joint (nominal fc, fv each × U(0.8, 1.2));
-- the reported effort is a current-based estimate: gain ∈ U(0.72, 0.88) per joint, offset
-  N(0, 0.2) N·m, white noise of σ = (0.35, 0.35, 0.25, 0.25, 0.12, 0.10, 0.03) N·m;
-  velocity noise σ = 0.002 rad/s; the driver reports float32 values (as the xArm SDK does).
+- the reported effort is a current-based estimate that reads high, as the paper's fitted
+  a ≈ 1.16–1.39 show for the real xArm 7 (its twin under-estimates the effort): the estimate
+  divides by a per-joint current-to-torque gain ∈ U(0.72, 0.88), i.e. reports 1.14–1.39 × the
+  torque; offset N(0, 0.2) N·m, white noise of σ = (0.35, 0.35, 0.25, 0.25, 0.12, 0.10, 0.03)
+  N·m; velocity noise σ = 0.002 rad/s; the driver reports float32 values (as the xArm SDK does).
 
-    measured effort = gain ⊙ (RNEA_true(q, q̇, q̈) + friction − τ_ext) + offset + noise
+    measured effort = (RNEA_true(q, q̇, q̈) + friction − τ_ext) ⊘ gain + offset + noise
 
 Motion (paper Table I, Fig. 3): teaching points drawn around a home pose, each keeping the
 flange within 180 mm of its home position; a quintic interpolating spline in joint space through
@@ -40,6 +42,10 @@ Topics of a written log (bare MCAP, ros2 profile, or rosbag2 sqlite3):
   a recorder latency of 0.2–1.0 ms.
 - ``/collision_flag`` std_msgs/msg/Bool: ``false`` at the start, then one message at every
   switch change (held until the next; log time = switch time + latency).
+- ``/collision_link`` std_msgs/msg/String (DESIGN §1, ground truth for isolation; test logs
+  only): beside every ``/collision_flag`` message, with the same log time, the link the press
+  touches (``link3``…``link6``) when the switch goes on, ``""`` when it goes off, at the start,
+  and for a press that touches nothing.
 - ``/twincd/contact`` geometry_msgs/msg/WrenchStamped (ground truth, for isolation work; test
   logs only), while a hand touches: one per joint-state sample (same stamp and log time), plus
   one message with an empty ``frame_id`` and zero wrench at the first sample and at the first
@@ -83,10 +89,12 @@ ROBOT = "xarm7"
 SPLITS = ("train", "val", "test")
 JOINT_TOPIC = "/joint_states"
 LABEL_TOPIC = "/collision_flag"
+LINK_TOPIC = "/collision_link"
 CONTACT_TOPIC = "/twincd/contact"
 CONTACT_POINT_TOPIC = "/twincd/contact_point"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 BOOL = "std_msgs/msg/Bool"
+STRING = "std_msgs/msg/String"
 WRENCH = "geometry_msgs/msg/WrenchStamped"
 POINT = "geometry_msgs/msg/PointStamped"
 # 2024-05-01T01:00:00Z: the first sample of path 0 of seed 0
@@ -97,6 +105,7 @@ _WrenchStamped = TYPESTORE.types[WRENCH]
 _Vector3 = TYPESTORE.types["geometry_msgs/msg/Vector3"]
 _Point = TYPESTORE.types["geometry_msgs/msg/Point"]
 _PointStamped = TYPESTORE.types[POINT]
+_String = TYPESTORE.types[STRING]
 
 
 # ---------------------------------------------------------------- configuration
@@ -520,6 +529,7 @@ class SynthRun:
     contact_point: FloatArray  # (N, 3) in the link frame
     label: BoolArray  # the switch held onto the joint-state log times
     label_events: tuple[tuple[int, bool], ...]  # (log_time_ns, value)
+    link_events: tuple[tuple[int, str], ...]  # (log_time_ns, link touched or ""), beside them
     presses: tuple[Press, ...]
     trajectory: Trajectory
 
@@ -582,7 +592,7 @@ def simulate_path(
     rigid = inverse_dynamics(plant.true, traj.position, traj.velocity, traj.acceleration)
     friction = plant.friction(traj.velocity)
     noise = rng.normal(size=(n, dof)) * plant.noise
-    effort = plant.gain * (rigid + friction - tau_ext) + plant.offset + noise
+    effort = (rigid + friction - tau_ext) / plant.gain + plant.offset + noise
     velocity = traj.velocity + rng.normal(0.0, plant.velocity_noise, (n, dof))
     position = traj.position.copy()
     if config.plant.float32:
@@ -597,10 +607,13 @@ def simulate_path(
     log_time = stamp + np.round(rng.uniform(lat_lo, lat_hi, n) * 1e6).astype(np.int64)
 
     events: list[tuple[int, bool]] = [(int(stamp[0]), False)]
+    link_events: list[tuple[int, str]] = [(int(stamp[0]), "")] if presses else []
     for press in presses:
         for when, value in ((press.label_on_s, True), (press.label_off_s, False)):
             latency = round(rng.uniform(lat_lo, lat_hi) * 1e6)
             events.append((start_ns + round(when * 1e9) + latency, value))
+            touched = press.link if value and press.touched else ""
+            link_events.append((events[-1][0], touched))
     ev_t = np.array([e[0] for e in events], dtype=np.int64)
     ev_v = np.array([e[1] for e in events], dtype=bool)
     held = np.searchsorted(ev_t, log_time, side="right") - 1
@@ -626,6 +639,7 @@ def simulate_path(
         contact_point=point,
         label=label,
         label_events=tuple(events),
+        link_events=tuple(link_events),
         presses=tuple(presses),
         trajectory=traj,
     )
@@ -660,6 +674,8 @@ def run_messages(run: SynthRun) -> list[tuple[str, int, bytes]]:
         out.append((JOINT_TOPIC, int(run.log_time_ns[i]), data))
     for when, value in run.label_events:
         out.append((LABEL_TOPIC, when, bool_cdr(value)))
+    for when, link in run.link_events:
+        out.append((LINK_TOPIC, when, serialize(_String(data=link), STRING)))
     if run.presses:
         previous = None
         for i, link in enumerate(run.contact_link):
@@ -677,6 +693,7 @@ def run_messages(run: SynthRun) -> list[tuple[str, int, bytes]]:
 _TOPICS = (
     (JOINT_TOPIC, JOINT_STATE),
     (LABEL_TOPIC, BOOL),
+    (LINK_TOPIC, STRING),
     (CONTACT_TOPIC, WRENCH),
     (CONTACT_POINT_TOPIC, POINT),
 )

@@ -293,3 +293,30 @@ def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = N
         joints=specs,
         locked=locked,
     )
+
+
+def child_links(robot: RobotModel, names: Sequence[str]) -> tuple[tuple[str, ...], tuple[int, ...]]:
+    """For each joint in ``names``: the body (link) it moves, and its depth in the kinematic
+    tree (the number of joints from the base to it, itself included).
+
+    A push on a link makes torque only on the joints between the base and that link, so the
+    deepest joint whose residual is significant bounds the link that was touched.
+    """
+    import pinocchio as pin
+
+    model = robot.model
+    links: list[str] = []
+    depths: list[int] = []
+    for name in names:
+        jid = int(model.getJointId(name))
+        body = next(
+            (f.name for f in model.frames if f.parentJoint == jid and f.type == pin.FrameType.BODY),
+            name,
+        )
+        depth = 0
+        while jid > 0:
+            depth += 1
+            jid = int(model.parents[jid])
+        links.append(body)
+        depths.append(depth)
+    return tuple(links), tuple(depths)

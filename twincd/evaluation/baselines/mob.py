@@ -250,6 +250,11 @@ class MobFeatureMethod(ScoringMethod):
             return super().unit_labels(log)
         return window_labels(log.labels, len(log), self._starts(log), self.window)
 
+    def unit_stamps(self, log: PreparedLog) -> NDArray[np.int64]:
+        if self.window == 1:
+            return super().unit_stamps(log)
+        return log.states.stamp_ns[self._starts(log) + self.window - 1]
+
     def fit(self, train: Sequence[PreparedLog]) -> MobFeatureMethod:
         if not train:
             raise DataError(

@@ -1,0 +1,62 @@
+"""Collision isolation (twincd/detection/isolation.py): the deepest significant joint names the
+link, judged against each joint's training scale; events carry the link they name."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from twincd.detection.events import find_events
+from twincd.detection.isolation import LinkIsolator, isolator_for
+from twincd.twin.robot import child_links, load_robot
+
+LINKS = tuple(f"link{i}" for i in range(1, 8))
+DEPTHS = tuple(range(1, 8))
+SCALE = np.array([1.0, 1.0, 0.5, 0.5, 0.1, 0.1, 0.01])
+
+
+def test_the_deepest_significant_joint_names_the_link():
+    iso = LinkIsolator(LINKS, DEPTHS, SCALE, kappa=3.0)
+    # a push on link 4: large on joints 1-4, noise-sized beyond
+    assert iso.link(np.array([20.0, 9.0, 3.0, 1.6, 0.2, 0.1, 0.02])) == "link4"
+    # the same magnitude is significant on a quiet joint and not on a noisy one
+    assert iso.link(np.array([20.0, 9.0, 3.0, 1.6, 0.4, 0.1, 0.02])) == "link5"
+    assert iso.link(np.array([2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])) == "link1"  # none: largest z
+    # depth decides, not the joint order of the calibration
+    shuffled = LinkIsolator(LINKS[::-1], DEPTHS[::-1], SCALE[::-1], kappa=3.0)
+    assert shuffled.link(np.array([0.02, 0.1, 0.2, 1.6, 3.0, 9.0, 20.0])) == "link4"
+    assert isolator_for(None, DEPTHS, SCALE) is None
+    assert isolator_for(LINKS, DEPTHS, None) is None
+
+
+def test_child_links_follow_the_kinematic_tree():
+    robot = load_robot("xarm7")
+    links, depths = child_links(robot, robot.joint_names)
+    assert links == LINKS and depths == DEPTHS
+    links, depths = child_links(robot, ("joint3", "joint1"))
+    assert links == ("link3", "link1") and depths == (3, 1)
+
+
+@pytest.mark.parametrize("split", [None, 37])
+def test_events_name_the_link_across_blocks(split: int | None) -> None:
+    n = 100
+    stamps = np.arange(n, dtype=np.int64) * 10_000_000
+    residual = np.zeros((n, 7))
+    residual[30:60, :3] = [4.0, 2.0, 1.0]  # a push on link 3
+    residual[45, 2] = 2.0  # its largest magnitude falls in the second block
+    residual[80:90, :6] = 1.0  # link 6: joint 6 is 10 σ off
+    scores = (residual**2).sum(axis=1)
+    flags = scores > 0
+    iso = LinkIsolator(LINKS, DEPTHS, SCALE)
+    names = tuple(f"joint{i}" for i in range(1, 8))
+    if split is None:
+        events = find_events(flags, scores, residual, stamps, names, iso)
+    else:
+        from twincd.detection.events import EventTracker
+
+        tracker = EventTracker(names, iso)
+        events = tracker.push(flags[:split], scores[:split], residual[:split], stamps[:split])
+        events += tracker.push(flags[split:], scores[split:], residual[split:], stamps[split:])
+        events += tracker.finish()
+    assert [e.link for e in events] == ["link3", "link6"]
+    assert events[0].to_dict()["link"] == "link3"

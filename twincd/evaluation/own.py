@@ -1,0 +1,113 @@
+"""Our own calibration models as ``evaluate`` methods (DESIGN §7): each calibration model of
+``twincd.calibration.models`` other than the seed's is a method of the same name, fitted on the
+training logs from the same mergeable statistics as ``twincd fit --model NAME``."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twincd.calibration import Calibration
+from twincd.calibration.affine import AffineStats, clean_mask
+from twincd.calibration.models import (
+    EPSILON_GRID,
+    FrictionStats,
+    ResidualModel,
+    fit_model,
+    model_inputs,
+    uses_friction,
+)
+from twincd.detection.events import runs
+from twincd.detection.isolation import DEFAULT_KAPPA, LinkIsolator
+from twincd.errors import DataError, NotFittedError
+from twincd.evaluation.methods import MethodSkipped, ScoringMethod
+from twincd.pipeline import PreparedLog
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+class ModelMethod(ScoringMethod):
+    """A calibration model scored as detection would score it; names links of flagged runs."""
+
+    name = "model"
+    model_kind = "affine"
+    unit = "sample"
+    learns = True
+    calibrated = True
+
+    def __init__(self, kappa: float = DEFAULT_KAPPA) -> None:
+        self.kappa = kappa
+
+    def check(self, logs: Sequence[PreparedLog]) -> None:
+        if uses_friction(self.model_kind) and any(lg.coulomb_eps != EPSILON_GRID for lg in logs):
+            raise MethodSkipped("needs logs prepared with every ε candidate's Coulomb feature")
+
+    def fit(self, train: Sequence[PreparedLog]) -> ModelMethod:
+        if not train:
+            raise DataError("no training logs", self.name, "give collision-free training logs")
+        affine = AffineStats.zeros(train[0].sim_effort_f.shape[1])
+        friction = FrictionStats.zeros(train[0].sim_effort_f.shape[1])
+        for lg in train:
+            mask = clean_mask(lg)
+            affine = affine + AffineStats.from_arrays(lg.sim_effort_f, lg.effort_f, mask)
+            if lg.velocity_f is not None and lg.coulomb_f is not None:
+                friction = friction + FrictionStats.from_arrays(
+                    lg.sim_effort_f, lg.velocity_f, lg.coulomb_f, lg.effort_f, mask
+                )
+        fitted = fit_model(self.model_kind, affine, friction)
+        self.model_: ResidualModel = fitted.model
+        self.rmse_: FloatArray = fitted.rmse
+        return self
+
+    def from_calibration(self, calibration: Calibration) -> ModelMethod:
+        method = type(self)(self.kappa)
+        method.model_ = calibration.model
+        rmse = calibration.rmse if calibration.rmse is not None else calibration.scale
+        method.rmse_ = rmse if rmse is not None else np.ones(len(calibration.joint_names))
+        return method
+
+    def _model(self) -> ResidualModel:
+        if not hasattr(self, "model_"):
+            raise NotFittedError(f"method {self.name!r} is not fitted", self.name, "call fit()")
+        return self.model_
+
+    def residual(self, log: PreparedLog) -> FloatArray:
+        return self._model().residual(model_inputs(log))
+
+    def score(self, log: PreparedLog) -> FloatArray:
+        return self._model().score(self.residual(log))
+
+    def flag_links(self, log: PreparedLog, flags: BoolArray) -> list[str | None] | None:
+        """The link named for each flagged run, on each of its samples (None elsewhere)."""
+        if log.robot is None:
+            return None
+        from twincd.twin.robot import child_links
+
+        links, depths = child_links(log.robot, log.joint_names)
+        scale = self._model().scale if self._model().scale is not None else self.rmse_
+        assert scale is not None
+        isolator = LinkIsolator(links, depths, scale, self.kappa)
+        r = self.residual(log)
+        out: list[str | None] = [None] * len(flags)
+        for first, last in runs(flags):
+            name = isolator.link(np.abs(r[first : last + 1]).max(axis=0))
+            out[first : last + 1] = [name] * (last - first + 1)
+        return out
+
+
+class AffineWhitened(ModelMethod):
+    name = "affine-whitened"
+    model_kind = "affine-whitened"
+
+
+class Friction(ModelMethod):
+    name = "friction"
+    model_kind = "friction"
+
+
+class FrictionWhitened(ModelMethod):
+    name = "friction-whitened"
+    model_kind = "friction-whitened"

@@ -1,0 +1,58 @@
+"""Contact-link ground truth (DESIGN §1 ``/collision_link``): std_msgs/String, held like the
+label onto the joint-state samples. A small topic (a few messages per press), so it is read with
+rosbags' reader on its own rather than through the block reader of the joint states."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twincd.errors import LogReadError
+from twincd.io.batches import first_line, open_reader
+
+IntArray = NDArray[np.int64]
+
+STRING = "std_msgs/msg/String"
+
+
+def hold_links(message_ns: IntArray, links: list[str], log_time_ns: IntArray) -> tuple[str, ...]:
+    """Each sample's link: the last message at or before its log time ("" before the first)."""
+    order = np.argsort(np.asarray(message_ns, dtype=np.int64), kind="stable")
+    times = np.asarray(message_ns, dtype=np.int64)[order]
+    values = [links[i] for i in order]
+    held = np.searchsorted(times, np.asarray(log_time_ns, dtype=np.int64), side="right") - 1
+    return tuple(values[i] if i >= 0 else "" for i in held.tolist())
+
+
+def read_links(path: str | Path, topic: str, log_time_ns: IntArray) -> tuple[str, ...] | None:
+    """The touched link per sample, held onto ``log_time_ns``; None: the log lacks ``topic``."""
+    reader = open_reader(Path(path))
+    try:
+        conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:
+            return None
+        if any(c.msgtype != STRING for c in conns):
+            raise LogReadError(
+                f"link topic {topic} is {conns[0].msgtype}, not {STRING}",
+                str(path),
+                "pick another link topic",
+                option="link_topic",
+            )
+        stamps: list[int] = []
+        links: list[str] = []
+        try:
+            for conn, when, raw in reader.messages(conns):
+                stamps.append(int(when))
+                links.append(str(reader.deserialize(raw, conn.msgtype).data))
+        except Exception as exc:  # the I/O edge: a damaged topic becomes one line
+            raise LogReadError(
+                f"cannot read link topic {topic}: {first_line(exc)}",
+                str(path),
+                "check the log, or pick another link topic",
+                option="link_topic",
+            ) from exc
+    finally:
+        reader.close()
+    return hold_links(np.asarray(stamps, dtype=np.int64), links, log_time_ns)
