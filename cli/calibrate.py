@@ -29,9 +29,11 @@ from .common import (
     LabelTopic,
     Logs,
     Quiet,
+    Report,
     Robot,
     SimTopic,
     Topic,
+    check_reports,
     command,
     log_options,
     run_per_log,
@@ -161,6 +163,7 @@ def fit(
     output: Annotated[
         Path, typer.Option("--output", "-o", help="Calibration JSON to write.")
     ] = Path("calibration.json"),
+    report: Report = None,
     robot: Robot = None,
     topic: Topic = None,
     label_topic: LabelTopic = None,
@@ -187,14 +190,31 @@ def fit(
     from twincd.io.mcap_write import check_writable
 
     check_writable(output)
+    check_reports(report, None)
     paths = expand_logs(logs)
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
     )
-    parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet)
+    figure = report is not None and report.suffix.lower() == ".html"
+    if figure:
+        from twincd.reports.traces import fit_log_with_pairs
+
+        both = run_per_log(Bound(fit_log_with_pairs, setup), paths, paths, jobs, "fitting", quiet)
+        parts = [part for part, _ in both]
+    else:
+        parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet)
     cal = merge_fits(parts, setup)
     cal.save(output)
     stdout.print(fit_table(cal))
+    if report is not None:
+        from twincd.reports import FitPlotData, ThinnedPairs, fit_report
+
+        data = None
+        if figure:
+            pairs = ThinnedPairs.merge([p for _, p in both])
+            data = FitPlotData(cal.joint_names, pairs, cal.a, cal.b, cal.r2)
+        fit_report(report, replace(cal, source=str(output)), data)
+        log.info("wrote %s", report)
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
 
 

@@ -56,6 +56,24 @@ Jobs = Annotated[
     ),
 ]
 Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")]
+Report = Annotated[
+    Path | None,
+    typer.Option(
+        "--report",
+        help="Also write a report here: .md, or .html (one self-contained page with figures; "
+        "figures need the plot extra).",
+    ),
+]
+Junit = Annotated[
+    Path | None, typer.Option("--junit", help="Also write JUnit XML here (for CI systems).")
+]
+NoSummary = Annotated[
+    bool,
+    typer.Option(
+        "--no-summary",
+        help="Do not append the Markdown summary to $GITHUB_STEP_SUMMARY (appended when set).",
+    ),
+]
 
 stderr = Console(stderr=True, highlight=False)
 stdout = Console(highlight=False)
@@ -114,6 +132,9 @@ FLAGS: dict[str, str] = {
     "max_duration": "--max-duration",
     "in_place": "--in-place",
     "output": "--output",
+    "report": "--report",
+    "junit": "--junit",
+    "no_summary": "--no-summary",
 }
 
 
@@ -201,6 +222,22 @@ def run_per_log(
 
     with counter(len(items), description, quiet) as advance:
         return Executor.for_logs(jobs, paths).map(func, items, advance)
+
+
+def check_reports(report: Path | None, junit: Path | None) -> None:
+    """Fail before any work when a report or JUnit file cannot be written."""
+    from twincd.io.atomic import check_writable
+    from twincd.reports import check_report_kind
+
+    if report is not None:
+        check_report_kind(report)
+        check_writable(report)
+        if report.suffix.lower() == ".html":
+            from twincd.reports.figures import pyplot
+
+            pyplot()  # a missing plot extra is an error now, not after the work
+    if junit is not None:
+        check_writable(junit)
 
 
 @contextlib.contextmanager

@@ -13,6 +13,7 @@ from rich.table import Table
 from twincd.errors import UsageError
 
 if TYPE_CHECKING:
+    from twincd.calibration import Calibration
     from twincd.detection import DetectionSummary
 
 from .calibrate import CalibrationIn, Causal, resolve_setup
@@ -20,13 +21,17 @@ from .common import (
     Debug,
     Jobs,
     JointMap,
+    Junit,
     LabelTopic,
     Logs,
+    NoSummary,
     Quiet,
+    Report,
     Robot,
     SimTopic,
     Topic,
     all_or_nothing,
+    check_reports,
     command,
     run_per_log,
     stdout,
@@ -75,6 +80,33 @@ def events_table(result: DetectionSummary) -> Table:
     return table
 
 
+def _write_reports(
+    results: list[DetectionSummary],
+    cal: Calibration,
+    report: Path | None,
+    junit: Path | None,
+    no_summary: bool,
+) -> None:
+    from twincd.reports import (
+        append_step_summary,
+        calibration_settings,
+        detection_junit,
+        detection_markdown,
+        detection_report,
+    )
+    from twincd.reports.documents import write_text
+
+    settings = calibration_settings(cal)
+    if report is not None:
+        detection_report(report, results, settings)
+        log.info("wrote %s", report)
+    if junit is not None:
+        write_text(junit, detection_junit(results))
+        log.info("wrote %s", junit)
+    if not no_summary:
+        append_step_summary(detection_markdown(results, settings))
+
+
 @command
 def detect(
     logs: Logs,
@@ -89,6 +121,9 @@ def detect(
         ),
     ] = None,
     json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
+    report: Report = None,
+    junit: Junit = None,
+    no_summary: NoSummary = False,
     robot: Robot = None,
     topic: Topic = None,
     label_topic: LabelTopic = None,
@@ -104,6 +139,8 @@ def detect(
     Prints the collision events (contiguous flagged runs) of each log.
 
     Exit code 1 when any collision is found, 0 when none, 2 on errors.
+
+    With GITHUB_STEP_SUMMARY set, a Markdown summary is appended to it (off: --no-summary).
 
     Example: twincd detect run.mcap -c calibration.json -o run.detect.mcap
     """
@@ -122,12 +159,16 @@ def detect(
     for target in targets:
         if target is not None:
             check_writable(target)
+    check_reports(report, junit)
+    trace = report is not None and report.suffix.lower() == ".html"
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         written.extend(target for target in targets if target is not None)
         results = run_per_log(
-            Bound(detect_and_write, cal, setup), items, paths, jobs, "detecting", quiet
+            Bound(detect_and_write, cal, setup, trace), items, paths, jobs, "detecting", quiet
         )
+        written.extend(p for p in (report, junit) if p is not None)
+        _write_reports(results, cal, report, junit, no_summary)
     summaries = [r.to_dict() for r in results]
     for result in results:
         for line in result.warnings:

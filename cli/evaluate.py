@@ -6,7 +6,7 @@ import json
 import logging
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich import box
@@ -18,18 +18,55 @@ from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
 from .common import (
     Debug,
     JointMap,
+    Junit,
     LabelTopic,
     Logs,
+    NoSummary,
     Quiet,
+    Report,
     Robot,
     SimTopic,
     Topic,
+    check_reports,
     command,
     progress,
     stdout,
 )
 
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration
+    from twincd.evaluation.runner import Evaluation
+
 log = logging.getLogger("twincd")
+
+
+def _write_reports(
+    result: Evaluation,
+    missed: list[str],
+    cal: Calibration | None,
+    report: Path | None,
+    junit: Path | None,
+    no_summary: bool,
+    gates: tuple[float | None, float | None],
+) -> None:
+    from twincd.reports import (
+        append_step_summary,
+        calibration_settings,
+        evaluation_junit,
+        evaluation_report,
+        evaluation_report_markdown,
+    )
+    from twincd.reports.documents import write_text
+
+    settings = calibration_settings(cal) if cal is not None else []
+    if report is not None:
+        evaluation_report(report, result, missed, settings)
+        log.info("wrote %s", report)
+    if junit is not None:
+        write_text(junit, evaluation_junit(result, *gates))
+        log.info("wrote %s", junit)
+    if not no_summary:
+        append_step_summary(evaluation_report_markdown(result, missed))
 
 
 @command
@@ -73,9 +110,9 @@ def evaluate(
         ),
     ] = DEFAULT_REPEATS,
     json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
-    report: Annotated[
-        Path | None, typer.Option("--report", help="Also write a Markdown report here.")
-    ] = None,
+    report: Report = None,
+    junit: Junit = None,
+    no_summary: NoSummary = False,
     min_f1: Annotated[
         float | None, typer.Option("--min-f1", help="Exit 1 if a method's best F1 is lower.")
     ] = None,
@@ -101,19 +138,19 @@ def evaluate(
 
     With --train and --val, every method (proposed too) fits on --train; μ, σ come from --val.
 
-    Example: twincd evaluate logs/test -c calibration.json --report report.md
+    With GITHUB_STEP_SUMMARY set, a Markdown summary is appended to it (off: --no-summary).
+
+    Example: twincd evaluate logs/test -c calibration.json --report report.html
     """
     from twincd.calibration import Calibration
-    from twincd.evaluation.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
+    from twincd.evaluation.reports import SHORT_COLUMNS, evaluation_rows
     from twincd.evaluation.runner import evaluate as run_evaluation
     from twincd.evaluation.runner import parse_methods
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import atomic_output, check_writable
 
     cal = Calibration.load(calibration) if calibration is not None else None
     names = parse_methods(methods)
-    if report is not None:
-        check_writable(report)
+    check_reports(report, junit)
     test_paths = expand_logs(logs)
     train_paths = expand_logs(train) if train else []
     val_paths = expand_logs(val) if val else []
@@ -142,9 +179,7 @@ def evaluate(
             setup.options.label_topic,
         )
     missed = result.missed_gates(min_f1, min_auc)
-    if report is not None:
-        with atomic_output(report) as stream:
-            stream.write(evaluation_markdown(result, missed).encode("utf-8"))
+    _write_reports(result, missed, cal, report, junit, no_summary, (min_f1, min_auc))
     if json_:
         stdout.out(json.dumps(result.to_dict()), highlight=False)
     else:

@@ -5,14 +5,18 @@ from __future__ import annotations
 import logging
 import statistics
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from twincd.calibration.affine import AffineCalibration, AffineStats, clean_rows
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.errors import DataError
 from twincd.pipeline import PreparedStream, Setup
+
+if TYPE_CHECKING:
+    from twincd.detection.detect import FrameSink
 
 log = logging.getLogger("twincd")
 
@@ -30,8 +34,9 @@ class LogFit:
     seconds: float  # time spent in the regression sums, as the paper times training
 
 
-def fit_log(path: str | Path, setup: Setup) -> LogFit:
-    """Stream one log through read → twin → filter into affine statistics."""
+def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> LogFit:
+    """Stream one log through read → twin → filter into affine statistics; every frame also
+    goes to ``sinks`` (e.g. what a report's figure draws)."""
     stats: AffineStats | None = None
     seconds = 0.0
     with setup.open(path) as stream:
@@ -42,6 +47,8 @@ def fit_log(path: str | Path, setup: Setup) -> LogFit:
             )
             stats = part if stats is None else stats + part
             seconds += time.perf_counter() - start
+            for sink in sinks:
+                sink.write(frame, [])
         assert stats is not None  # the stream raises on logs without samples
         return LogFit(
             source=stream.source,

@@ -75,7 +75,7 @@ def evaluation_rows(result: Evaluation) -> list[list[str]]:
     return rows
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
     return "\n".join(lines)
@@ -91,7 +91,7 @@ def evaluation_markdown(result: Evaluation, missed: Sequence[str] = ()) -> str:
         f"{result.positives} labelled as collision. "
         f"Threshold: {threshold_text(k)}; F1 (best) over μ + iσ, i = 0, 0.1, …, 1, 2, 3, 4, 5.",
         "",
-        _table(EVALUATION_COLUMNS, evaluation_rows(result)),
+        markdown_table(EVALUATION_COLUMNS, evaluation_rows(result)),
         "",
     ]
     if any(m.unit != "sample" for m in result.methods):

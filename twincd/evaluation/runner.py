@@ -23,7 +23,7 @@ from twincd.calibration import Calibration
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_REPEATS
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
-from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
+from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep, roc_points
 from twincd.evaluation.proposed import ProposedMethod
 from twincd.pipeline import PreparedLog, Setup
 from twincd.threshold import ScoreStats
@@ -94,6 +94,8 @@ class MethodResult:
     repeats: int = 1
     std: dict[str, float | None] = field(default_factory=dict)
     note: str | None = None  # what the method had to do differently (e.g. subsampling)
+    # (fpr, tpr) points of the first run's ROC curve, for figures (not in the JSON)
+    roc: list[tuple[float, float]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         if self.skipped is not None:
@@ -195,6 +197,7 @@ class _Run:
     units: int
     positives: int
     note: str | None
+    roc: list[tuple[float, float]] = field(default_factory=list)
 
 
 def _run_once(
@@ -250,7 +253,17 @@ def _run_once(
         "test_s": test_s,
     }
     note = getattr(method, "note", None)
-    return _Run(sweep, figures, mu, sigma, threshold, len(y_true), int(y_true.sum()), note)
+    return _Run(
+        sweep,
+        figures,
+        mu,
+        sigma,
+        threshold,
+        len(y_true),
+        int(y_true.sum()),
+        note,
+        roc_points(y_true, y_score),
+    )
 
 
 def _mean_std(values: list[float | None]) -> tuple[float | None, float | None]:
@@ -270,6 +283,7 @@ def _combine(name: str, unit: str, k_sigma: float, runs: list[_Run]) -> MethodRe
         positives=first.positives,
         repeats=len(runs),
         note=first.note,
+        roc=first.roc,
     )
     # best_k: where the mean F1 curve peaks; f1_best: mean of each run's own best
     ks = [k for k, _ in first.sweep]
