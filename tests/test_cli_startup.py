@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-HEAVY = ("scipy", "sklearn", "torch", "pinocchio", "rosbags", "mcap")
+HEAVY = ("scipy", "sklearn", "torch", "pinocchio", "rosbags", "mcap", "matplotlib")
 
 PROBE = """
 import json, sys

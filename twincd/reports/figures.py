@@ -8,6 +8,7 @@ a matplotlib ``Figure``; ``svg_text`` and ``save`` turn it into SVG text or a PN
 from __future__ import annotations
 
 import io
+import itertools
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -190,10 +191,17 @@ def fit_figure(data: FitPlotData) -> Any:
     return fig
 
 
+# no <metadata> block: its RDF names external namespaces, and a date makes output differ
+SVG_METADATA = {"Date": None, "Creator": None, "Format": None, "Type": None}
+_inline_figures = itertools.count()
+
+
 def svg_text(fig: Any) -> str:
     """The figure as an inline ``<svg>`` element (no XML prolog, no DOCTYPE)."""
     buffer = io.StringIO()
-    fig.savefig(buffer, format="svg", metadata={"Date": None})
+    # several SVGs share one HTML page: a salt per figure keeps their clip-path ids apart
+    with pyplot().rc_context({"svg.hashsalt": f"twincd-{next(_inline_figures)}"}):
+        fig.savefig(buffer, format="svg", metadata=SVG_METADATA)
     pyplot().close(fig)
     text = buffer.getvalue()
     return text[text.index("<svg") :]
@@ -204,7 +212,7 @@ def save(fig: Any, path: Path, formats: Sequence[str] = ("png", "svg")) -> list[
     written = []
     for fmt in formats:
         target = Path(path).with_suffix(f".{fmt}")
-        fig.savefig(target, format=fmt, metadata={"Date": None} if fmt == "svg" else None)
+        fig.savefig(target, format=fmt, metadata=SVG_METADATA if fmt == "svg" else None)
         written.append(target)
     pyplot().close(fig)
     return written

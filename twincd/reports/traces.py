@@ -67,7 +67,7 @@ class DetectionTrace:
 
     def seconds(self) -> FloatArray:
         """Each column's start, in seconds from the first sample."""
-        seconds: FloatArray = (self.envelope.t - (self.first_ns or 0)) * 1e-9
+        seconds = (self.envelope.t - (self.first_ns or 0)).astype(np.float64) * 1e-9
         return seconds
 
     def line(self, channel: int) -> tuple[FloatArray, FloatArray]:
