@@ -275,3 +275,14 @@ def test_svg_text_is_an_inline_element():
     text = svg_text(fig)
     assert text.startswith("<svg") and "<?xml" not in text and "DOCTYPE" not in text
     assert io.StringIO(text).read().rstrip().endswith("</svg>")
+
+
+def test_report_figures_come_back_from_worker_processes(cal, twin_dataset, tmp_path):
+    html = tmp_path / "pool.html"
+    logs = sorted((twin_dataset / "test").iterdir())
+    result = run("detect", *logs, "-c", cal, "-j", "2", "--report", html, "--no-summary")
+    assert result.exit_code == 1, result.output
+    page = html.read_text()
+    assert page.count("<svg") == len(logs)
+    for log in logs:
+        assert str(log) in page
