@@ -207,13 +207,10 @@ def fit(
     cal.save(output)
     stdout.print(fit_table(cal))
     if report is not None:
-        from twincd.reports import FitPlotData, ThinnedPairs, fit_report
+        from twincd.reports import ThinnedPairs, fit_report
 
-        data = None
-        if figure:
-            pairs = ThinnedPairs.merge([p for _, p in both])
-            data = FitPlotData(cal.joint_names, pairs, cal.a, cal.b, cal.r2)
-        fit_report(report, replace(cal, source=str(output)), data)
+        pairs = ThinnedPairs.merge([p for _, p in both]) if figure else None
+        fit_report(report, replace(cal, source=str(output)), pairs)
         log.info("wrote %s", report)
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
 

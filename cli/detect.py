@@ -61,22 +61,16 @@ def _targets(paths: list[Path], output: Path | None) -> list[Path | None]:
 
 
 def events_table(result: DetectionSummary) -> Table:
-    t0 = result.first_stamp_ns
+    from twincd.reports.tables import event_columns, event_rows
+
     table = Table(
         title=f"{result.source}: {len(result.events)} collision event(s), "
         f"{result.collision_samples}/{result.samples} samples flagged"
     )
-    for col in ("#", "start (s)", "end (s)", "duration (s)", "peak score", "joint"):
-        table.add_column(col, justify="left" if col == "joint" else "right")
-    for i, e in enumerate(result.events, 1):
-        table.add_row(
-            str(i),
-            f"{(e.start_ns - t0) * 1e-9:.3f}",
-            f"{(e.end_ns - t0) * 1e-9:.3f}",
-            f"{e.duration_s:.3f}",
-            f"{e.peak_score:.4g}",
-            e.joint,
-        )
+    for col in event_columns(result):
+        table.add_column(col, justify="left" if col in ("joint", "link") else "right")
+    for row in event_rows(result):
+        table.add_row(*row)
     return table
 
 

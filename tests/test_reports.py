@@ -132,12 +132,9 @@ def test_step_summary_is_appended(tmp_path):
 # ---------------------------------------------------------------- through the CLI
 
 
-@pytest.fixture(scope="module")
-def cal(twin_dataset, tmp_path_factory):
-    path = tmp_path_factory.mktemp("reports") / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
-    return path
+@pytest.fixture
+def cal(twin_calibration):
+    return twin_calibration
 
 
 def test_detect_writes_report_junit_and_summary(cal, twin_dataset, tmp_path, monkeypatch):

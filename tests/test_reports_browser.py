@@ -98,10 +98,8 @@ def test_detect_report_in_a_browser(browser, tmp_path):
     not_blank(browser.screenshot(tmp_path / "r.png"))
 
 
-def test_evaluate_report_in_a_browser(browser, twin_dataset, tmp_path):
-    cal = tmp_path / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", cal, "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", cal, "-q").exit_code == 0
+def test_evaluate_report_in_a_browser(browser, twin_dataset, twin_calibration, tmp_path):
+    cal = twin_calibration
     report = tmp_path / "e.html"
     result = run("evaluate", twin_dataset / "test", "-c", cal, "--report", report, "-q")
     assert result.exit_code == 0, result.output

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from twincd.evaluation.runner import Evaluation, MethodResult
+if TYPE_CHECKING:  # types only: rendering needs neither scikit-learn nor the runner
+    from twincd.evaluation.runner import Evaluation, MethodResult
 
 
 def fmt(value: float | None, digits: int = 3) -> str:

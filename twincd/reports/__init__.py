@@ -19,14 +19,15 @@ from twincd.reports.documents import (
 )
 from twincd.reports.envelope import Envelope
 from twincd.reports.junit import Case, detection_junit, evaluation_junit, junit_xml
-from twincd.reports.traces import DetectionTrace, FitPlotData, ThinnedPairs
+from twincd.reports.tables import EVENT_COLUMNS, event_columns, event_rows
+from twincd.reports.traces import DetectionTrace, ThinnedPairs
 
 __all__ = [
+    "EVENT_COLUMNS",
     "REPORT_SUFFIXES",
     "Case",
     "DetectionTrace",
     "Envelope",
-    "FitPlotData",
     "ThinnedPairs",
     "append_step_summary",
     "calibration_settings",
@@ -39,6 +40,8 @@ __all__ = [
     "evaluation_junit",
     "evaluation_report",
     "evaluation_report_markdown",
+    "event_columns",
+    "event_rows",
     "fit_html",
     "fit_markdown",
     "fit_report",

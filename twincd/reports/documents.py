@@ -18,16 +18,15 @@ from twincd.evaluation.reports import (
     markdown_table,
 )
 from twincd.reports import html
+from twincd.reports.tables import event_columns, event_rows
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.detection.detect import DetectionSummary
     from twincd.evaluation.runner import Evaluation
-    from twincd.reports.traces import FitPlotData
+    from twincd.reports.traces import ThinnedPairs
 
 REPORT_SUFFIXES = (".md", ".html")
-EVENT_COLUMNS = ("#", "start (s)", "end (s)", "duration (s)", "peak score", "joint", "link")
-JOINT_ONLY = len(EVENT_COLUMNS) - 1  # the columns when no event names a link
 EVENT_METRIC_COLUMNS = (
     ("events_total", "events"),
     ("events_detected", "detected"),
@@ -116,31 +115,6 @@ def _settings_markdown(settings: Sequence[tuple[str, str]]) -> str:
 
 
 # ------------------------------------------------------------------ detect
-
-
-def event_columns(summary: DetectionSummary) -> tuple[str, ...]:
-    """The events table's header: the link column only when some event names a link."""
-    if any(e.link for e in summary.events):
-        return EVENT_COLUMNS
-    return EVENT_COLUMNS[:JOINT_ONLY]
-
-
-def event_rows(summary: DetectionSummary) -> list[list[str]]:
-    t0 = summary.first_stamp_ns
-    width = len(event_columns(summary))
-    rows = [
-        [
-            str(i),
-            f"{(e.start_ns - t0) * 1e-9:.3f}",
-            f"{(e.end_ns - t0) * 1e-9:.3f}",
-            f"{e.duration_s:.3f}",
-            f"{e.peak_score:.4g}",
-            e.joint,
-            e.link or "",
-        ]
-        for i, e in enumerate(summary.events, 1)
-    ]
-    return [row[:width] for row in rows]
 
 
 def _detect_verdict(summaries: Sequence[DetectionSummary]) -> tuple[bool, str]:
@@ -310,22 +284,22 @@ def fit_markdown(cal: Calibration) -> str:
     )
 
 
-def fit_html(cal: Calibration, data: FitPlotData | None) -> str:
+def fit_html(cal: Calibration, pairs: ThinnedPairs | None) -> str:
     summary = [
         f"<p>Affine twin calibration from {len(cal.fit_logs)} log(s), "
         f"{cal.fit_samples} samples.</p>",
         html.table(FIT_COLUMNS, fit_rows(cal)),
     ]
     figures = []
-    if data is not None:
+    if pairs is not None:
         from twincd.reports.figures import fit_figure, svg_text
 
-        figures.append(html.figure(svg_text(fit_figure(data)), "measured against twin effort"))
+        figures.append(html.figure(svg_text(fit_figure(cal, pairs)), "measured against twin"))
     return html.page("twincd fit", summary, figures, _settings_html(calibration_settings(cal)))
 
 
-def fit_report(path: Path, cal: Calibration, data: FitPlotData | None) -> None:
+def fit_report(path: Path, cal: Calibration, pairs: ThinnedPairs | None) -> None:
     if Path(path).suffix.lower() == ".html":
-        write_text(path, fit_html(cal, data))
+        write_text(path, fit_html(cal, pairs))
     else:
         write_text(path, fit_markdown(cal))

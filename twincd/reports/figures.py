@@ -18,9 +18,10 @@ import numpy as np
 from twincd.errors import UsageError
 
 if TYPE_CHECKING:
+    from twincd.calibration import Calibration
     from twincd.detection.detect import DetectionSummary
     from twincd.evaluation.runner import Evaluation
-    from twincd.reports.traces import DetectionTrace, FitPlotData
+    from twincd.reports.traces import DetectionTrace, ThinnedPairs
 
 WIDTH_IN = 10.0
 DPI = 100  # 1000 pixels wide: one envelope column per pixel
@@ -166,22 +167,22 @@ def event_metrics(method: Any) -> dict[str, Any]:
     return {key: doc[key] for key, _ in EVENT_METRICS if doc.get(key) is not None}
 
 
-def fit_figure(data: FitPlotData) -> Any:
+def fit_figure(cal: Calibration, pairs: ThinnedPairs) -> Any:
     """Per joint: measured against twin effort (a thinned sample), the fitted line, R²."""
-    d = len(data.joint_names)
+    d = len(cal.joint_names)
     cols = min(4, d)
     rows = -(-d // cols)
     fig, axes = _figure(rows, cols, 2.6 * rows + 0.4)
-    for j, name in enumerate(data.joint_names):
+    for j, name in enumerate(cal.joint_names):
         ax = axes[j // cols, j % cols]
-        x, y = data.pairs.twin[:, j], data.pairs.measured[:, j]
+        x, y = pairs.twin[:, j], pairs.measured[:, j]
         # a raster inside the SVG: thousands of dots as vector marks would weigh megabytes
         ax.scatter(x, y, s=2, alpha=0.3, color="tab:blue", lw=0, rasterized=True)
         if len(x):
             line = np.array([x.min(), x.max()])
-            ax.plot(line, data.a[j] * line + data.b[j], color="tab:red", lw=1)
-        r2 = "" if data.r2 is None else f"\nR² = {data.r2[j]:.3f}"
-        ax.set_title(f"{name}: a = {data.a[j]:.3f}, b = {data.b[j]:+.3f}{r2}", fontsize=8)
+            ax.plot(line, cal.a[j] * line + cal.b[j], color="tab:red", lw=1)
+        r2 = "" if cal.r2 is None else f"\nR² = {cal.r2[j]:.3f}"
+        ax.set_title(f"{name}: a = {cal.a[j]:.3f}, b = {cal.b[j]:+.3f}{r2}", fontsize=8)
         ax.set_xlabel("twin τ̂̃ (N·m)")
         if j % cols == 0:
             ax.set_ylabel("measured τ̃ (N·m)")

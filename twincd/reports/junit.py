@@ -10,6 +10,8 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING
 
+from twincd.reports.tables import event_columns, event_rows
+
 if TYPE_CHECKING:
     from twincd.detection.detect import DetectionSummary
     from twincd.evaluation.runner import Evaluation
@@ -70,8 +72,6 @@ def junit_xml(suite: str, cases: Sequence[Case]) -> str:
 
 
 def detection_cases(summaries: Sequence[DetectionSummary]) -> list[Case]:
-    from twincd.reports.documents import event_columns, event_rows
-
     cases = []
     for s in summaries:
         failure = None

@@ -6,7 +6,6 @@ so they come back from worker processes with the log's summary."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -149,14 +148,3 @@ def fit_log_with_pairs(path: str | Path, setup: Setup) -> tuple[LogFit, ThinnedP
 
     pairs = ThinnedPairs()
     return fit_log(path, setup, [pairs]), pairs
-
-
-@dataclass(frozen=True)
-class FitPlotData:
-    """What the ``fit`` figure draws: thinned pairs and the fitted lines."""
-
-    joint_names: tuple[str, ...]
-    pairs: ThinnedPairs
-    a: FloatArray
-    b: FloatArray
-    r2: FloatArray | None
