@@ -186,17 +186,19 @@ def test_evaluate_report_and_junit_per_gate(cal, twin_dataset, tmp_path):
     test = twin_dataset / "test"
     args = ["evaluate", test, "-c", cal, "--train", twin_dataset / "train"]
     args += ["--val", twin_dataset / "val", "-m", "proposed,naive-diff", "--no-summary"]
-    result = run(*args, "--report", html, "--junit", xml, "--min-f1", "0.7", "--min-auc", "0.5")
+    result = run(*args, "--report", html, "--junit", xml, "--min-f1", "0.999", "--min-auc", "0.5")
     root = validate_junit(xml)
     names = [c.get("name") for c in root.iter("testcase")]
     assert names == [
-        "proposed: F1 >= 0.7",
+        "proposed: F1 >= 0.999",
         "proposed: AUC >= 0.5",
-        "naive-diff: F1 >= 0.7",
+        "naive-diff: F1 >= 0.999",
         "naive-diff: AUC >= 0.5",
     ]
-    failed = [f.get("message") for f in root.iter("failure")]
-    assert (result.exit_code == 1) == bool(failed), (result.output, failed)
+    failed = {c.get("name") for c in root.iter("testcase") if c.find("failure") is not None}
+    assert failed == {"proposed: F1 >= 0.999", "naive-diff: F1 >= 0.999"}
+    assert all(f.get("type") == "gate" for f in root.iter("failure"))
+    assert result.exit_code == 1, result.output
     page = html.read_text()
     assert "ROC" in page and "F1 against k" in page and page.count("<svg") == 1
     assert "proposed (AUC" in page and "naive-diff (AUC" in page

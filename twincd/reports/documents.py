@@ -228,7 +228,8 @@ def evaluation_html(
         summary += [f"<li>{html.escape(m)}</li>" for m in missed] + ["</ul>"]
     if notes:
         summary += ["<ul>"] + [f"<li>{html.escape(n)}</li>" for n in notes] + ["</ul>"]
-    figures = [html.figure(svg_text(evaluation_figure(result)), "ROC, F1 against k, events")]
+    caption = "ROC curves and F1 against k" + (", events" if rows else "")
+    figures = [html.figure(svg_text(evaluation_figure(result)), caption)]
     all_settings = [
         *settings,
         ("test logs", ", ".join(result.test_logs)),

@@ -27,6 +27,7 @@ class Case:
     details: str = ""
     skipped: str | None = None
     seconds: float = 0.0
+    kind: str = "collision"  # the failure's type: what was found
 
 
 def junit_xml(suite: str, cases: Sequence[Case]) -> str:
@@ -62,7 +63,7 @@ def junit_xml(suite: str, cases: Sequence[Case]) -> str:
         )
         if case.failure is not None:
             failure = ET.SubElement(
-                element, "failure", {"message": case.failure, "type": "collision"}
+                element, "failure", {"message": case.failure, "type": case.kind}
             )
             failure.text = case.details
         elif case.skipped is not None:
@@ -109,7 +110,8 @@ def evaluation_cases(result: Evaluation, min_f1: float | None, min_auc: float | 
             if bound is not None and (value is None or value < bound):
                 shown = "n/a" if value is None else f"{value:.3f}"
                 failure = f"{m.name}: {name.split(' ')[0]} {shown} < {bound:g}"
-            cases.append(Case("twincd.evaluate", case_name, failure, seconds=(m.test_s or 0.0)))
+            seconds = m.test_s or 0.0
+            cases.append(Case("twincd.evaluate", case_name, failure, seconds=seconds, kind="gate"))
     return cases
 
 
