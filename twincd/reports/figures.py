@@ -74,6 +74,8 @@ def detection_figure(summary: DetectionSummary, trace: DetectionTrace) -> Any:
     t0 = trace.first_ns or summary.first_stamp_ns
     events = [((e.start_ns - t0) * 1e-9, (e.end_ns - t0) * 1e-9, e) for e in summary.events]
     labels = trace.label_spans()
+    seconds = trace.seconds()
+    min_width = 2 * (float(seconds[-1]) if len(seconds) else 0.0) / (WIDTH_IN * DPI) or 1e-3
     for j, name in enumerate(trace.joint_names):
         ax = axes[j]
         ax.plot(*trace.measured(j), lw=0.7, color="tab:blue", label="measured τ̃")
@@ -91,7 +93,8 @@ def detection_figure(summary: DetectionSummary, trace: DetectionTrace) -> Any:
         for start, end in labels:
             ax.axvspan(start, end, color="tab:green", alpha=0.15, lw=0)
         for start, end, _ in events:
-            ax.axvspan(start, max(end, start + 1e-3), color="tab:red", alpha=0.25, lw=0)
+            # at least ~2 pixels wide: a short event on a long log stays visible
+            ax.axvspan(start, max(end, start + min_width), color="tab:red", alpha=0.25, lw=0)
     for i, (start, _end, e) in enumerate(events[:30], 1):
         axes[0].annotate(
             f"{i}: {event_label(e.joint, e.link)}",
