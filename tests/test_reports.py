@@ -53,20 +53,37 @@ def sample_detection():
     return cal, summary
 
 
-def test_detection_figure_has_the_size_asked_and_is_not_blank(sample_detection, tmp_path):
+def assert_drawn(fig, path: Path) -> None:
+    """Saved as PNG and SVG; the PNG has the figure's size (1000 px wide) and is not blank."""
     from PIL import Image
 
-    _, summary = sample_detection
-    assert summary.events and summary.trace is not None
-    fig = detection_figure(summary, summary.trace)
     width, height = fig.get_size_inches() * fig.dpi
-    png, svg = save(fig, tmp_path / "detect")
+    png, svg = save(fig, path)
     assert svg.read_text().lstrip().startswith("<?xml") and "<svg" in svg.read_text()
     image = np.asarray(Image.open(png).convert("L"), dtype=float)
     assert image.shape == (round(height), round(width))
     assert width == 1000
     # a drawn figure: many non-white pixels and many grey levels, not a blank canvas
     assert (image < 250).mean() > 0.03 and len(np.unique(image)) > 20
+
+
+def test_detection_figure_has_the_size_asked_and_is_not_blank(sample_detection, tmp_path):
+    _, summary = sample_detection
+    assert summary.events and summary.trace is not None
+    assert_drawn(detection_figure(summary, summary.trace), tmp_path / "detect")
+
+
+def test_fit_figure_is_drawn(twin_dataset, tmp_path):
+    from twincd.calibration import merge_fits
+    from twincd.reports.figures import fit_figure
+    from twincd.reports.traces import ThinnedPairs, fit_log_with_pairs
+
+    setup = Setup()
+    both = [fit_log_with_pairs(p, setup) for p in sorted((twin_dataset / "train").iterdir())]
+    cal = merge_fits([part for part, _ in both], setup)
+    pairs = ThinnedPairs.merge([p for _, p in both])
+    assert pairs.seen == cal.fit_samples
+    assert_drawn(fit_figure(cal, pairs), tmp_path / "fit")
 
 
 def test_trace_follows_the_summary(sample_detection):
@@ -206,7 +223,7 @@ def test_evaluate_report_and_junit_per_gate(cal, twin_dataset, tmp_path):
     assert "| proposed |" in md.read_text()
 
 
-def test_evaluate_report_shows_event_metrics_when_present(cal, twin_dataset):
+def test_evaluate_report_shows_event_metrics_when_present(cal, twin_dataset, tmp_path):
     from twincd.evaluation.runner import evaluate
     from twincd.reports import evaluation_html, evaluation_report_markdown
 
@@ -228,6 +245,11 @@ def test_evaluate_report_shows_event_metrics_when_present(cal, twin_dataset):
     assert "**Events:**" in text and "| proposed | 4 | 3 | 120.0 | 300.0 | 1 | 7.5 |" in text
     page = evaluation_html(result)
     assert "<h2>Events</h2>" in page and "events detected" in page  # table and bar chart
+    from twincd.reports.figures import evaluation_figure
+
+    fig = evaluation_figure(result)
+    assert len(fig.axes) == 3  # ROC, F1 against k, events
+    assert_drawn(fig, tmp_path / "evaluate")
 
 
 def test_fit_report_has_one_scatter_per_joint(twin_dataset, tmp_path):
