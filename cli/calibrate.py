@@ -29,10 +29,12 @@ from .common import (
     LabelTopic,
     Logs,
     Quiet,
+    Report,
     Robot,
     Scheduler,
     SimTopic,
     Topic,
+    check_reports,
     command,
     log_options,
     run_per_log,
@@ -167,6 +169,7 @@ def fit(
     output: Annotated[
         Path, typer.Option("--output", "-o", help="Calibration JSON to write.")
     ] = Path("calibration.json"),
+    report: Report = None,
     robot: Robot = None,
     topic: Topic = None,
     label_topic: LabelTopic = None,
@@ -203,15 +206,31 @@ def fit(
     from twincd.io.mcap_write import check_writable
 
     check_writable(output)
+    check_reports(report, None)
     paths = expand_logs(logs)
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
     )
     setup = setup_for_model(setup, model)
-    parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet, scheduler)
+    figure = report is not None and report.suffix.lower() == ".html"
+    if figure:
+        from twincd.reports.traces import fit_log_with_pairs
+
+        both = run_per_log(
+            Bound(fit_log_with_pairs, setup), paths, paths, jobs, "fitting", quiet, scheduler
+        )
+        parts = [part for part, _ in both]
+    else:
+        parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet, scheduler)
     cal = merge_fits(parts, setup, model)
     cal.save(output)
     stdout.print(fit_table(cal))
+    if report is not None:
+        from twincd.reports import ThinnedPairs, fit_report
+
+        pairs = ThinnedPairs.merge([p for _, p in both]) if figure else None
+        fit_report(report, replace(cal, source=str(output)), pairs)
+        log.info("wrote %s", report)
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
 
 

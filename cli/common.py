@@ -65,6 +65,24 @@ Scheduler = Annotated[
     ),
 ]
 Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")]
+Report = Annotated[
+    Path | None,
+    typer.Option(
+        "--report",
+        help="Also write a report here: .md, or .html (one self-contained page with figures; "
+        "figures need the plot extra).",
+    ),
+]
+Junit = Annotated[
+    Path | None, typer.Option("--junit", help="Also write JUnit XML here (for CI systems).")
+]
+NoSummary = Annotated[
+    bool,
+    typer.Option(
+        "--no-summary",
+        help="Do not append the Markdown summary to $GITHUB_STEP_SUMMARY (appended when set).",
+    ),
+]
 
 stderr = Console(stderr=True, highlight=False)
 stdout = Console(highlight=False)
@@ -126,6 +144,9 @@ FLAGS: dict[str, str] = {
     "output": "--output",
     "model": "--model",
     "link_topic": "--link-topic",
+    "report": "--report",
+    "junit": "--junit",
+    "no_summary": "--no-summary",
 }
 
 
@@ -242,6 +263,22 @@ def map_per_log(
     """``executor.map(func, items)`` with a progress bar."""
     with counter(len(items), description, quiet) as advance:
         return executor.map(func, items, advance)
+
+
+def check_reports(report: Path | None, junit: Path | None) -> None:
+    """Fail before any work when a report or JUnit file cannot be written."""
+    from twincd.io.atomic import check_writable
+    from twincd.reports import check_report_kind
+
+    if report is not None:
+        check_report_kind(report)
+        check_writable(report)
+        if report.suffix.lower() == ".html":
+            from twincd.reports.figures import pyplot
+
+            pyplot()  # a missing plot extra is an error now, not after the work
+    if junit is not None:
+        check_writable(junit)
 
 
 @contextlib.contextmanager

@@ -13,6 +13,7 @@ from rich.table import Table
 from twincd.errors import UsageError
 
 if TYPE_CHECKING:
+    from twincd.calibration import Calibration
     from twincd.detection import DetectionSummary
 
 from .calibrate import CalibrationIn, Causal, resolve_setup
@@ -20,14 +21,18 @@ from .common import (
     Debug,
     Jobs,
     JointMap,
+    Junit,
     LabelTopic,
     Logs,
+    NoSummary,
     Quiet,
+    Report,
     Robot,
     Scheduler,
     SimTopic,
     Topic,
     all_or_nothing,
+    check_reports,
     command,
     run_per_log,
     stdout,
@@ -57,26 +62,44 @@ def _targets(paths: list[Path], output: Path | None) -> list[Path | None]:
 
 
 def events_table(result: DetectionSummary) -> Table:
-    t0 = result.first_stamp_ns
+    from twincd.reports.tables import event_columns, event_rows
+
     table = Table(
         title=f"{result.source}: {len(result.events)} collision event(s), "
         f"{result.collision_samples}/{result.samples} samples flagged"
     )
-    links = any(e.link is not None for e in result.events)
-    columns = ("#", "start (s)", "end (s)", "duration (s)", "peak score", "joint")
-    for col in (*columns, "link") if links else columns:
+    for col in event_columns(result):
         table.add_column(col, justify="left" if col in ("joint", "link") else "right")
-    for i, e in enumerate(result.events, 1):
-        table.add_row(
-            str(i),
-            f"{(e.start_ns - t0) * 1e-9:.3f}",
-            f"{(e.end_ns - t0) * 1e-9:.3f}",
-            f"{e.duration_s:.3f}",
-            f"{e.peak_score:.4g}",
-            e.joint,
-            *((e.link or "",) if links else ()),
-        )
+    for row in event_rows(result):
+        table.add_row(*row)
     return table
+
+
+def _write_reports(
+    results: list[DetectionSummary],
+    cal: Calibration,
+    report: Path | None,
+    junit: Path | None,
+    no_summary: bool,
+) -> None:
+    from twincd.reports import (
+        append_step_summary,
+        calibration_settings,
+        detection_junit,
+        detection_markdown,
+        detection_report,
+    )
+    from twincd.reports.documents import write_text
+
+    settings = calibration_settings(cal)
+    if report is not None:
+        detection_report(report, results, settings)
+        log.info("wrote %s", report)
+    if junit is not None:
+        write_text(junit, detection_junit(results))
+        log.info("wrote %s", junit)
+    if not no_summary:
+        append_step_summary(detection_markdown(results, settings))
 
 
 @command
@@ -93,6 +116,9 @@ def detect(
         ),
     ] = None,
     json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
+    report: Report = None,
+    junit: Junit = None,
+    no_summary: NoSummary = False,
     robot: Robot = None,
     topic: Topic = None,
     label_topic: LabelTopic = None,
@@ -109,6 +135,8 @@ def detect(
     Prints the collision events (contiguous flagged runs) of each log.
 
     Exit code 1 when any collision is found, 0 when none, 2 on errors.
+
+    With GITHUB_STEP_SUMMARY set, a Markdown summary is appended to it (off: --no-summary).
 
     Example: twincd detect run.mcap -c calibration.json -o run.detect.mcap
     """
@@ -127,12 +155,22 @@ def detect(
     for target in targets:
         if target is not None:
             check_writable(target)
+    check_reports(report, junit)
+    trace = report is not None and report.suffix.lower() == ".html"
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         written.extend(target for target in targets if target is not None)
         results = run_per_log(
-            Bound(detect_and_write, cal, setup), items, paths, jobs, "detecting", quiet, scheduler
+            Bound(detect_and_write, cal, setup, trace),
+            items,
+            paths,
+            jobs,
+            "detecting",
+            quiet,
+            scheduler,
         )
+        written.extend(p for p in (report, junit) if p is not None)
+        _write_reports(results, cal, report, junit, no_summary)
     summaries = [r.to_dict() for r in results]
     for result in results:
         for line in result.warnings:

@@ -19,13 +19,17 @@ from .common import (
     Debug,
     Jobs,
     JointMap,
+    Junit,
     LabelTopic,
     Logs,
+    NoSummary,
     Quiet,
+    Report,
     Robot,
     Scheduler,
     SimTopic,
     Topic,
+    check_reports,
     command,
     map_per_log,
     progress,
@@ -33,9 +37,40 @@ from .common import (
 )
 
 if TYPE_CHECKING:
+    from twincd.calibration import Calibration
+    from twincd.evaluation.runner import Evaluation
     from twincd.pipeline import PreparedLog, Setup
 
 log = logging.getLogger("twincd")
+
+
+def _write_reports(
+    result: Evaluation,
+    missed: list[str],
+    cal: Calibration | None,
+    report: Path | None,
+    junit: Path | None,
+    no_summary: bool,
+    gates: tuple[float | None, float | None],
+) -> None:
+    from twincd.evaluation.reports import evaluation_markdown
+    from twincd.reports import (
+        append_step_summary,
+        calibration_settings,
+        evaluation_junit,
+        evaluation_report,
+    )
+    from twincd.reports.documents import write_text
+
+    settings = calibration_settings(cal) if cal is not None else []
+    if report is not None:
+        evaluation_report(report, result, missed, settings)
+        log.info("wrote %s", report)
+    if junit is not None:
+        write_text(junit, evaluation_junit(result, *gates))
+        log.info("wrote %s", junit)
+    if not no_summary:
+        append_step_summary(evaluation_markdown(result, missed))
 
 
 @command
@@ -79,9 +114,9 @@ def evaluate(
         ),
     ] = DEFAULT_REPEATS,
     json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
-    report: Annotated[
-        Path | None, typer.Option("--report", help="Also write a Markdown report here.")
-    ] = None,
+    report: Report = None,
+    junit: Junit = None,
+    no_summary: NoSummary = False,
     min_f1: Annotated[
         float | None, typer.Option("--min-f1", help="Exit 1 if a method's best F1 is lower.")
     ] = None,
@@ -116,13 +151,14 @@ def evaluate(
 
     With --train and --val, every method (proposed too) fits on --train; μ, σ come from --val.
 
-    Example: twincd evaluate logs/test -c calibration.json --report report.md
+    With GITHUB_STEP_SUMMARY set, a Markdown summary is appended to it (off: --no-summary).
+
+    Example: twincd evaluate logs/test -c calibration.json --report report.html
     """
     from twincd.calibration import Calibration
     from twincd.evaluation.reports import (
         SHORT_COLUMNS,
         SHORT_EVENT_COLUMNS,
-        evaluation_markdown,
         evaluation_rows,
         event_rows,
     )
@@ -130,13 +166,11 @@ def evaluate(
     from twincd.evaluation.runner import parse_methods
     from twincd.executors import Bound, open_executor
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import atomic_output, check_writable
     from twincd.pipeline import prepare_log
 
     cal = Calibration.load(calibration) if calibration is not None else None
     names = parse_methods(methods)
-    if report is not None:
-        check_writable(report)
+    check_reports(report, junit)
     test_paths = expand_logs(logs)
     train_paths = expand_logs(train) if train else []
     val_paths = expand_logs(val) if val else []
@@ -173,9 +207,7 @@ def evaluate(
             setup.options.label_topic,
         )
     missed = result.missed_gates(min_f1, min_auc)
-    if report is not None:
-        with atomic_output(report) as stream:
-            stream.write(evaluation_markdown(result, missed).encode("utf-8"))
+    _write_reports(result, missed, cal, report, junit, no_summary, (min_f1, min_auc))
     if json_:
         stdout.out(json.dumps(result.to_dict()), highlight=False)
     else:

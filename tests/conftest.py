@@ -98,3 +98,17 @@ def twin_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
             seed = {"train": 0, "val": 100, "test": 200}[split] + i
             build_twin_log(root / split / f"{split}_{i}.mcap", seed=seed, bumps=bumps)
     return root
+
+
+# ---------------------------------------------------------------- reports
+
+
+@pytest.fixture(scope="session")
+def twin_calibration(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A calibration (fit on twin_dataset/train, threshold on val) shared by the report tests."""
+    from clitools import run
+
+    path = tmp_path_factory.mktemp("twin_calibration") / "cal.json"
+    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
+    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
+    return path

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-HEAVY = ("scipy", "sklearn", "torch", "pinocchio", "rosbags", "mcap")
+HEAVY = ("scipy", "sklearn", "torch", "pinocchio", "rosbags", "mcap", "matplotlib")
 
 PROBE = """
 import json, sys

@@ -163,16 +163,33 @@ class JsonlSink:
 
 
 def detect_and_write(
-    item: tuple[Path, Path | None], calibration: Calibration, setup: Setup
+    item: tuple[Path, Path | None],
+    calibration: Calibration,
+    setup: Setup,
+    trace: bool = False,
 ) -> DetectionSummary:
     """The per-log step of ``detect``: stream one log, writing its per-sample output (if any)
-    where the work runs; only the summary travels back."""
+    where the work runs; only the summary travels back (with ``trace``, also the bounded
+    figure data of a report)."""
     path, target = item
     with contextlib.ExitStack() as outputs:
-        sinks = []
+        sinks: list[FrameSink] = []
         if target is not None:
             sinks.append(outputs.enter_context(open_sink(path, target, calibration.joint_names)))
-        return detect_file(path, calibration, setup, sinks)
+        figure_data = None
+        if trace:
+            from twincd.reports.traces import DetectionTrace
+
+            figure_data = DetectionTrace(
+                calibration.joint_names,
+                calibration.a,
+                calibration.b,
+                calibration.require_threshold().value,
+            )
+            sinks.append(figure_data)
+        summary = detect_file(path, calibration, setup, sinks)
+        summary.trace = figure_data
+        return summary
 
 
 def write_detection(result: LogDetection, source: Path, target: Path) -> None:

@@ -5,9 +5,10 @@ from __future__ import annotations
 import logging
 import statistics
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from twincd.calibration.affine import AffineCalibration, AffineStats, clean_rows
 from twincd.calibration.file import Calibration, calibration_from_fit
@@ -21,6 +22,9 @@ from twincd.calibration.models import (
 )
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedStream, Setup, same_joints
+
+if TYPE_CHECKING:
+    from twincd.detection.detect import FrameSink
 
 log = logging.getLogger("twincd")
 
@@ -40,8 +44,9 @@ class LogFit:
     samples: int = 0  # every sample read (labelled ones too): what progress counts
 
 
-def fit_log(path: str | Path, setup: Setup) -> LogFit:
-    """Stream one log through read → twin → filter into affine statistics."""
+def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> LogFit:
+    """Stream one log through read → twin → filter into affine statistics; every frame also
+    goes to ``sinks`` (e.g. what a report's figure draws)."""
     stats: AffineStats | None = None
     friction: FrictionStats | None = None
     seconds = 0.0
@@ -61,6 +66,8 @@ def fit_log(path: str | Path, setup: Setup) -> LogFit:
                     clean,
                 )
                 friction = more if friction is None else friction + more
+            for sink in sinks:
+                sink.write(frame, [])
         assert stats is not None  # the stream raises on logs without samples
         return LogFit(
             source=stream.source,

@@ -17,6 +17,7 @@ from twincd.frames import Frame
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.pipeline import PreparedLog
+    from twincd.reports.traces import DetectionTrace
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -121,6 +122,8 @@ class DetectionSummary:
     joint_names: tuple[str, ...] = ()
     first_stamp_ns: int = 0
     warnings: list[str] = field(default_factory=list)
+    # what a report's figure draws (bounded envelopes), when a report was asked for
+    trace: DetectionTrace | None = None
 
     def to_dict(self) -> dict[str, object]:
         return {

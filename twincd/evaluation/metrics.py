@@ -202,3 +202,18 @@ def event_counts(
         isolation_right=iso_right,
         has_links=links is not None,
     )
+
+
+def roc_points(labels: BoolArray, scores: FloatArray, most: int = 300) -> list[tuple[float, float]]:
+    """(false positive rate, true positive rate) of the ROC curve, at most ``most`` points
+    (evenly thinned, ends kept) so that results stay small; empty when AUC is undefined."""
+    from sklearn.metrics import roc_curve
+
+    y = np.asarray(labels, dtype=bool)
+    if y.all() or not y.any():
+        return []
+    fpr, tpr, _ = roc_curve(y, np.asarray(scores, dtype=np.float64))
+    if len(fpr) > most:
+        keep = np.unique(np.linspace(0, len(fpr) - 1, most).round().astype(int))
+        fpr, tpr = fpr[keep], tpr[keep]
+    return [(float(f), float(t)) for f, t in zip(fpr, tpr, strict=True)]

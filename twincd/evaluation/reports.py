@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from twincd.evaluation.runner import Evaluation, MethodResult
+if TYPE_CHECKING:  # types only: rendering needs neither scikit-learn nor the runner
+    from twincd.evaluation.runner import Evaluation, MethodResult
 
 
 def fmt(value: float | None, digits: int = 3) -> str:
@@ -124,7 +126,7 @@ def event_rows(result: Evaluation) -> list[list[str]]:
     return rows
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
     return "\n".join(lines)
@@ -140,13 +142,13 @@ def evaluation_markdown(result: Evaluation, missed: Sequence[str] = ()) -> str:
         f"{result.positives} labelled as collision. "
         f"Threshold: {threshold_text(k)}; F1 (best) over μ + iσ, i = 0, 0.1, …, 1, 2, 3, 4, 5.",
         "",
-        _table(EVALUATION_COLUMNS, evaluation_rows(result)),
+        markdown_table(EVALUATION_COLUMNS, evaluation_rows(result)),
         "",
         "Events at the threshold (a labelled event is found by a flag inside it or within "
         "200 ms after; delay from its first labelled sample; a false alarm is a run of flags "
         "away from every labelled event, per hour of unlabelled time):",
         "",
-        _table(EVENT_COLUMNS, event_rows(result)),
+        markdown_table(EVENT_COLUMNS, event_rows(result)),
         "",
     ]
     if any(m.unit != "sample" for m in result.methods):

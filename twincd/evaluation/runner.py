@@ -31,6 +31,7 @@ from twincd.evaluation.metrics import (
     best_of,
     event_counts,
     f1_sweep,
+    roc_points,
 )
 from twincd.io.links import read_links
 from twincd.pipeline import PreparedLog, Setup, same_joints
@@ -120,6 +121,8 @@ class MethodResult:
     std: dict[str, float | None] = field(default_factory=dict)
     note: str | None = None  # what the method had to do differently (e.g. subsampling)
     events: dict[str, float | None] = field(default_factory=dict)  # EVENT_KEYS present
+    # (fpr, tpr) points of the first run's ROC curve, for figures (not in the JSON)
+    roc: list[tuple[float, float]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         if self.skipped is not None:
@@ -244,6 +247,7 @@ class _Run:
     units: int
     positives: int
     note: str | None
+    roc: list[tuple[float, float]] = field(default_factory=list)
 
 
 def _run_once(
@@ -306,7 +310,17 @@ def _run_once(
         figures["val_false_alarms"] = on_val.false_alarms
         figures["val_false_alarms_per_hour"] = on_val.false_alarms_per_hour
     note = getattr(method, "note", None)
-    return _Run(sweep, figures, mu, sigma, threshold, len(y_true), int(y_true.sum()), note)
+    return _Run(
+        sweep,
+        figures,
+        mu,
+        sigma,
+        threshold,
+        len(y_true),
+        int(y_true.sum()),
+        note,
+        roc_points(y_true, y_score),
+    )
 
 
 def _mean_std(values: list[float | None]) -> tuple[float | None, float | None]:
@@ -326,6 +340,7 @@ def _combine(name: str, unit: str, k_sigma: float, runs: list[_Run]) -> MethodRe
         positives=first.positives,
         repeats=len(runs),
         note=first.note,
+        roc=first.roc,
     )
     # best_k: where the mean F1 curve peaks; f1_best: mean of each run's own best
     ks = [k for k, _ in first.sweep]
