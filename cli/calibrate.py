@@ -24,6 +24,7 @@ from twincd.errors import UsageError
 
 from .common import (
     Debug,
+    Force,
     Jobs,
     JointMap,
     LabelTopic,
@@ -170,6 +171,7 @@ def fit(
     filter_order: FilterOrder = None,
     causal: Causal = None,
     jobs: Jobs = 0,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -183,11 +185,11 @@ def fit(
     """
     from twincd.calibration import fit_log, merge_fits
     from twincd.executors import Bound
+    from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import check_writable
 
-    check_writable(output)
     paths = expand_logs(logs)
+    check_target(output, "calibration", force=force, inputs=paths)
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
     )
@@ -216,6 +218,7 @@ def threshold(
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
     jobs: Jobs = 0,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -229,14 +232,14 @@ def threshold(
     """
     from twincd.calibration import Calibration
     from twincd.executors import Bound
+    from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import check_writable
     from twincd.threshold import score_log, with_threshold
 
     cal = Calibration.load(calibration)
     target = output or calibration
-    check_writable(target)
     paths = expand_logs(logs)
+    check_target(target, "calibration", force=force, inputs=paths)
     setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
     parts = run_per_log(Bound(score_log, setup, cal), paths, paths, jobs, "scoring", quiet)
     cal = with_threshold(parts, cal, sigma)

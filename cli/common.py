@@ -6,7 +6,9 @@ import contextlib
 import functools
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
@@ -17,7 +19,7 @@ import typer
 from rich.console import Console
 
 from twincd.defaults import DEFAULT_LABEL_TOPIC, DEFAULT_ROBOT, DEFAULT_SIM_TOPIC, DEFAULT_TOPIC
-from twincd.errors import TwincdError
+from twincd.errors import Terminated, TwincdError, raise_terminated
 
 if TYPE_CHECKING:
     from twincd.io.logs import LogOptions
@@ -56,6 +58,12 @@ Jobs = Annotated[
     ),
 ]
 Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")]
+Force = Annotated[
+    bool,
+    typer.Option(
+        "--force", help="Overwrite an output even if it is not twincd's own output of its kind."
+    ),
+]
 
 stderr = Console(stderr=True, highlight=False)
 stdout = Console(highlight=False)
@@ -114,6 +122,9 @@ FLAGS: dict[str, str] = {
     "max_duration": "--max-duration",
     "in_place": "--in-place",
     "output": "--output",
+    "force": "--force",
+    "strict": "--strict",
+    "keep_going": "--keep-going",
 }
 
 
@@ -149,14 +160,32 @@ def command(func: Callable[..., Any]) -> Callable[..., Any]:
         debug = bool(kwargs.get("debug", False))
         setup_logging(bool(kwargs.get("quiet", False)), debug)
         try:
-            return func(*args, **kwargs)
+            with terminate_like_interrupt():
+                return func(*args, **kwargs)
         except TwincdError as exc:
             fail(exc, debug)
+        except Terminated:
+            sys.stderr.write("twincd: terminated\n")
+            raise typer.Exit(143) from None
         except KeyboardInterrupt:
             sys.stderr.write("twincd: interrupted\n")
             raise typer.Exit(130) from None
 
     return wrapper
+
+
+@contextlib.contextmanager
+def terminate_like_interrupt() -> Iterator[None]:
+    """SIGTERM raises ``Terminated`` (a KeyboardInterrupt) while the block runs, so that
+    temporaries are removed as on Ctrl-C; the previous handler comes back after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set from the main thread
+        return
+    previous = signal.signal(signal.SIGTERM, raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def show_progress(quiet: bool) -> bool:

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 from .calibrate import CalibrationIn, Causal, resolve_setup
 from .common import (
     Debug,
+    Force,
     Jobs,
     JointMap,
     LabelTopic,
@@ -96,6 +97,7 @@ def detect(
     joint_map: JointMap = None,
     causal: Causal = None,
     jobs: Jobs = 0,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -109,8 +111,8 @@ def detect(
     """
     from twincd.calibration import Calibration
     from twincd.executors import Bound
+    from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import check_writable
     from twincd.outputs import detect_and_write
 
     cal = Calibration.load(calibration)
@@ -121,7 +123,8 @@ def detect(
     # one log at a time: only the small summaries are kept, so memory stays flat
     for target in targets:
         if target is not None:
-            check_writable(target)
+            kind = "detect" if target.suffix.lower() == ".mcap" else "table"
+            check_target(target, kind, force=force, inputs=paths)
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         written.extend(target for target in targets if target is not None)

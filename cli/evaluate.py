@@ -17,6 +17,7 @@ from twincd.defaults import DEFAULT_REPEATS
 from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
 from .common import (
     Debug,
+    Force,
     JointMap,
     LabelTopic,
     Logs,
@@ -90,6 +91,7 @@ def evaluate(
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
     causal: Causal = None,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -107,16 +109,16 @@ def evaluate(
     from twincd.evaluation.reports import SHORT_COLUMNS, evaluation_markdown, evaluation_rows
     from twincd.evaluation.runner import evaluate as run_evaluation
     from twincd.evaluation.runner import parse_methods
+    from twincd.io.atomic import atomic_output, check_target
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import atomic_output, check_writable
 
     cal = Calibration.load(calibration) if calibration is not None else None
     names = parse_methods(methods)
-    if report is not None:
-        check_writable(report)
     test_paths = expand_logs(logs)
     train_paths = expand_logs(train) if train else []
     val_paths = expand_logs(val) if val else []
+    if report is not None:
+        check_target(report, "report", force=force, inputs=[*test_paths, *train_paths, *val_paths])
     setup = resolve_setup(
         cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
     )

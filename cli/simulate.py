@@ -12,6 +12,7 @@ from twincd.errors import UsageError
 
 from .common import (
     Debug,
+    Force,
     Jobs,
     JointMap,
     LabelTopic,
@@ -49,6 +50,7 @@ def simulate(
         bool, typer.Option("--list-robots", help="List the robot names --robot accepts.")
     ] = False,
     jobs: Jobs = 0,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -59,8 +61,8 @@ def simulate(
     Example: twincd simulate run.mcap --robot xarm7 -o run.twin.mcap
     """
     from twincd.executors import Bound
+    from twincd.io.atomic import check_target, check_writable
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import check_writable
     from twincd.simulate import default_output, simulate_item
     from twincd.twin.robot import list_robots
 
@@ -88,7 +90,11 @@ def simulate(
     if output is not None:
         targets = [output / default_output(p).name if several else output for p in paths]
     for path, target in zip(paths, targets):
-        check_writable(target if target is not None else default_output(path))
+        if in_place:
+            check_writable(path)  # a read-only log is refused
+        else:
+            out = target if target is not None else default_output(path)
+            check_target(out, "simulate", force=force, inputs=paths)
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         if not in_place:

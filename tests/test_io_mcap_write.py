@@ -19,6 +19,7 @@ from mcap.writer import CompressionType, Writer
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
+import twincd
 import twincd.io.mcap_write as mcap_write
 from twincd.errors import LogReadError
 from twincd.io.cdr import joint_state_cdr
@@ -260,7 +261,8 @@ def test_mcap_copy_is_lossless_and_chunks_pass_through(tmp_path):
         old = {c.topic: c.metadata for c in make_reader(f).get_summary().channels.values()}
         new = {c.topic: c.metadata for c in make_reader(g).get_summary().channels.values()}
     assert {t: new[t] for t in old} == old and new["/joint_states"]["extra"] == "kept"
-    assert metadata(out) == {"robot": {"model": "xarm7", "site": "lab 2"}}
+    marker = {"twincd": {"output": "detect", "version": twincd.__version__}}
+    assert metadata(out) == {"robot": {"model": "xarm7", "site": "lab 2"}, **marker}
     assert attachments(out) == attachments(src) and len(attachments(src)) == 2
     # the input's compressed chunks are in the output as they were: no decompression
     assert set(chunk_payloads(src)) <= set(chunk_payloads(out))

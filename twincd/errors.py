@@ -73,3 +73,13 @@ class OutputError(TwincdError):
 
 class DataError(TwincdError):
     """Data that is valid on disk but unusable for the method (too short, no labels, ...)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (CI cancellation, ``docker stop``), raised like Ctrl-C so that every clean-up
+    that runs on an interrupt runs for it too (DESIGN §5: exit 143)."""
+
+
+def raise_terminated(signum: int, frame: object) -> None:
+    """A SIGTERM handler: ``signal.signal(signal.SIGTERM, raise_terminated)``."""
+    raise Terminated(signum)

@@ -8,8 +8,10 @@ come back in the order of the logs given.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,21 +91,34 @@ def _pooled(
     if method == "forkserver":
         # import the heavy modules once in the server, not once per worker (≈ 1 s each)
         context.set_forkserver_preload(list(PRELOAD))
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_twin_thread) as pool:
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
         futures: list[Future[R]] = [pool.submit(func, item) for item in items]
         pending = set(futures)
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_EXCEPTION)
-            if progress:
-                progress(len(done))
-            failed = [f for f in done if f.exception() is not None]
-            if failed:
-                for f in pending:
-                    f.cancel()
-                wait(pending)
-                raise failed[0].exception()  # type: ignore[misc]
+        try:
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                if progress:
+                    progress(len(done))
+                failed = [f for f in done if f.exception() is not None]
+                if failed:
+                    for f in pending:
+                        f.cancel()
+                    wait(pending)
+                    raise failed[0].exception()  # type: ignore[misc]
+        except KeyboardInterrupt:
+            _stop_workers(pool)  # Ctrl-C or SIGTERM: the workers remove their temporaries
+            raise
         for f in futures:
             yield f.result()
+
+
+def _stop_workers(pool: Any) -> None:
+    """SIGTERM to every worker (each raises ``Terminated`` and cleans up), then no waiting for
+    work that would only be thrown away."""
+    for process in list(getattr(pool, "_processes", {}).values()):
+        with contextlib.suppress(Exception):
+            process.terminate()
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _size(paths: Sequence[Path]) -> int:
@@ -115,9 +130,13 @@ def _size(paths: Sequence[Path]) -> int:
     return total
 
 
-def _one_twin_thread() -> None:
-    """Each worker is one core's worth of work: the twin must not start threads of its own."""
+def _worker_init() -> None:
+    """Each worker is one core's worth of work: the twin must not start threads of its own;
+    SIGTERM cleans up like in the main process."""
+    from twincd.errors import raise_terminated
+
     os.environ["TWINCD_TWIN_THREADS"] = "1"
+    signal.signal(signal.SIGTERM, raise_terminated)
 
 
 class Bound(Generic[T, R]):

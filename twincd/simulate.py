@@ -61,7 +61,7 @@ def simulate_log(
                 "simulate it in place, or write another file",
             )
     stream = setup.open(source, filtered=False, need_effort=False, force_simulate=True)
-    with stream, AugmentedMcap(source, target, replace_topics=[options.sim_topic]) as out:
+    with stream, AugmentedMcap(source, target, [options.sim_topic], output="simulate") as out:
         channel = out.add_channel(options.sim_topic, JOINT_STATE)
         for frame in stream:
             assert stream.robot is not None  # force_simulate: the twin always has a model

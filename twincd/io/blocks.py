@@ -9,6 +9,10 @@ emits the older ones in blocks. Rules (DESIGN §1):
   duplicate stamps (the first read — earliest log time — is kept);
 - a sample older than one already emitted is *late*: dropped and counted. A log that fits in
   the reorder buffer is therefore sorted exactly like a whole-log sort;
+- a clock that jumps back by more than ``CLOCK_JUMP_NS`` (in read order) is not reordering:
+  the samples behind the jump are dropped and counted until the clock passes its earlier
+  time, so two stretches of the recording are never interleaved;
+- ragged messages (filled arrays whose length differs from ``name``) are dropped and counted;
 - labels (Bool) are held from each message onto the samples' log times; a sample is emitted
   only once every label message at or before its log time has been read;
 - the twin's effort is joined by exact stamp (NaN where missing). Its messages are expected no
@@ -49,6 +53,7 @@ OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's jo
 DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
 _END = 2**63 - 1
+CLOCK_JUMP_NS = 1_000_000_000  # a stamp this far behind one read before: the clock jumped back
 _T = TypeVar("_T", bound=np.generic)
 
 
@@ -82,8 +87,15 @@ class StreamCounts:
     incomplete: int = 0  # dropped: a stream joint missing, or a non-finite position
     duplicates: int = 0  # dropped: the exact stamp of an earlier sample
     late: int = 0  # dropped: older than a sample already emitted
-    ragged: int = 0  # filled arrays whose length differs from the names
+    ragged: int = 0  # dropped: filled arrays whose length differs from the names
+    clock_back: int = 0  # dropped: behind a backward jump of the clock
+    jumps: int = 0  # backward jumps of the clock
+    largest_jump_ns: int = 0
     samples: int = 0  # emitted
+
+    @property
+    def dropped(self) -> int:
+        return self.incomplete + self.duplicates + self.late + self.ragged + self.clock_back
 
 
 def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
@@ -246,6 +258,30 @@ class _Sim:
         self.stamp, self.effort = self.stamp[first:], self.effort[first:]
 
 
+class _Clock:
+    """Backward jumps of a stream's clock, in read order (see ``CLOCK_JUMP_NS``)."""
+
+    def __init__(self) -> None:
+        self.latest = np.iinfo(np.int64).min + CLOCK_JUMP_NS  # the latest stamp read so far
+        self.was_behind = False  # the last stamp read was behind a jump
+        self.jumps = 0
+        self.largest_ns = 0
+
+    def behind(self, stamp: IntArray) -> BoolArray:
+        """Per stamp: more than ``CLOCK_JUMP_NS`` behind the latest one read before it."""
+        if not len(stamp):
+            return np.zeros(0, dtype=bool)
+        before = np.maximum.accumulate(np.concatenate(([self.latest], stamp[:-1])))
+        behind = stamp < before - CLOCK_JUMP_NS
+        starts = behind & ~np.concatenate(([self.was_behind], behind[:-1]))
+        if starts.any():
+            self.jumps += int(starts.sum())
+            self.largest_ns = max(self.largest_ns, int((before[starts] - stamp[starts]).max()))
+        self.latest = max(self.latest, int(stamp.max()))
+        self.was_behind = bool(behind[-1])
+        return behind
+
+
 # ---------------------------------------------------------------- the stream
 
 
@@ -332,6 +368,8 @@ class LogStream:
         self._sim = _Sim(width) if self.has_sim else None
         self._columns: dict[tuple[str, ...], NDArray[np.intp]] = {}
         self._seq = 0
+        self._clock = _Clock()
+        self._sim_clock = _Clock()
         self._last: int | None = None  # stamp of the last emitted sample
         self._out: list[_Rows] = []
         self._out_n = 0
@@ -403,23 +441,20 @@ class LogStream:
             self._columns[names] = cols
         return cols
 
-    def _check_ragged(self, batch: JointStateBatch) -> None:
-        """Filled arrays must match ``name``; counted here, refused (for now) as before."""
+    def _ragged(self, batch: JointStateBatch) -> bool:
+        """Filled arrays must match ``name``: a batch (one layout) that does not is dropped."""
         k = len(batch.names)
         kp, kv, ke = batch.position.shape[1], batch.velocity.shape[1], batch.effort.shape[1]
         if kp == k and kv in (0, k) and ke in (0, k):
-            return
+            return False
         self.counts.ragged += len(batch)
-        raise LogReadError(
-            f"ragged JointState: {k} names but {kp} position, {kv} velocity and {ke} effort values",
-            f"{self.source}, {self.topic} at log time {int(batch.log_time_ns.min())}",
-            "fix the publisher; every filled array must match `name`",
-        )
+        return True
 
     def _add_samples(self, batch: JointStateBatch) -> None:
         n = len(batch)
         self.counts.read += n
-        self._check_ragged(batch)
+        if self._ragged(batch):
+            return
         cols = self._cols(batch.names)
         if (cols < 0).any():
             self.counts.incomplete += n
@@ -441,6 +476,11 @@ class LogStream:
         self._seq += n
         rows = _Rows(stamp, batch.log_time_ns, seq, position, velocity, effort)
         self.counts.incomplete += int((~ok).sum())
+        kept = np.flatnonzero(ok)
+        behind = self._clock.behind(stamp[kept])
+        ok[kept[behind]] = False
+        self.counts.clock_back += int(behind.sum())
+        self.counts.jumps, self.counts.largest_jump_ns = self._clock.jumps, self._clock.largest_ns
         if self._last is not None:
             self.counts.duplicates += int((ok & (stamp == self._last)).sum())
             self.counts.late += int((ok & (stamp < self._last)).sum())
@@ -466,6 +506,8 @@ class LogStream:
         have = (cols >= 0) & (cols < width)  # like zip(name, effort): extra names get nothing
         effort[:, have] = batch.effort[:, cols[have]]
         stamp = np.where(batch.stamp_ns != 0, batch.stamp_ns, batch.log_time_ns)
+        ahead = ~self._sim_clock.behind(stamp)  # as their samples: never over earlier ones
+        stamp, effort = stamp[ahead], effort[ahead]
         if self._last is not None:  # their samples are gone already
             keep = stamp > self._last
             stamp, effort = stamp[keep], effort[keep]
@@ -518,6 +560,27 @@ class LogStream:
 
     def _report(self) -> None:
         c = self.counts
+        if c.ragged:
+            log.warning(
+                "%s: dropping %d ragged message(s) (filled arrays that do not match the names)",
+                self.source,
+                c.ragged,
+            )
+        if c.jumps:
+            log.warning(
+                "%s: the clock jumps back %d time(s) (by up to %.3g s); dropping the %d sample(s) "
+                "stamped before the time already reached",
+                self.source,
+                c.jumps,
+                c.largest_jump_ns * 1e-9,
+                c.clock_back,
+            )
+        if c.duplicates:
+            log.warning(
+                "%s: dropping %d sample(s) whose stamp repeats an earlier one",
+                self.source,
+                c.duplicates,
+            )
         if c.incomplete:
             log.warning(
                 "%s: dropping %d sample(s) that do not carry every joint", self.source, c.incomplete

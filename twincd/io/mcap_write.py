@@ -68,7 +68,7 @@ from numpy.typing import NDArray
 
 from twincd import __version__
 from twincd.errors import LogReadError, OutputError, TwincdError
-from twincd.io.atomic import atomic_output, check_writable
+from twincd.io.atomic import MARKER, atomic_output, check_writable
 from twincd.io.cdr import TYPESTORE
 
 __all__ = [
@@ -732,7 +732,8 @@ class _McapCopy:
                 self.loose_message(_parse_message(body))
             elif opcode == Opcode.METADATA:
                 metadata = _parse(Metadata, body)
-                if metadata.name != "rosbag2":  # it would no longer list the new topics
+                # rosbag2's would no longer list the new topics; the marker is written anew
+                if metadata.name not in ("rosbag2", MARKER):
                     self.out.metadata(metadata)
             elif opcode == Opcode.ATTACHMENT:
                 raw = _PREFIX.pack(opcode, len(body)) + body
@@ -1010,6 +1011,12 @@ class _Batches:
 # ---------------------------------------------------------------- public writers
 
 
+def mark(out: _Output, output: str) -> None:
+    """The metadata record by which a later run knows this file as twincd's own ``output``
+    (``twincd.io.atomic.output_kind``): it may replace it without being forced."""
+    out.metadata(Metadata(name=MARKER, metadata={"output": output, "version": __version__}))
+
+
 def _finish(
     stack: contextlib.ExitStack,
     finish: Callable[[], None],
@@ -1042,9 +1049,16 @@ class AugmentedMcap:
     the source itself (a bare ``.mcap``): the rename comes after the copy.
     """
 
-    def __init__(self, source: Path, target: Path, replace_topics: Collection[str] = ()) -> None:
+    def __init__(
+        self,
+        source: Path,
+        target: Path,
+        replace_topics: Collection[str] = (),
+        output: str = "detect",
+    ) -> None:
         self.source = Path(source)
         self.target = Path(target)
+        self.output = output
         self.replace_topics = frozenset(replace_topics)
         self._stack: contextlib.ExitStack | None = None
         self._out: _Output | None = None
@@ -1063,6 +1077,7 @@ class AugmentedMcap:
             else:
                 _copy_via_rosbags(self.source, out, self.replace_topics)
             self._copied_topics = {c.topic for c in out.channels.values()}
+            mark(out, self.output)
             self._out = out
             self._stack = stack.pop_all()
         return self
@@ -1116,8 +1131,9 @@ class McapLogWriter:
     ...     out.write(ch, log_time_ns, cdr_bytes)
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, output: str = "synth") -> None:
         self.path = Path(path)
+        self.output = output
         self._stack: contextlib.ExitStack | None = None
         self._out: _Output | None = None
         self._batches: _Batches | None = None
@@ -1127,6 +1143,7 @@ class McapLogWriter:
             stream = stack.enter_context(atomic_output(self.path))
             self._out = _Output(stream, str(self.path))
             stack.callback(self._out.close)
+            mark(self._out, self.output)
             self._batches = _Batches(self._out)
             self._stack = stack.pop_all()
         return self
