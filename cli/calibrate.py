@@ -27,11 +27,13 @@ from .common import (
     Force,
     Jobs,
     JointMap,
+    KeepGoing,
     LabelTopic,
     Logs,
     Quiet,
     Robot,
     SimTopic,
+    Strict,
     Topic,
     command,
     log_options,
@@ -68,6 +70,7 @@ Causal = Annotated[
     typer.Option(
         "--causal/--zero-phase",
         help="Filter forward only, as a live detector would (default: zero-phase).",
+        metavar="",
     ),
 ]
 
@@ -90,6 +93,7 @@ def resolve_setup(
     cutoff: float | None = None,
     filter_order: int | None = None,
     causal: bool | None = None,
+    strict: bool = False,
 ) -> Setup:
     """Settings for reading logs: explicit options over the calibration's, never against them."""
     from twincd.io.logs import parse_joint_map
@@ -103,7 +107,8 @@ def resolve_setup(
             order=DEFAULT_ORDER if filter_order is None else filter_order,
             causal=bool(causal),
         )
-        return Setup(log_options(topic, label_topic, sim_topic, joint_map), robot, lowpass)
+        options = log_options(topic, label_topic, sim_topic, joint_map)
+        return Setup(options, robot, lowpass, strict=strict)
     cal = calibration
     recorded = cal.options
     for option, given, was in (
@@ -132,7 +137,7 @@ def resolve_setup(
     ):
         if given_f is not None and given_f != was_f:
             _contradiction(option, f"{given_f:g}", f"{was_f:g}", cal)
-    setup = Setup.from_calibration(cal)
+    setup = replace(Setup.from_calibration(cal), strict=strict)
     if robot is not None and cal.robot is None:
         setup = replace(setup, robot=robot)
     return setup
@@ -171,6 +176,8 @@ def fit(
     filter_order: FilterOrder = None,
     causal: Causal = None,
     jobs: Jobs = 0,
+    strict: Strict = False,
+    keep_going: KeepGoing = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -191,13 +198,15 @@ def fit(
     paths = expand_logs(logs)
     check_target(output, "calibration", force=force, inputs=paths)
     setup = resolve_setup(
-        None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
+        None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal, strict
     )
-    parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet)
-    cal = merge_fits(parts, setup)
+    work = Bound(fit_log, setup)
+    done = run_per_log(work, paths, paths, jobs, "fitting", quiet, keep_going)
+    cal = merge_fits(done.results, setup)
     cal.save(output)
     stdout.print(fit_table(cal))
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
+    done.exit_if_failed()
 
 
 @command
@@ -218,6 +227,8 @@ def threshold(
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
     jobs: Jobs = 0,
+    strict: Strict = False,
+    keep_going: KeepGoing = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -240,9 +251,10 @@ def threshold(
     target = output or calibration
     paths = expand_logs(logs)
     check_target(target, "calibration", force=force, inputs=paths)
-    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
-    parts = run_per_log(Bound(score_log, setup, cal), paths, paths, jobs, "scoring", quiet)
-    cal = with_threshold(parts, cal, sigma)
+    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map, strict=strict)
+    work = Bound(score_log, setup, cal)
+    done = run_per_log(work, paths, paths, jobs, "scoring", quiet, keep_going)
+    cal = with_threshold(done.results, cal, sigma)
     cal.save(target)
     th = cal.require_threshold()
     stdout.print(
@@ -251,3 +263,4 @@ def threshold(
         soft_wrap=True,
     )
     log.info("wrote %s", target)
+    done.exit_if_failed()

@@ -12,6 +12,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
@@ -25,6 +26,7 @@ if TYPE_CHECKING:
     from twincd.io.logs import LogOptions
 
 T = TypeVar("T")
+log = logging.getLogger("twincd")
 
 Logs = Annotated[
     list[Path],
@@ -50,33 +52,65 @@ SimTopic = Annotated[
 JointMap = Annotated[
     str | None, typer.Option("--joint-map", help="rename log joints: old=new,old2=new2")
 ]
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.")]
+Quiet = Annotated[
+    bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.", metavar="")
+]
 Jobs = Annotated[
     int,
     typer.Option(
         "--jobs", "-j", help="Logs processed at once in local processes (0: every core).", min=0
     ),
 ]
-Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")]
+Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.", metavar="")]
+Strict = Annotated[
+    bool,
+    typer.Option(
+        "--strict",
+        help="Refuse a truncated log instead of reading it up to the damage.",
+        metavar="",
+    ),
+]
+KeepGoing = Annotated[
+    bool,
+    typer.Option(
+        "--keep-going",
+        help="Process every log even if some fail; report each failure, exit 2 at the end.",
+        metavar="",
+    ),
+]
 Force = Annotated[
     bool,
     typer.Option(
-        "--force", help="Overwrite an output even if it is not twincd's own output of its kind."
+        "--force",
+        help="Overwrite an output even if it is not twincd's own output of its kind.",
+        metavar="",
     ),
 ]
 
 stderr = Console(stderr=True, highlight=False)
-stdout = Console(highlight=False)
+# not a terminal (a CI log, a pipe): no 80-column default that would cut tables
+stdout = Console(highlight=False, width=None if sys.stdout.isatty() else 1000)
+
+
+# every warning of this run, for --json ("warnings": [...]); printed as they come as well
+WARNINGS: list[str] = []
 
 
 class _StderrHandler(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         level = record.levelname.lower()
         prefix = "twincd: " if record.levelno < logging.WARNING else f"twincd: {level}: "
-        sys.stderr.write(prefix + record.getMessage() + "\n")
+        text = " ".join(record.getMessage().splitlines())  # one line each
+        if record.levelno == logging.WARNING:
+            WARNINGS.append(text)
+        if stderr.is_terminal:  # through rich: never glued onto a progress bar's line
+            stderr.print(prefix + text, markup=False, highlight=False, soft_wrap=True)
+        else:
+            sys.stderr.write(prefix + text + "\n")
 
 
 def setup_logging(quiet: bool, debug: bool) -> None:
+    WARNINGS.clear()
     logger = logging.getLogger("twincd")
     logger.handlers[:] = [_StderrHandler()]
     logger.propagate = False
@@ -138,17 +172,20 @@ def flag_hint(option: str | None) -> str:
     return f"({'option' if len(flags) == 1 else 'options'} {', '.join(flags)})"
 
 
-def fail(exc: TwincdError, debug: bool) -> None:
-    """Print the one-line error (DESIGN §5), with the flags of the setting it concerns, and
-    leave with its exit code."""
-    if debug:
-        traceback.print_exception(exc)
+def error_line(exc: TwincdError) -> str:
+    """The error's one line (DESIGN §5) with the flags of the setting it concerns."""
     text = exc.message
     hint = flag_hint(exc.option)
     if hint:
         text += f" {hint}"
-    text = " ".join(text.splitlines())  # one line, whatever the parts hold
-    sys.stderr.write(f"twincd: error: {text}\n")
+    return " ".join(text.splitlines())  # one line, whatever the parts hold
+
+
+def fail(exc: TwincdError, debug: bool) -> None:
+    """Print the one-line error and leave with its exit code."""
+    if debug:
+        traceback.print_exception(exc)
+    sys.stderr.write(f"twincd: error: {error_line(exc)}\n")
     raise typer.Exit(exc.exit_code)
 
 
@@ -216,6 +253,23 @@ def counter(total: int, description: str, quiet: bool) -> Iterator[Callable[[int
         yield lambda done: bar.advance(task, done)
 
 
+@dataclass
+class LogRun:
+    """A multi-log run: the results of the logs that worked (in order) and the failures."""
+
+    results: list[Any]
+    errors: list[tuple[Path, TwincdError]]
+
+    def error_docs(self) -> list[dict[str, str]]:
+        """``"errors": [{"path", "error"}]`` of ``--json`` (DESIGN §5)."""
+        return [{"path": str(path), "error": error_line(exc)} for path, exc in self.errors]
+
+    def exit_if_failed(self) -> None:
+        """``--keep-going`` ends with exit 2 when any log failed."""
+        if self.errors:
+            raise typer.Exit(2)
+
+
 def run_per_log(
     func: Callable[[T], Any],
     items: Sequence[T],
@@ -223,13 +277,27 @@ def run_per_log(
     jobs: int,
     description: str,
     quiet: bool,
-) -> list[Any]:
+    keep_going: bool = False,
+) -> LogRun:
     """``func`` over ``items`` (one per log of ``paths``) on ``jobs`` processes, with a
-    progress bar."""
+    progress bar. Each log's warnings are printed (one line each) once the bar is gone; with
+    ``keep_going`` a failing log is reported in one line and the others go on."""
     from twincd.executors import Executor
 
     with counter(len(items), description, quiet) as advance:
-        return Executor.for_logs(jobs, paths).map(func, items, advance)
+        outcomes = Executor.for_logs(jobs, paths).outcomes(func, items, advance, keep_going)
+    run = LogRun([], [])
+    for path, outcome in zip(paths, outcomes, strict=True):
+        for line in outcome.warnings:
+            log.warning("%s", line)
+        if outcome.error is not None:
+            sys.stderr.write(f"twincd: error: {error_line(outcome.error)}\n")
+            run.errors.append((path, outcome.error))
+        else:
+            run.results.append(outcome.value)
+    if not run.results and run.errors:
+        raise typer.Exit(2)  # nothing to go on with
+    return run
 
 
 @contextlib.contextmanager

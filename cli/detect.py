@@ -17,15 +17,18 @@ if TYPE_CHECKING:
 
 from .calibrate import CalibrationIn, Causal, resolve_setup
 from .common import (
+    WARNINGS,
     Debug,
     Force,
     Jobs,
     JointMap,
+    KeepGoing,
     LabelTopic,
     Logs,
     Quiet,
     Robot,
     SimTopic,
+    Strict,
     Topic,
     all_or_nothing,
     command,
@@ -89,7 +92,9 @@ def detect(
             "/twincd/collision), .csv or .jsonl; a folder for several logs.",
         ),
     ] = None,
-    json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
+    json_: Annotated[
+        bool, typer.Option("--json", help="Print one JSON document.", metavar="")
+    ] = False,
     robot: Robot = None,
     topic: Topic = None,
     label_topic: LabelTopic = None,
@@ -97,6 +102,8 @@ def detect(
     joint_map: JointMap = None,
     causal: Causal = None,
     jobs: Jobs = 0,
+    strict: Strict = False,
+    keep_going: KeepGoing = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -118,7 +125,9 @@ def detect(
     cal = Calibration.load(calibration)
     cal.require_threshold()
     paths = expand_logs(logs)
-    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map, causal=causal)
+    setup = resolve_setup(
+        cal, robot, topic, label_topic, sim_topic, joint_map, causal=causal, strict=strict
+    )
     targets = _targets(paths, output)
     # one log at a time: only the small summaries are kept, so memory stays flat
     for target in targets:
@@ -128,9 +137,9 @@ def detect(
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         written.extend(target for target in targets if target is not None)
-        results = run_per_log(
-            Bound(detect_and_write, cal, setup), items, paths, jobs, "detecting", quiet
-        )
+        work = Bound(detect_and_write, cal, setup)
+        done = run_per_log(work, items, paths, jobs, "detecting", quiet, keep_going)
+    results = done.results
     summaries = [r.to_dict() for r in results]
     for result in results:
         for line in result.warnings:
@@ -147,7 +156,10 @@ def detect(
             "collision": found,
             "threshold": cal.require_threshold().value,
             "logs": summaries,
+            "errors": done.error_docs(),
+            "warnings": list(WARNINGS),
         }
-        stdout.out(json.dumps(doc), highlight=False)
+        stdout.out(json.dumps(doc, allow_nan=False), highlight=False)
+    done.exit_if_failed()
     if found:
         raise typer.Exit(1)

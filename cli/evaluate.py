@@ -16,6 +16,7 @@ from twincd.defaults import DEFAULT_REPEATS
 
 from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
 from .common import (
+    WARNINGS,
     Debug,
     Force,
     JointMap,
@@ -24,6 +25,7 @@ from .common import (
     Quiet,
     Robot,
     SimTopic,
+    Strict,
     Topic,
     command,
     progress,
@@ -73,7 +75,9 @@ def evaluate(
             min=1,
         ),
     ] = DEFAULT_REPEATS,
-    json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
+    json_: Annotated[
+        bool, typer.Option("--json", help="Print one JSON document.", metavar="")
+    ] = False,
     report: Annotated[
         Path | None, typer.Option("--report", help="Also write a Markdown report here.")
     ] = None,
@@ -91,6 +95,7 @@ def evaluate(
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
     causal: Causal = None,
+    strict: Strict = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -120,7 +125,7 @@ def evaluate(
     if report is not None:
         check_target(report, "report", force=force, inputs=[*test_paths, *train_paths, *val_paths])
     setup = resolve_setup(
-        cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
+        cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal, strict
     )
 
     def bar(items: Sequence[Any], desc: str) -> Iterable[Any]:
@@ -148,7 +153,8 @@ def evaluate(
         with atomic_output(report) as stream:
             stream.write(evaluation_markdown(result, missed).encode("utf-8"))
     if json_:
-        stdout.out(json.dumps(result.to_dict()), highlight=False)
+        doc = {**result.to_dict(), "warnings": list(WARNINGS)}
+        stdout.out(json.dumps(doc), highlight=False)
     else:
         table = Table(
             title=f"{result.samples} test samples, {result.positives} labelled as collision",

@@ -15,10 +15,12 @@ from .common import (
     Force,
     Jobs,
     JointMap,
+    KeepGoing,
     LabelTopic,
     Quiet,
     Robot,
     SimTopic,
+    Strict,
     Topic,
     all_or_nothing,
     command,
@@ -44,12 +46,15 @@ def simulate(
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
     in_place: Annotated[
-        bool, typer.Option("--in-place", help="Rewrite a bare .mcap input atomically.")
+        bool, typer.Option("--in-place", help="Rewrite a bare .mcap input atomically.", metavar="")
     ] = False,
     list_robots_: Annotated[
-        bool, typer.Option("--list-robots", help="List the robot names --robot accepts.")
+        bool,
+        typer.Option("--list-robots", help="List the robot names --robot accepts.", metavar=""),
     ] = False,
     jobs: Jobs = 0,
+    strict: Strict = False,
+    keep_going: KeepGoing = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -99,7 +104,8 @@ def simulate(
     with all_or_nothing() as written:
         if not in_place:
             written.extend(t if t is not None else default_output(p) for p, t in items)
-        work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place)
-        results = run_per_log(work, items, paths, jobs, "simulating", quiet)
-    for result in results:
+        work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place, strict)
+        done = run_per_log(work, items, paths, jobs, "simulating", quiet, keep_going)
+    for result in done.results:
         stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")
+    done.exit_if_failed()

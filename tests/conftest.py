@@ -72,7 +72,16 @@ def build_twin_log(
     stamps = T0_NS + np.round(t * 1e9).astype(np.int64)
     log_times = stamps.copy()
     if edit is not None:
-        edit({"stamps": stamps, "log_times": log_times, "q": q, "qd": qd, "effort": effort, "twin": twin})
+        edit(
+            {
+                "stamps": stamps,
+                "log_times": log_times,
+                "q": q,
+                "qd": qd,
+                "effort": effort,
+                "twin": twin,
+            }
+        )
     with McapLogWriter(path) as out:
         js = out.add_topic("/joint_states", "sensor_msgs/msg/JointState")
         sim = out.add_topic("/twincd/sim_effort", "sensor_msgs/msg/JointState")

@@ -9,6 +9,7 @@ come back in the order of the logs given.
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing
 import os
 import signal
@@ -20,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 if TYPE_CHECKING:
     from concurrent.futures import Future
 
+from twincd.errors import TwincdError
 from twincd.twin.dynamics import default_threads
 
 T = TypeVar("T")
@@ -74,6 +76,17 @@ class Executor:
                     progress(1)
             return out
         return list(_pooled(func, items, workers, progress))
+
+    def outcomes(
+        self,
+        func: Callable[[T], R],
+        items: Sequence[T],
+        progress: Callable[[int], None] | None = None,
+        keep_going: bool = False,
+    ) -> list[Outcome[R]]:
+        """``map`` with each log's warnings kept apart; with ``keep_going`` every log runs and
+        a failure is that log's outcome, else the first failure is raised as by ``map``."""
+        return self.map(Captured(func, keep_going), items, progress)
 
 
 def _pooled(
@@ -137,6 +150,72 @@ def _worker_init() -> None:
 
     os.environ["TWINCD_TWIN_THREADS"] = "1"
     signal.signal(signal.SIGTERM, raise_terminated)
+
+
+@dataclass(frozen=True)
+class Outcome(Generic[R]):
+    """What one log's work came to: its result or its error (a ``TwincdError``), and the
+    warnings logged while it ran (one line each), whichever executor ran it."""
+
+    value: R | None
+    error: TwincdError | None
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+class Captured(Generic[T, R]):
+    """``func(item)`` as an ``Outcome`` (picklable, for any executor): twincd's warnings are
+    gathered instead of printed; with ``keep_going`` a ``TwincdError`` becomes the outcome's
+    error, otherwise it is raised and stops the run."""
+
+    def __init__(self, func: Callable[[T], R], keep_going: bool = False) -> None:
+        self.func = func
+        self.keep_going = keep_going
+
+    def __call__(self, item: T) -> Outcome[R]:
+        with captured_warnings() as warnings:
+            try:
+                value = self.func(item)
+            except TwincdError as exc:
+                if not self.keep_going:
+                    raise
+                return Outcome(None, exc, tuple(warnings))
+        return Outcome(value, None, tuple(warnings))
+
+
+class _Gather(logging.Handler):
+    """Keeps twincd's warnings; passes anything less on to the handlers it stands in for."""
+
+    def __init__(self, others: list[logging.Handler], into: list[str]) -> None:
+        super().__init__()
+        self.others = others
+        self.into = into
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno >= logging.WARNING:
+            self.into.append(record.getMessage())
+            return
+        for handler in self.others:
+            if record.levelno >= handler.level:
+                handler.handle(record)
+
+
+@contextlib.contextmanager
+def captured_warnings() -> Iterator[list[str]]:
+    """The messages of twincd's warnings logged inside the block (not printed)."""
+    logger = logging.getLogger("twincd")
+    found: list[str] = []
+    saved, saved_propagate = logger.handlers[:], logger.propagate
+    logger.handlers[:] = [_Gather(saved, found)]
+    logger.propagate = False
+    try:
+        yield found
+    finally:
+        logger.handlers[:] = saved
+        logger.propagate = saved_propagate
 
 
 class Bound(Generic[T, R]):

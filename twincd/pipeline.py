@@ -403,7 +403,8 @@ class Setup:
     urdf_sha256: str | None = None  # the calibration's: a changed URDF gets a warning
     period_s: float | None = None  # the calibration's sampling period
     block_size: int = DEFAULT_BLOCK
-    strict: bool = True
+    # False: a truncated log is read up to the damage, with one warning (DESIGN §1)
+    strict: bool = False
     twin_threads: int | None = None  # None: every core this process may use
 
     @classmethod

@@ -9,9 +9,9 @@ emits the older ones in blocks. Rules (DESIGN §1):
   duplicate stamps (the first read — earliest log time — is kept);
 - a sample older than one already emitted is *late*: dropped and counted. A log that fits in
   the reorder buffer is therefore sorted exactly like a whole-log sort;
-- a clock that jumps back by more than ``CLOCK_JUMP_NS`` (in read order) is not reordering:
-  the samples behind the jump are dropped and counted until the clock passes its earlier
-  time, so two stretches of the recording are never interleaved;
+- a header clock that jumps back against the log time by more than ``CLOCK_JUMP_NS`` is not
+  reordering: the samples behind the jump are dropped and counted until their stamps pass the
+  time reached before it, so two stretches of the recording are never interleaved;
 - ragged messages (filled arrays whose length differs from ``name``) are dropped and counted;
 - labels (Bool) are held from each message onto the samples' log times; a sample is emitted
   only once every label message at or before its log time has been read;
@@ -53,7 +53,7 @@ OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's jo
 DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
 _END = 2**63 - 1
-CLOCK_JUMP_NS = 1_000_000_000  # a stamp this far behind one read before: the clock jumped back
+CLOCK_JUMP_NS = 5_000_000_000  # stamps this much further behind the log time: the clock jumped back
 _T = TypeVar("_T", bound=np.generic)
 
 
@@ -259,24 +259,37 @@ class _Sim:
 
 
 class _Clock:
-    """Backward jumps of a stream's clock, in read order (see ``CLOCK_JUMP_NS``)."""
+    """Backward jumps of a stream's header clock (see ``CLOCK_JUMP_NS``).
+
+    A jump shows as the stamp falling behind the log time (the recorder's clock) by
+    ``CLOCK_JUMP_NS`` more than it did before; reordering and jitter leave that offset alone.
+    Samples after a jump are behind while their stamps have not passed the latest stamp read
+    before it."""
 
     def __init__(self) -> None:
-        self.latest = np.iinfo(np.int64).min + CLOCK_JUMP_NS  # the latest stamp read so far
-        self.was_behind = False  # the last stamp read was behind a jump
+        low = np.iinfo(np.int64).min + CLOCK_JUMP_NS
+        self.offset = low  # the largest stamp − log time read so far
+        self.latest = low  # the latest stamp read so far
+        self.was_behind = False  # the last sample read was behind a jump
         self.jumps = 0
         self.largest_ns = 0
 
-    def behind(self, stamp: IntArray) -> BoolArray:
-        """Per stamp: more than ``CLOCK_JUMP_NS`` behind the latest one read before it."""
+    def behind(self, stamp: IntArray, log_time: IntArray) -> BoolArray:
+        """Per sample: behind a backward jump of the clock."""
         if not len(stamp):
             return np.zeros(0, dtype=bool)
-        before = np.maximum.accumulate(np.concatenate(([self.latest], stamp[:-1])))
-        behind = stamp < before - CLOCK_JUMP_NS
+        offset = stamp - log_time
+        prior_offset = np.maximum.accumulate(np.concatenate(([self.offset], offset[:-1])))
+        prior_stamp = np.maximum.accumulate(np.concatenate(([self.latest], stamp[:-1])))
+        behind = (offset < prior_offset - CLOCK_JUMP_NS) & (stamp <= prior_stamp)
         starts = behind & ~np.concatenate(([self.was_behind], behind[:-1]))
         if starts.any():
             self.jumps += int(starts.sum())
-            self.largest_ns = max(self.largest_ns, int((before[starts] - stamp[starts]).max()))
+            gap = prior_offset[starts] - offset[starts]
+            self.largest_ns = max(self.largest_ns, int(gap.max()))
+        ahead = ~behind
+        if ahead.any():
+            self.offset = max(self.offset, int(offset[ahead].max()))
         self.latest = max(self.latest, int(stamp.max()))
         self.was_behind = bool(behind[-1])
         return behind
@@ -361,7 +374,10 @@ class LogStream:
                     f"{self.source}, {self.topic}",
                     "check the robot model, the topic and the joint map",
                 )
-        self.has_effort = first[0].effort.shape[1] > 0
+        # a log has effort when most of its first messages carry it (one empty message does
+        # not decide); samples without it are dropped as bad samples later
+        with_effort = sum(len(b) for b in first if b.effort.shape[1] > 0)
+        self.has_effort = 2 * with_effort > sum(len(b) for b in first)
         width = len(self.joint_names)
         self._pending = _empty_rows(width, self.has_effort)
         self._labels = _Labels() if self.has_labels else None
@@ -465,7 +481,7 @@ class LogStream:
             return values if same else values[:, cols]  # a copy only when columns move
 
         position = pick(batch.position)
-        ok = np.isfinite(position).all(axis=1)
+        ok: BoolArray = np.asarray(np.isfinite(position).all(axis=1))
         nan = np.full((n, len(cols)), np.nan)
         velocity = pick(batch.velocity) if batch.velocity.shape[1] else nan
         effort = None
@@ -477,7 +493,7 @@ class LogStream:
         rows = _Rows(stamp, batch.log_time_ns, seq, position, velocity, effort)
         self.counts.incomplete += int((~ok).sum())
         kept = np.flatnonzero(ok)
-        behind = self._clock.behind(stamp[kept])
+        behind = self._clock.behind(stamp[kept], batch.log_time_ns[kept])
         ok[kept[behind]] = False
         self.counts.clock_back += int(behind.sum())
         self.counts.jumps, self.counts.largest_jump_ns = self._clock.jumps, self._clock.largest_ns
@@ -506,7 +522,8 @@ class LogStream:
         have = (cols >= 0) & (cols < width)  # like zip(name, effort): extra names get nothing
         effort[:, have] = batch.effort[:, cols[have]]
         stamp = np.where(batch.stamp_ns != 0, batch.stamp_ns, batch.log_time_ns)
-        ahead = ~self._sim_clock.behind(stamp)  # as their samples: never over earlier ones
+        # as their samples: never over earlier ones
+        ahead = ~self._sim_clock.behind(stamp, batch.log_time_ns)
         stamp, effort = stamp[ahead], effort[ahead]
         if self._last is not None:  # their samples are gone already
             keep = stamp > self._last
