@@ -44,6 +44,8 @@ IntArray = NDArray[np.intp]
 DEFAULT_BLOCK = 16384  # samples per block: bounded memory, per-block Python cost negligible
 # samples looked at before the stages are set up: enough for a stable nominal period
 PEEK_SAMPLES = 1001
+# fewer usable samples than this: a log is refused, not scored (a few samples say nothing)
+MIN_SAMPLES = 20
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,8 @@ class PreparedLog:
     # the filter behind effort_f: methods that filter other inputs do it alike
     lowpass: LowPass = field(default_factory=LowPass)
     period_s: float | None = None
+    # True within the zero-phase filter's edge span of a segment's ends (None: no such span)
+    edge: BoolArray | None = None
 
     @property
     def source(self) -> str:
@@ -166,7 +170,17 @@ def filter_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
         Mapped(stack),
         Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f"),
         Mapped(split),
+        *edge_stages(lowpass, period_s),
     ]
+
+
+def edge_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
+    """An ``edge`` column (1.0 within the zero-phase filter's edge span of a segment's ends,
+    else 0.0): no stage at all for a causal filter."""
+    from twincd.signal.filters import EdgeMarker, edge_span
+
+    span = edge_span(lowpass, period_s)
+    return [Derived(EdgeMarker(span, period_s), "stamp_ns", "edge")] if span else []
 
 
 # ------------------------------------------------------------------ one log, streamed
@@ -339,8 +353,11 @@ class PreparedStream:
                     frame = Frame({k: v[ok] for k, v in frame.items()})
                 yield frame
 
+        at_edges = 0
         for out in chain.run(clean(frames())):
             self.samples += out.n
+            if "edge" in out:
+                at_edges += int(np.count_nonzero(out["edge"]))
             yield out
         if self.dropped_bad:
             log.warning(
@@ -348,8 +365,20 @@ class PreparedStream:
                 self.source,
                 self.dropped_bad,
             )
-        if self.samples < 2:
-            raise DataError("log too short to filter", self.source, "record at least a few seconds")
+        if self.samples < MIN_SAMPLES:
+            raise DataError(
+                f"log too short: {self.samples} usable sample(s), at least {MIN_SAMPLES} needed",
+                self.source,
+                "record at least a few seconds",
+            )
+        if 2 * at_edges > self.samples:
+            log.warning(
+                "%s is short: %d of its %d samples lie within the filter's edge spans, where "
+                "no collision is flagged",
+                self.source,
+                at_edges,
+                self.samples,
+            )
 
 
 def _frame(block: Any) -> Frame:
@@ -481,4 +510,5 @@ def prepared_log(stream: PreparedStream, whole: Frame, lowpass: LowPass) -> Prep
         simulated=stream.simulated,
         lowpass=lowpass,
         period_s=stream.period_s,
+        edge=None if "edge" not in whole else whole["edge"] > 0,
     )

@@ -92,7 +92,8 @@ def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogSc
             scores = affine_score(
                 frame["effort_f"], frame["sim_effort_f"], calibration.a, calibration.b
             )
-            stats = stats + ScoreStats.from_scores(scores, clean_rows(frame.get("labels"), frame.n))
+            usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
+            stats = stats + ScoreStats.from_scores(scores, usable)
     return LogScores(str(path), stats)
 
 

@@ -38,7 +38,9 @@ def fit_log(path: str | Path, setup: Setup) -> LogFit:
         for frame in stream:
             start = time.perf_counter()
             part = AffineStats.from_arrays(
-                frame["sim_effort_f"], frame["effort_f"], clean_rows(frame.get("labels"), frame.n)
+                frame["sim_effort_f"],
+                frame["effort_f"],
+                clean_rows(frame.get("labels"), frame.n, frame.get("edge")),
             )
             stats = part if stats is None else stats + part
             seconds += time.perf_counter() - start

@@ -37,6 +37,8 @@ class ScoringStage:
         r = residual(frame["effort_f"], frame["sim_effort_f"], self.a, self.b)
         scores: FloatArray = np.einsum("ij,ij->i", r, r)
         flags = scores >= self.threshold
+        if "edge" in frame:  # a filter's edge never flags a collision
+            flags &= frame["edge"] == 0
         closed = self.events.push(flags, scores, r, frame["stamp_ns"])
         return frame.with_columns(residual=r, score=scores, flag=flags), closed
 

@@ -181,6 +181,8 @@ def _val_stats(method: ScoringMethod, val: Sequence[PreparedLog]) -> ScoreStats:
     for lg in val:
         scores = method.score(lg)
         mask = ~method.unit_labels(lg) if lg.labels is not None else None
+        if method.unit == "sample" and lg.edge is not None:  # as `threshold` does
+            mask = ~lg.edge if mask is None else mask & ~lg.edge
         total = total + ScoreStats.from_scores(scores, mask)
     return total
 
