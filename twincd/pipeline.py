@@ -279,7 +279,9 @@ class PreparedStream:
         use_log_sim = sim is not None and not self.force_simulate
         if use_log_sim:
             assert sim is not None
-            have = np.flatnonzero(np.isfinite(sim).all(axis=0))
+            # a joint has the log's twin effort when most samples carry it (a NaN here and
+            # there is a bad sample, dropped later)
+            have = np.flatnonzero(np.isfinite(sim).mean(axis=0) > 0.5)
             twin_names = tuple(names[i] for i in have.tolist())
             use_log_sim = bool(twin_names)
         robot: RobotModel | None
@@ -297,6 +299,14 @@ class PreparedStream:
             if missing:
                 raise JointMismatchError(
                     f"the log lacks calibrated joint(s) {', '.join(missing)}",
+                    self.source,
+                    "use a calibration made for this robot, or a joint map",
+                )
+            extra = [n for n in twin_names if n not in setup.joint_names]
+            if extra:
+                raise JointMismatchError(
+                    f"the log has joint(s) {', '.join(extra)} that the calibration lacks "
+                    f"({len(setup.joint_names)} joints calibrated, {len(twin_names)} in the log)",
                     self.source,
                     "use a calibration made for this robot, or a joint map",
                 )

@@ -359,6 +359,11 @@ class LogStream:
                     break
         first = [b for t, b, _ in self._head if t == self.topic and isinstance(b, JointStateBatch)]
         if not first:
+            damage = self._reader.damage
+            if damage is not None:  # the damage came before any joint state
+                raise LogReadError(
+                    damage, self.source, "repair it with `mcap recover` if it is MCAP"
+                )
             raise LogReadError(
                 f"topic {self.topic} has no messages", self.source, "record joint states"
             )
@@ -452,7 +457,16 @@ class LogStream:
         if cols is None:
             where: dict[str, int] = {}
             for i, n in enumerate(names):
-                where.setdefault(self._joint_map.get(n, n), i)
+                mapped = self._joint_map.get(n, n)
+                if mapped in where and self._joint_map:
+                    clash = names[where[mapped]]
+                    raise JointMismatchError(
+                        f"after the joint map, log joints {clash} and {n} are both {mapped}",
+                        f"{self.source}, {self.topic}",
+                        "map every log joint to a name of its own",
+                        option="joint_map",
+                    )
+                where.setdefault(mapped, i)
             cols = np.array([where.get(j, -1) for j in self.joint_names], dtype=np.intp)
             self._columns[names] = cols
         return cols
