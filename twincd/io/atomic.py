@@ -173,6 +173,7 @@ def check_target(
     anything but a read-only file."""
     target = Path(target)
     check_writable(target)
+    remove_stale_temporaries(target.parent)  # a killed run's leftovers go as this one starts
     if not target.exists():
         return
     same_as_input = any(_same_file(target, Path(p)) for p in inputs)
