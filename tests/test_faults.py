@@ -378,3 +378,11 @@ def test_tables_are_not_cut_when_stdout_is_not_a_terminal(world, twin_dataset):
     from twincd_cli.common import stdout
 
     assert not stdout.is_terminal and stdout.width >= 200  # no 80-column default in CI logs
+
+
+def test_short_logs_are_refused_by_causal_detection_too(twin_dataset, tmp_path):
+    cal = tmp_path / "causal.json"
+    assert run("fit", twin_dataset / "train", "-o", cal, "--causal", "-q").exit_code == 0
+    assert run("threshold", twin_dataset / "val", "-c", cal, "-q").exit_code == 0
+    log = build_twin_log(tmp_path / "s.mcap", seed=1, seconds=0.05)
+    assert_one_line_error(run("detect", log, "-c", cal), "log too short")

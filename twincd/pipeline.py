@@ -375,12 +375,7 @@ class PreparedStream:
                 self.source,
                 self.dropped_bad,
             )
-        if self.samples < MIN_SAMPLES:
-            raise DataError(
-                f"log too short: {self.samples} usable sample(s), at least {MIN_SAMPLES} needed",
-                self.source,
-                "record at least a few seconds",
-            )
+        require_enough_samples(self.samples, self.source)
         if 2 * at_edges > self.samples:
             log.warning(
                 "%s is short: %d of its %d samples lie within the filter's edge spans, where "
@@ -389,6 +384,16 @@ class PreparedStream:
                 at_edges,
                 self.samples,
             )
+
+
+def require_enough_samples(samples: int, source: str) -> None:
+    """A log with fewer than ``MIN_SAMPLES`` usable samples is refused, never scored."""
+    if samples < MIN_SAMPLES:
+        raise DataError(
+            f"log too short: {samples} usable sample(s), at least {MIN_SAMPLES} needed",
+            source,
+            "record at least a few seconds",
+        )
 
 
 def _frame(block: Any) -> Frame:
