@@ -97,12 +97,18 @@ WARNINGS: list[str] = []
 
 
 class _StderrHandler(logging.Handler):
+    def __init__(self, quiet: bool) -> None:
+        super().__init__()
+        self.quiet = quiet
+
     def emit(self, record: logging.LogRecord) -> None:
         level = record.levelname.lower()
         prefix = "twincd: " if record.levelno < logging.WARNING else f"twincd: {level}: "
         text = " ".join(record.getMessage().splitlines())  # one line each
         if record.levelno == logging.WARNING:
-            WARNINGS.append(text)
+            WARNINGS.append(text)  # for --json, --quiet or not
+        if self.quiet and record.levelno < logging.ERROR:
+            return
         if stderr.is_terminal:  # through rich: never glued onto a progress bar's line
             stderr.print(prefix + text, markup=False, highlight=False, soft_wrap=True)
         else:
@@ -112,9 +118,9 @@ class _StderrHandler(logging.Handler):
 def setup_logging(quiet: bool, debug: bool) -> None:
     WARNINGS.clear()
     logger = logging.getLogger("twincd")
-    logger.handlers[:] = [_StderrHandler()]
+    logger.handlers[:] = [_StderrHandler(quiet)]
     logger.propagate = False
-    logger.setLevel(logging.ERROR if quiet else logging.DEBUG if debug else logging.INFO)
+    logger.setLevel(logging.WARNING if quiet else logging.DEBUG if debug else logging.INFO)
 
 
 def log_options(

@@ -391,3 +391,13 @@ def test_short_logs_are_refused_by_causal_detection_too(twin_dataset, tmp_path):
     assert run("threshold", twin_dataset / "val", "-c", cal, "-q").exit_code == 0
     log = build_twin_log(tmp_path / "s.mcap", seed=1, seconds=0.05)
     assert_one_line_error(run("detect", log, "-c", cal), "log too short")
+
+
+def test_quiet_keeps_warnings_in_json_only(world, tmp_path):
+    def back(arrays: dict[str, np.ndarray]) -> None:
+        arrays["stamps"][800:] -= 10_000_000_000
+
+    log = build_twin_log(tmp_path / "back.mcap", seed=2, edit=back)
+    result = run("detect", log, "-c", world["cal"], "--json", "-q")
+    assert result.exit_code == 0 and result.stderr == ""
+    assert any("clock jumps back" in w for w in json.loads(result.stdout)["warnings"])
