@@ -401,3 +401,42 @@ def test_quiet_keeps_warnings_in_json_only(world, tmp_path):
     result = run("detect", log, "-c", world["cal"], "--json", "-q")
     assert result.exit_code == 0 and result.stderr == ""
     assert any("clock jumps back" in w for w in json.loads(result.stdout)["warnings"])
+
+
+def test_on_a_terminal_messages_never_share_a_line_with_the_progress_bar(twin_dataset, tmp_path):
+    """stderr on a pseudo-terminal (progress bars on): every message starts a line of its own
+    once the bar's control sequences are taken out."""
+    import pty
+    import re
+    import subprocess
+    import sys
+
+    def back(arrays: dict[str, np.ndarray]) -> None:
+        arrays["stamps"][800:] -= 10_000_000_000
+
+    logs = [twin_dataset / "train" / f"train_{i}.mcap" for i in range(3)]
+    logs.append(build_twin_log(tmp_path / "back.mcap", seed=2, edit=back))
+    main, child = pty.openpty()
+    argv = [sys.executable, "-c", "from twincd_cli.main import main; main()", "fit"]
+    proc = subprocess.Popen(
+        [*argv, *map(str, logs), "-o", str(tmp_path / "c.json"), "-j", "1"],
+        stdout=subprocess.DEVNULL,
+        stderr=child,
+        env={**os.environ, "TERM": "xterm", "COLUMNS": "100"},
+    )
+    os.close(child)
+    chunks = []
+    while True:
+        try:
+            data = os.read(main, 4096)
+        except OSError:
+            break
+        if not data:
+            break
+        chunks.append(data)
+    assert proc.wait(timeout=120) == 0
+    text = b"".join(chunks).decode(errors="replace")
+    plain = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", text).replace("\r", "\n")
+    lines = [line for line in plain.splitlines() if "twincd:" in line]
+    assert any("clock jumps back" in line for line in lines)
+    assert all(line.startswith("twincd:") for line in lines), lines
