@@ -404,8 +404,9 @@ def test_quiet_keeps_warnings_in_json_only(world, tmp_path):
 
 
 def test_on_a_terminal_messages_never_share_a_line_with_the_progress_bar(twin_dataset, tmp_path):
-    """stderr on a pseudo-terminal (progress bars on): every message starts a line of its own
-    once the bar's control sequences are taken out."""
+    """stderr on a pseudo-terminal (progress bars on), logs on a pool: every message starts a
+    line of its own once the bar's control sequences are taken out (workers' warnings come
+    back with their results; printed by the workers, they broke into the bar's line)."""
     import pty
     import re
     import subprocess
@@ -419,7 +420,7 @@ def test_on_a_terminal_messages_never_share_a_line_with_the_progress_bar(twin_da
     main, child = pty.openpty()
     argv = [sys.executable, "-c", "from twincd_cli.main import main; main()", "fit"]
     proc = subprocess.Popen(
-        [*argv, *map(str, logs), "-o", str(tmp_path / "c.json"), "-j", "1"],
+        [*argv, *map(str, logs), "-o", str(tmp_path / "c.json"), "-j", "2"],
         stdout=subprocess.DEVNULL,
         stderr=child,
         env={**os.environ, "TERM": "xterm", "COLUMNS": "100"},
