@@ -24,8 +24,10 @@ from twincd.errors import UsageError
 
 from .common import (
     Debug,
+    Force,
     Jobs,
     JointMap,
+    KeepGoing,
     LabelTopic,
     Logs,
     Quiet,
@@ -33,6 +35,7 @@ from .common import (
     Robot,
     Scheduler,
     SimTopic,
+    Strict,
     Topic,
     check_reports,
     command,
@@ -70,6 +73,7 @@ Causal = Annotated[
     typer.Option(
         "--causal/--zero-phase",
         help="Filter forward only, as a live detector would (default: zero-phase).",
+        metavar="",
     ),
 ]
 
@@ -92,6 +96,7 @@ def resolve_setup(
     cutoff: float | None = None,
     filter_order: int | None = None,
     causal: bool | None = None,
+    strict: bool = False,
 ) -> Setup:
     """Settings for reading logs: explicit options over the calibration's, never against them."""
     from twincd.io.logs import parse_joint_map
@@ -105,7 +110,8 @@ def resolve_setup(
             order=DEFAULT_ORDER if filter_order is None else filter_order,
             causal=bool(causal),
         )
-        return Setup(log_options(topic, label_topic, sim_topic, joint_map), robot, lowpass)
+        options = log_options(topic, label_topic, sim_topic, joint_map)
+        return Setup(options, robot, lowpass, strict=strict)
     cal = calibration
     recorded = cal.options
     for option, given, was in (
@@ -134,7 +140,7 @@ def resolve_setup(
     ):
         if given_f is not None and given_f != was_f:
             _contradiction(option, f"{given_f:g}", f"{was_f:g}", cal)
-    setup = Setup.from_calibration(cal)
+    setup = replace(Setup.from_calibration(cal), strict=strict)
     if robot is not None and cal.robot is None:
         setup = replace(setup, robot=robot)
     return setup
@@ -188,6 +194,9 @@ def fit(
     ] = "affine",
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
+    strict: Strict = False,
+    keep_going: KeepGoing = False,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -202,36 +211,38 @@ def fit(
     from twincd.calibration import fit_log, merge_fits
     from twincd.calibration.setup import setup_for_model
     from twincd.executors import Bound
+    from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import check_writable
 
-    check_writable(output)
-    check_reports(report, None)
     paths = expand_logs(logs)
+    check_target(output, "calibration", force=force, inputs=paths)
+    check_reports(report, None, force=force, inputs=paths)
     setup = resolve_setup(
-        None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
+        None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal, strict
     )
     setup = setup_for_model(setup, model)
     figure = report is not None and report.suffix.lower() == ".html"
     if figure:
         from twincd.reports.traces import fit_log_with_pairs
 
-        both = run_per_log(
-            Bound(fit_log_with_pairs, setup), paths, paths, jobs, "fitting", quiet, scheduler
-        )
-        parts = [part for part, _ in both]
+        work = Bound(fit_log_with_pairs, setup)
     else:
-        parts = run_per_log(Bound(fit_log, setup), paths, paths, jobs, "fitting", quiet, scheduler)
+        work = Bound(fit_log, setup)
+    done = run_per_log(
+        work, paths, paths, jobs, "fitting", quiet, keep_going=keep_going, scheduler=scheduler
+    )
+    parts = [part for part, _ in done.results] if figure else done.results
     cal = merge_fits(parts, setup, model)
     cal.save(output)
     stdout.print(fit_table(cal))
     if report is not None:
         from twincd.reports import ThinnedPairs, fit_report
 
-        pairs = ThinnedPairs.merge([p for _, p in both]) if figure else None
+        pairs = ThinnedPairs.merge([p for _, p in done.results]) if figure else None
         fit_report(report, replace(cal, source=str(output)), pairs)
         log.info("wrote %s", report)
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
+    done.exit_if_failed()
 
 
 @command
@@ -253,6 +264,9 @@ def threshold(
     joint_map: JointMap = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
+    strict: Strict = False,
+    keep_going: KeepGoing = False,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -266,19 +280,20 @@ def threshold(
     """
     from twincd.calibration import Calibration
     from twincd.executors import Bound
+    from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import check_writable
     from twincd.threshold import score_log, with_threshold
 
     cal = Calibration.load(calibration)
     target = output or calibration
-    check_writable(target)
     paths = expand_logs(logs)
-    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map)
-    parts = run_per_log(
-        Bound(score_log, setup, cal), paths, paths, jobs, "scoring", quiet, scheduler
+    check_target(target, "calibration", force=force, inputs=paths)
+    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map, strict=strict)
+    work = Bound(score_log, setup, cal)
+    done = run_per_log(
+        work, paths, paths, jobs, "scoring", quiet, keep_going=keep_going, scheduler=scheduler
     )
-    cal = with_threshold(parts, cal, sigma)
+    cal = with_threshold(done.results, cal, sigma)
     cal.save(target)
     th = cal.require_threshold()
     stdout.print(
@@ -287,3 +302,4 @@ def threshold(
         soft_wrap=True,
     )
     log.info("wrote %s", target)
+    done.exit_if_failed()

@@ -6,10 +6,13 @@ import contextlib
 import functools
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
@@ -17,13 +20,14 @@ import typer
 from rich.console import Console
 
 from twincd.defaults import DEFAULT_LABEL_TOPIC, DEFAULT_ROBOT, DEFAULT_SIM_TOPIC, DEFAULT_TOPIC
-from twincd.errors import TwincdError
+from twincd.errors import Terminated, TwincdError, raise_terminated
 
 if TYPE_CHECKING:
     from twincd.executors import MapExecutor
     from twincd.io.logs import LogOptions
 
 T = TypeVar("T")
+log = logging.getLogger("twincd")
 
 Logs = Annotated[
     list[Path],
@@ -49,7 +53,9 @@ SimTopic = Annotated[
 JointMap = Annotated[
     str | None, typer.Option("--joint-map", help="rename log joints: old=new,old2=new2")
 ]
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.")]
+Quiet = Annotated[
+    bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.", metavar="")
+]
 Jobs = Annotated[
     int,
     typer.Option(
@@ -64,7 +70,6 @@ Scheduler = Annotated[
         "LocalCluster of -j workers. Logs must be at the same path on every worker.",
     ),
 ]
-Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")]
 Report = Annotated[
     Path | None,
     typer.Option(
@@ -81,25 +86,69 @@ NoSummary = Annotated[
     typer.Option(
         "--no-summary",
         help="Do not append the Markdown summary to $GITHUB_STEP_SUMMARY (appended when set).",
+        metavar="",
+    ),
+]
+Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.", metavar="")]
+Strict = Annotated[
+    bool,
+    typer.Option(
+        "--strict",
+        help="Refuse a truncated log instead of reading it up to the damage.",
+        metavar="",
+    ),
+]
+KeepGoing = Annotated[
+    bool,
+    typer.Option(
+        "--keep-going",
+        help="Process every log even if some fail; report each failure, exit 2 at the end.",
+        metavar="",
+    ),
+]
+Force = Annotated[
+    bool,
+    typer.Option(
+        "--force",
+        help="Overwrite an output even if it is not twincd's own output of its kind.",
+        metavar="",
     ),
 ]
 
 stderr = Console(stderr=True, highlight=False)
-stdout = Console(highlight=False)
+# not a terminal (a CI log, a pipe): no 80-column default that would cut tables
+stdout = Console(highlight=False, width=None if sys.stdout.isatty() else 1000)
+
+
+# every warning of this run, for --json ("warnings": [...]); printed as they come as well
+WARNINGS: list[str] = []
 
 
 class _StderrHandler(logging.Handler):
+    def __init__(self, quiet: bool) -> None:
+        super().__init__()
+        self.quiet = quiet
+
     def emit(self, record: logging.LogRecord) -> None:
         level = record.levelname.lower()
         prefix = "twincd: " if record.levelno < logging.WARNING else f"twincd: {level}: "
-        sys.stderr.write(prefix + record.getMessage() + "\n")
+        text = " ".join(record.getMessage().splitlines())  # one line each
+        if record.levelno == logging.WARNING:
+            WARNINGS.append(text)  # for --json, --quiet or not
+        if self.quiet and record.levelno < logging.ERROR:
+            return
+        if stderr.is_terminal:  # through rich: never glued onto a progress bar's line
+            stderr.print(prefix + text, markup=False, highlight=False, soft_wrap=True)
+        else:
+            sys.stderr.write(prefix + text + "\n")
 
 
 def setup_logging(quiet: bool, debug: bool) -> None:
+    WARNINGS.clear()
     logger = logging.getLogger("twincd")
-    logger.handlers[:] = [_StderrHandler()]
+    logger.handlers[:] = [_StderrHandler(quiet)]
     logger.propagate = False
-    logger.setLevel(logging.ERROR if quiet else logging.DEBUG if debug else logging.INFO)
+    logger.setLevel(logging.WARNING if quiet else logging.DEBUG if debug else logging.INFO)
 
 
 def log_options(
@@ -147,6 +196,9 @@ FLAGS: dict[str, str] = {
     "report": "--report",
     "junit": "--junit",
     "no_summary": "--no-summary",
+    "force": "--force",
+    "strict": "--strict",
+    "keep_going": "--keep-going",
 }
 
 
@@ -160,17 +212,20 @@ def flag_hint(option: str | None) -> str:
     return f"({'option' if len(flags) == 1 else 'options'} {', '.join(flags)})"
 
 
-def fail(exc: TwincdError, debug: bool) -> None:
-    """Print the one-line error (DESIGN §5), with the flags of the setting it concerns, and
-    leave with its exit code."""
-    if debug:
-        traceback.print_exception(exc)
+def error_line(exc: TwincdError) -> str:
+    """The error's one line (DESIGN §5) with the flags of the setting it concerns."""
     text = exc.message
     hint = flag_hint(exc.option)
     if hint:
         text += f" {hint}"
-    text = " ".join(text.splitlines())  # one line, whatever the parts hold
-    sys.stderr.write(f"twincd: error: {text}\n")
+    return " ".join(text.splitlines())  # one line, whatever the parts hold
+
+
+def fail(exc: TwincdError, debug: bool) -> None:
+    """Print the one-line error and leave with its exit code."""
+    if debug:
+        traceback.print_exception(exc)
+    sys.stderr.write(f"twincd: error: {error_line(exc)}\n")
     raise typer.Exit(exc.exit_code)
 
 
@@ -182,14 +237,32 @@ def command(func: Callable[..., Any]) -> Callable[..., Any]:
         debug = bool(kwargs.get("debug", False))
         setup_logging(bool(kwargs.get("quiet", False)), debug)
         try:
-            return func(*args, **kwargs)
+            with terminate_like_interrupt():
+                return func(*args, **kwargs)
         except TwincdError as exc:
             fail(exc, debug)
+        except Terminated:
+            sys.stderr.write("twincd: terminated\n")
+            raise typer.Exit(143) from None
         except KeyboardInterrupt:
             sys.stderr.write("twincd: interrupted\n")
             raise typer.Exit(130) from None
 
     return wrapper
+
+
+@contextlib.contextmanager
+def terminate_like_interrupt() -> Iterator[None]:
+    """SIGTERM raises ``Terminated`` (a KeyboardInterrupt) while the block runs, so that
+    temporaries are removed as on Ctrl-C; the previous handler comes back after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set from the main thread
+        return
+    previous = signal.signal(signal.SIGTERM, raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def show_progress(quiet: bool) -> bool:
@@ -236,6 +309,23 @@ def counter(total: int, description: str, quiet: bool) -> Iterator[Callable[[int
         yield advance
 
 
+@dataclass
+class LogRun:
+    """A multi-log run: the results of the logs that worked (in order) and the failures."""
+
+    results: list[Any]
+    errors: list[tuple[Path, TwincdError]]
+
+    def error_docs(self) -> list[dict[str, str]]:
+        """``"errors": [{"path", "error"}]`` of ``--json`` (DESIGN §5)."""
+        return [{"path": str(path), "error": error_line(exc)} for path, exc in self.errors]
+
+    def exit_if_failed(self) -> None:
+        """``--keep-going`` ends with exit 2 when any log failed."""
+        if self.errors:
+            raise typer.Exit(2)
+
+
 def run_per_log(
     func: Callable[[T], Any],
     items: Sequence[T],
@@ -243,14 +333,30 @@ def run_per_log(
     jobs: int,
     description: str,
     quiet: bool,
+    *,
+    keep_going: bool = False,
     scheduler: str | None = None,
-) -> list[Any]:
+) -> LogRun:
     """``func`` over ``items`` (one per log of ``paths``) on ``jobs`` processes or the Dask
-    cluster at ``scheduler``, with a progress bar."""
-    from twincd.executors import open_executor
+    cluster at ``scheduler``, with a progress bar. Each log's warnings are printed (one line
+    each) once the bar is gone; with ``keep_going`` a failing log is reported in one line and
+    the others go on."""
+    from twincd.executors import Captured, open_executor
 
     with open_executor(jobs, scheduler, paths) as executor:
-        return map_per_log(executor, func, items, description, quiet)
+        outcomes = map_per_log(executor, Captured(func, keep_going), items, description, quiet)
+    run = LogRun([], [])
+    for path, outcome in zip(paths, outcomes, strict=True):
+        for line in outcome.warnings:
+            log.warning("%s", line)
+        if outcome.error is not None:
+            sys.stderr.write(f"twincd: error: {error_line(outcome.error)}\n")
+            run.errors.append((path, outcome.error))
+        else:
+            run.results.append(outcome.value)
+    if not run.results and run.errors:
+        raise typer.Exit(2)  # nothing to go on with
+    return run
 
 
 def map_per_log(
@@ -265,20 +371,23 @@ def map_per_log(
         return executor.map(func, items, advance)
 
 
-def check_reports(report: Path | None, junit: Path | None) -> None:
-    """Fail before any work when a report or JUnit file cannot be written."""
-    from twincd.io.atomic import check_writable
+def check_reports(
+    report: Path | None, junit: Path | None, *, force: bool = False, inputs: Sequence[Path] = ()
+) -> None:
+    """Fail before any work when a report or JUnit file cannot be written, or would replace
+    something that is not twincd's own report of that kind (unless ``force``)."""
+    from twincd.io.atomic import check_target
     from twincd.reports import check_report_kind
 
     if report is not None:
         check_report_kind(report)
-        check_writable(report)
+        check_target(report, "report", force=force, inputs=inputs)
         if report.suffix.lower() == ".html":
             from twincd.reports.figures import pyplot
 
             pyplot()  # a missing plot extra is an error now, not after the work
     if junit is not None:
-        check_writable(junit)
+        check_target(junit, "junit", force=force, inputs=inputs)
 
 
 @contextlib.contextmanager
@@ -286,7 +395,7 @@ def all_or_nothing() -> Iterator[list[Path]]:
     """Collects the files a multi-log run may write; if the run fails, those it wrote are
     removed again (files older than the run are left alone), so a failed run leaves nothing
     behind (DESIGN §5)."""
-    from twincd.io.atomic import remove_temporaries
+    from twincd.io.atomic import remove_stale_temporaries
 
     started = time.time_ns()
     written: list[Path] = []
@@ -300,5 +409,5 @@ def all_or_nothing() -> Iterator[list[Path]]:
         raise
     finally:
         # what a worker killed mid-write left (its log was then written again elsewhere)
-        for path in written:
-            remove_temporaries(path)
+        for folder in {path.parent for path in written}:
+            remove_stale_temporaries(folder, say=False)

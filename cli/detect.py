@@ -18,10 +18,13 @@ if TYPE_CHECKING:
 
 from .calibrate import CalibrationIn, Causal, resolve_setup
 from .common import (
+    WARNINGS,
     Debug,
+    Force,
     Jobs,
     JointMap,
     Junit,
+    KeepGoing,
     LabelTopic,
     Logs,
     NoSummary,
@@ -30,6 +33,7 @@ from .common import (
     Robot,
     Scheduler,
     SimTopic,
+    Strict,
     Topic,
     all_or_nothing,
     check_reports,
@@ -115,7 +119,9 @@ def detect(
             "/twincd/collision), .csv or .jsonl; a folder for several logs.",
         ),
     ] = None,
-    json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
+    json_: Annotated[
+        bool, typer.Option("--json", help="Print one JSON document.", metavar="")
+    ] = False,
     report: Report = None,
     junit: Junit = None,
     no_summary: NoSummary = False,
@@ -127,6 +133,9 @@ def detect(
     causal: Causal = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
+    strict: Strict = False,
+    keep_going: KeepGoing = False,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -142,33 +151,32 @@ def detect(
     """
     from twincd.calibration import Calibration
     from twincd.executors import Bound
+    from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import check_writable
     from twincd.outputs import detect_and_write
 
     cal = Calibration.load(calibration)
     cal.require_threshold()
     paths = expand_logs(logs)
-    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map, causal=causal)
+    setup = resolve_setup(
+        cal, robot, topic, label_topic, sim_topic, joint_map, causal=causal, strict=strict
+    )
     targets = _targets(paths, output)
     # one log at a time: only the small summaries are kept, so memory stays flat
     for target in targets:
         if target is not None:
-            check_writable(target)
-    check_reports(report, junit)
+            kind = "detect" if target.suffix.lower() == ".mcap" else "table"
+            check_target(target, kind, force=force, inputs=paths)
+    check_reports(report, junit, force=force, inputs=paths)
     trace = report is not None and report.suffix.lower() == ".html"
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         written.extend(target for target in targets if target is not None)
-        results = run_per_log(
-            Bound(detect_and_write, cal, setup, trace),
-            items,
-            paths,
-            jobs,
-            "detecting",
-            quiet,
-            scheduler,
+        work = Bound(detect_and_write, cal, setup, trace)
+        done = run_per_log(
+            work, items, paths, jobs, "detecting", quiet, keep_going=keep_going, scheduler=scheduler
         )
+        results = done.results
         written.extend(p for p in (report, junit) if p is not None)
         _write_reports(results, cal, report, junit, no_summary)
     summaries = [r.to_dict() for r in results]
@@ -187,7 +195,10 @@ def detect(
             "collision": found,
             "threshold": cal.require_threshold().value,
             "logs": summaries,
+            "errors": done.error_docs(),
+            "warnings": list(WARNINGS),
         }
-        stdout.out(json.dumps(doc), highlight=False)
+        stdout.out(json.dumps(doc, allow_nan=False), highlight=False)
+    done.exit_if_failed()
     if found:
         raise typer.Exit(1)

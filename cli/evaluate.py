@@ -16,7 +16,9 @@ from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 
 from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
 from .common import (
+    WARNINGS,
     Debug,
+    Force,
     Jobs,
     JointMap,
     Junit,
@@ -28,6 +30,7 @@ from .common import (
     Robot,
     Scheduler,
     SimTopic,
+    Strict,
     Topic,
     check_reports,
     command,
@@ -113,7 +116,9 @@ def evaluate(
             min=1,
         ),
     ] = DEFAULT_REPEATS,
-    json_: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
+    json_: Annotated[
+        bool, typer.Option("--json", help="Print one JSON document.", metavar="")
+    ] = False,
     report: Report = None,
     junit: Junit = None,
     no_summary: NoSummary = False,
@@ -140,6 +145,8 @@ def evaluate(
             help="std_msgs/String contact link (isolation ground truth), when logs have it.",
         ),
     ] = DEFAULT_LINK_TOPIC,
+    strict: Strict = False,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -170,12 +177,12 @@ def evaluate(
 
     cal = Calibration.load(calibration) if calibration is not None else None
     names = parse_methods(methods)
-    check_reports(report, junit)
     test_paths = expand_logs(logs)
     train_paths = expand_logs(train) if train else []
     val_paths = expand_logs(val) if val else []
+    check_reports(report, junit, force=force, inputs=[*test_paths, *train_paths, *val_paths])
     setup = resolve_setup(
-        cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal
+        cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal, strict
     )
 
     def bar(items: Sequence[Any], desc: str) -> Iterable[Any]:
@@ -209,7 +216,8 @@ def evaluate(
     missed = result.missed_gates(min_f1, min_auc)
     _write_reports(result, missed, cal, report, junit, no_summary, (min_f1, min_auc))
     if json_:
-        stdout.out(json.dumps(result.to_dict()), highlight=False)
+        doc = {**result.to_dict(), "warnings": list(WARNINGS)}
+        stdout.out(json.dumps(doc), highlight=False)
     else:
         table = Table(
             title=f"{result.samples} test samples, {result.positives} labelled as collision",

@@ -2,15 +2,36 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperCommand, TyperGroup
 
 from twincd import __version__
 
 from . import calibrate, detect, evaluate, simulate, synth
 
+
+class _NoFlagMetavar:
+    """``--help`` is a flag: no ``<bool>`` after it in the help text."""
+
+    def get_help_option(self, ctx: typer.Context) -> Any:
+        option = super().get_help_option(ctx)  # type: ignore[misc]
+        if option is not None:
+            option.metavar = ""
+        return option
+
+
+class _Command(_NoFlagMetavar, TyperCommand):
+    pass
+
+
+class _Group(_NoFlagMetavar, TyperGroup):
+    pass
+
+
 app = typer.Typer(
+    cls=_Group,
     name="twincd",
     help="Find robot-arm collisions in recorded ROS 2 logs with a digital twin.",
     no_args_is_help=True,
@@ -29,18 +50,20 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[
         bool,
-        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+        typer.Option(
+            "--version", callback=_version, is_eager=True, help="Print the version.", metavar=""
+        ),
     ] = False,
 ) -> None:
     """Find robot-arm collisions in recorded ROS 2 logs with a digital twin."""
 
 
-app.command("simulate")(simulate.simulate)
-app.command("fit")(calibrate.fit)
-app.command("threshold")(calibrate.threshold)
-app.command("detect")(detect.detect)
-app.command("evaluate")(evaluate.evaluate)
-app.command("synth")(synth.synth)
+app.command("simulate", cls=_Command)(simulate.simulate)
+app.command("fit", cls=_Command)(calibrate.fit)
+app.command("threshold", cls=_Command)(calibrate.threshold)
+app.command("detect", cls=_Command)(detect.detect)
+app.command("evaluate", cls=_Command)(evaluate.evaluate)
+app.command("synth", cls=_Command)(synth.synth)
 
 
 def main() -> None:

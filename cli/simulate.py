@@ -12,13 +12,16 @@ from twincd.errors import UsageError
 
 from .common import (
     Debug,
+    Force,
     Jobs,
     JointMap,
+    KeepGoing,
     LabelTopic,
     Quiet,
     Robot,
     Scheduler,
     SimTopic,
+    Strict,
     Topic,
     all_or_nothing,
     command,
@@ -44,13 +47,17 @@ def simulate(
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
     in_place: Annotated[
-        bool, typer.Option("--in-place", help="Rewrite a bare .mcap input atomically.")
+        bool, typer.Option("--in-place", help="Rewrite a bare .mcap input atomically.", metavar="")
     ] = False,
     list_robots_: Annotated[
-        bool, typer.Option("--list-robots", help="List the robot names --robot accepts.")
+        bool,
+        typer.Option("--list-robots", help="List the robot names --robot accepts.", metavar=""),
     ] = False,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
+    strict: Strict = False,
+    keep_going: KeepGoing = False,
+    force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -61,8 +68,8 @@ def simulate(
     Example: twincd simulate run.mcap --robot xarm7 -o run.twin.mcap
     """
     from twincd.executors import Bound
+    from twincd.io.atomic import check_target, check_writable
     from twincd.io.logs import expand_logs
-    from twincd.io.mcap_write import check_writable
     from twincd.simulate import default_output, simulate_item
     from twincd.twin.robot import list_robots
 
@@ -90,12 +97,26 @@ def simulate(
     if output is not None:
         targets = [output / default_output(p).name if several else output for p in paths]
     for path, target in zip(paths, targets):
-        check_writable(target if target is not None else default_output(path))
+        if in_place:
+            check_writable(path)  # a read-only log is refused
+        else:
+            out = target if target is not None else default_output(path)
+            check_target(out, "simulate", force=force, inputs=paths)
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         if not in_place:
             written.extend(t if t is not None else default_output(p) for p, t in items)
-        work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place)
-        results = run_per_log(work, items, paths, jobs, "simulating", quiet, scheduler)
-    for result in results:
+        work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place, strict)
+        done = run_per_log(
+            work,
+            items,
+            paths,
+            jobs,
+            "simulating",
+            quiet,
+            keep_going=keep_going,
+            scheduler=scheduler,
+        )
+    for result in done.results:
         stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")
+    done.exit_if_failed()

@@ -33,6 +33,7 @@ def synth(
         typer.Option(
             "--rosbag2-copy/--no-rosbag2-copy",
             help="Also write the first test path as a rosbag2 sqlite3 folder (OUTDIR/rosbag2/).",
+            metavar="",
         ),
     ] = True,
     jobs: Annotated[

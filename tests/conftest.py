@@ -44,8 +44,13 @@ def build_twin_log(
     joints: Sequence[str] = TWIN_JOINTS,
     noise: float = 0.05,
     gains: np.ndarray | None = None,
+    edit: Callable[[dict[str, np.ndarray]], None] | None = None,
 ) -> Path:
-    """Write a bare MCAP log with /joint_states, /twincd/sim_effort and /collision_flag."""
+    """Write a bare MCAP log with /joint_states, /twincd/sim_effort and /collision_flag.
+
+    ``edit`` may change the arrays in place before they are written (faults: NaN, clock jumps):
+    ``stamps`` (header stamps) and ``log_times`` (n,) int64, ``q``, ``qd``, ``effort``, ``twin``
+    (n, dof)."""
     from twincd.io.cdr import bool_cdr, joint_state_cdr
     from twincd.io.mcap_write import McapLogWriter
 
@@ -65,20 +70,32 @@ def build_twin_log(
         effort[inside] += peak * shape[:, None] * direction
         flag |= inside
     stamps = T0_NS + np.round(t * 1e9).astype(np.int64)
+    log_times = stamps.copy()
+    if edit is not None:
+        edit(
+            {
+                "stamps": stamps,
+                "log_times": log_times,
+                "q": q,
+                "qd": qd,
+                "effort": effort,
+                "twin": twin,
+            }
+        )
     with McapLogWriter(path) as out:
         js = out.add_topic("/joint_states", "sensor_msgs/msg/JointState")
         sim = out.add_topic("/twincd/sim_effort", "sensor_msgs/msg/JointState")
         msgs = joint_state_cdr(stamps, joints, q, qd, effort)
         sims = joint_state_cdr(stamps, joints, q, qd, twin)
-        for stamp, m, s in zip(stamps, msgs, sims, strict=True):
-            out.write(js, int(stamp), m)
-            out.write(sim, int(stamp), s)
+        for log_time, m, s in zip(log_times, msgs, sims, strict=True):
+            out.write(js, int(log_time), m)
+            out.write(sim, int(log_time), s)
         if labels:
             lab = out.add_topic("/collision_flag", "std_msgs/msg/Bool")
             change = np.flatnonzero(np.diff(np.concatenate(([False], flag))) != 0)
-            out.write(lab, int(stamps[0]) - 1, bool_cdr(False))
+            out.write(lab, int(log_times[0]) - 1, bool_cdr(False))
             for i in change:
-                out.write(lab, int(stamps[i]), bool_cdr(bool(flag[i])))
+                out.write(lab, int(log_times[i]), bool_cdr(bool(flag[i])))
     return path
 
 

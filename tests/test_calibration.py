@@ -202,7 +202,8 @@ def test_fit_calibration_over_logs_recovers_the_gains(twin_dataset):
     np.testing.assert_allclose(cal.a, GAINS, rtol=0.02)
     np.testing.assert_allclose(cal.b, OFFSET, atol=0.05)
     assert cal.robot is None and not cal.simulated  # the logs carry their own twin effort
-    assert len(cal.fit_logs) == 3 and cal.fit_samples == 3 * 1600
+    # 0.1 s at each end (half a period of 5 Hz) is a filter edge: not fitted
+    assert len(cal.fit_logs) == 3 and cal.fit_samples == 3 * (1600 - 2 * 10)
     assert np.all(cal.r2 > 0.9)
 
 
@@ -232,3 +233,51 @@ def test_large_offsets_do_not_cancel_the_signal():
     # (the uncentred formula was off by ~3e4 here)
     assert sol.b[0] == pytest.approx(b_ref - a_ref * 1e6, abs=0.05)
     assert 0.99 < sol.r2[0] < 1.0
+
+
+def _with(doc, dotted: str, value):
+    """``doc`` with the field at ``dotted`` (a.b.c) replaced by ``value``."""
+    node = doc
+    *parents, last = dotted.split(".")
+    for key in parents:
+        node = node[key]
+    node[last] = value
+    return doc
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("model.joints.j1.a", float("nan"), r"a\[j1\] is nan"),
+        ("model.joints.j2.b", float("inf"), r"b\[j2\] is inf"),
+        ("model.joints.j1.a", "0.8", r"a\[j1\] is str"),
+        ("model.joints.j1.b", True, r"b\[j1\] is bool"),
+        ("model.joints.j1.a", None, r"a\[j1\] is NoneType"),
+        ("threshold.mu", float("nan"), "threshold.mu is nan"),
+        ("threshold.sigma", float("-inf"), "threshold.sigma is -inf"),
+        ("threshold.sigma", -1.0, "negative sigma"),
+        ("threshold.value", 99.0, "not mu"),
+        ("threshold.k_sigma", "4", "threshold.k_sigma is str"),
+        ("filter.cutoff_hz", 0, "filter.cutoff_hz is 0"),
+        ("filter.order", 2.5, "filter.order is 2.5"),
+        ("filter.sample_rate_hz", float("nan"), "sample_rate_hz is nan"),
+        ("robot.joint_names", ["j1", "j1"], "names a joint twice"),
+        ("robot.joint_names", "j1", "not a list of joint names"),
+    ],
+)
+def test_every_number_is_validated_on_load(tmp_path, field, value, match):
+    doc = make_calibration(threshold=Threshold(4.0, 1.5, 0.5, ("v.mcap",), 80)).to_dict()
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(_with(doc, field, value)))  # json writes NaN/Infinity tokens
+    with pytest.raises(CalibrationError, match=match):
+        Calibration.load(path)
+
+
+def test_finite_array_checks_the_joint_count():
+    from twincd.calibration.file import finite_array
+
+    np.testing.assert_array_equal(finite_array([1, 2.5], ("a", "b"), "c", "w"), [1.0, 2.5])
+    with pytest.raises(CalibrationError, match=r"1 value\(s\) for 2 joint"):
+        finite_array([1.0], ("a", "b"), "c", "w")
+    with pytest.raises(CalibrationError, match="not a list"):
+        finite_array("12", ("a", "b"), "c", "w")

@@ -102,8 +102,8 @@ def test_a_failing_log_removes_the_run_outputs(cal, twin_dataset, tmp_path):
     cut.write_bytes(data[: len(data) // 2])
     out = tmp_path / "out"
     for jobs in ("1", "2"):  # in this process and on a pool: the same clean failure
-        result = run("detect", good, cut, "-c", cal, "-o", out, "--json", "-j", jobs)
-        assert_one_line_error(result)
+        result = run("detect", good, cut, "-c", cal, "-o", out, "--json", "-j", jobs, "--strict")
+        assert_one_line_error(result, "damaged")
         assert list(out.iterdir()) == []
 
 

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from twincd.calibration import Calibration, Threshold, fit_calibration
-from twincd.detection import affine_score, detect, find_events, residual, runs
+from twincd.detection import affine_score, detect, detect_file, find_events, residual, runs
 from twincd.errors import DataError, NotFittedError, OutputError
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.proposed import ProposedMethod
@@ -77,12 +77,16 @@ def calibrated(twin_dataset):
 
 def test_threshold_streams_val_logs(calibrated, twin_dataset):
     th = calibrated.threshold
-    assert th.k_sigma == 4.0 and th.samples == 2 * 1600 and len(th.logs) == 2
     setup = Setup.from_calibration(calibrated)
+    logs = list(setup.prepare_all(expand_logs([twin_dataset / "val"])))
+    # the filter's edges (half a cut-off period at each end) are left out of μ and σ
+    kept = [~lg.edge for lg in logs]
+    assert all(k[:10].sum() == 0 and k[-10:].sum() == 0 and k.sum() > 1500 for k in kept)
+    assert th.k_sigma == 4.0 and th.samples == sum(k.sum() for k in kept) and len(th.logs) == 2
     scores = np.concatenate(
         [
-            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.a, calibrated.b)
-            for lg in setup.prepare_all(expand_logs([twin_dataset / "val"]))
+            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.a, calibrated.b)[k]
+            for lg, k in zip(logs, kept, strict=True)
         ]
     )
     assert th.mu == pytest.approx(scores.mean())
@@ -192,3 +196,20 @@ def test_events_are_the_same_in_any_chunking(flags: list[bool], cuts: list[int],
     chunked += tracker.finish()
     assert chunked == whole
     assert [(e.first, e.last) for e in whole] == runs(f)
+
+
+def test_filter_edges_never_flag_but_the_middle_does(tmp_path, twin_dataset):
+    """A bump inside the zero-phase filter's edge span (first 0.5 s at 1 Hz) flags nothing; the
+    same bump in the middle is found (PITFALLS: sosfiltfilt edges)."""
+    from conftest import build_twin_log
+
+    from twincd.calibration import fit_calibration
+    from twincd.threshold import threshold_calibration
+
+    setup = Setup(lowpass=LowPass(1.0))
+    cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup)
+    cal = threshold_calibration(expand_logs([twin_dataset / "val"]), cal, setup)
+    at_end = build_twin_log(tmp_path / "end.mcap", seed=7, bumps=[(15.8, 0.2, 8.0)], labels=False)
+    middle = build_twin_log(tmp_path / "mid.mcap", seed=7, bumps=[(8.0, 0.2, 8.0)], labels=False)
+    assert detect_file(middle, cal, Setup.from_calibration(cal)).events
+    assert not detect_file(at_end, cal, Setup.from_calibration(cal)).events

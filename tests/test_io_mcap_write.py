@@ -19,6 +19,7 @@ from mcap.writer import CompressionType, Writer
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
+import twincd
 import twincd.io.mcap_write as mcap_write
 from twincd.errors import LogReadError
 from twincd.io.cdr import joint_state_cdr
@@ -260,7 +261,8 @@ def test_mcap_copy_is_lossless_and_chunks_pass_through(tmp_path):
         old = {c.topic: c.metadata for c in make_reader(f).get_summary().channels.values()}
         new = {c.topic: c.metadata for c in make_reader(g).get_summary().channels.values()}
     assert {t: new[t] for t in old} == old and new["/joint_states"]["extra"] == "kept"
-    assert metadata(out) == {"robot": {"model": "xarm7", "site": "lab 2"}}
+    marker = {"twincd": {"output": "detect", "version": twincd.__version__}}
+    assert metadata(out) == {"robot": {"model": "xarm7", "site": "lab 2"}, **marker}
     assert attachments(out) == attachments(src) and len(attachments(src)) == 2
     # the input's compressed chunks are in the output as they were: no decompression
     assert set(chunk_payloads(src)) <= set(chunk_payloads(out))
@@ -669,3 +671,22 @@ def test_memory_does_not_grow_with_log_length(tmp_path):
     # the inputs (held by the caller) are not counted; what the writer holds is bounded
     assert peaks[1] < 1.3 * peaks[0] + 2e6, peaks
     assert peaks[1] < 40e6, peaks
+
+
+def test_the_data_section_crc_is_written(tmp_path):
+    import struct
+    import zlib
+
+    src = rich_mcap(tmp_path / "in.mcap")
+    out = tmp_path / "out.mcap"
+    with AugmentedMcap(src, out) as aug:
+        add_three_channels(aug, np.array([1, 2, 3], dtype=np.int64) + 1_700_000_000_000_000_000)
+    data = out.read_bytes()
+    at = 8
+    while True:  # to the DataEnd record: its CRC covers every byte before it
+        opcode, length = struct.unpack_from("<BQ", data, at)
+        if opcode == 0x0F:
+            break
+        at += 9 + length
+    (crc,) = struct.unpack_from("<I", data, at + 9)
+    assert crc != 0 and crc == zlib.crc32(data[:at])

@@ -35,10 +35,20 @@ def test_broken_urdf_is_a_clear_error(tmp_path):
 
 def test_missing_joints_are_locked_with_one_warning(caplog):
     with caplog.at_level(logging.WARNING, logger="twincd"):
-        robot = load_robot("panda", keep=[f"panda_joint{i}" for i in range(1, 8)])
-    assert robot.dof == 7
+        robot = load_robot("panda", keep=[f"panda_joint{i}" for i in range(1, 7)])
+    assert robot.dof == 6
+    assert robot.locked == ("panda_joint7", "panda_finger_joint1", "panda_finger_joint2")
+    assert caplog.text.count("locking") == 1 and "finger" not in caplog.text
+
+
+def test_gripper_joints_are_never_driven_even_when_logged(caplog):
+    arm = [f"panda_joint{i}" for i in range(1, 8)]
+    with caplog.at_level(logging.WARNING, logger="twincd"):
+        robot = load_robot("panda", keep=[*arm, "panda_finger_joint1", "panda_finger_joint2"])
+        whole = load_robot("panda")
+    assert robot.joint_names == whole.joint_names == tuple(arm)
     assert robot.locked == ("panda_finger_joint1", "panda_finger_joint2")
-    assert caplog.text.count("locking") == 1
+    assert caplog.text == ""  # the arm's twin: nothing to warn about
 
 
 def test_no_shared_joint_is_a_mismatch():

@@ -284,3 +284,32 @@ def test_stages_keep_no_reference_to_pushed_arrays(causal):
     out.append(stage.finish())
     # zero-phase: other backward-pass starts, so equal within 1e-9 of the range, not bit for bit
     np.testing.assert_allclose(np.concatenate(out), expect, rtol=0, atol=1e-9 * np.ptp(x))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10**6),
+    n=st.integers(1, 300),
+    span=st.integers(1, 40),
+    how=st.sampled_from(["whole", "random", 1, 7]),
+)
+def test_edge_marker_marks_the_span_at_both_ends_of_every_segment(seed, n, span, how):
+    from twincd.signal.filters import EdgeMarker
+
+    rng = np.random.default_rng(seed)
+    steps = np.where(rng.random(n) < 0.02, 1_000_000_000, 10_000_000)  # a few gaps
+    stamps = np.cumsum(steps).astype(np.int64)
+    got = chunked(EdgeMarker(span, 0.01), stamps, np.zeros(n), split_points(n, how, rng))
+    starts = [0, *np.flatnonzero(np.diff(stamps) > 50_000_000) + 1, n]
+    want = np.zeros(n)
+    for a, b in itertools.pairwise(starts):
+        index = np.arange(a, b)
+        want[a:b] = (index - a < span) | (b - 1 - index < span)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_edge_span_is_half_a_cutoff_period_and_none_when_causal():
+    from twincd.signal.filters import edge_span
+
+    assert edge_span(LowPass(1.0), 0.001) == 500 and edge_span(LowPass(2.0), 0.01) == 25
+    assert edge_span(LowPass(1.0, causal=True), 0.001) == 0

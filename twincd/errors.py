@@ -77,3 +77,13 @@ class DataError(TwincdError):
 
 class ClusterError(TwincdError):
     """A Dask cluster that cannot be reached, or whose workers keep dying on a log."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (CI cancellation, ``docker stop``), raised like Ctrl-C so that every clean-up
+    that runs on an interrupt runs for it too (DESIGN §5: exit 143)."""
+
+
+def raise_terminated(signum: int, frame: object) -> None:
+    """A SIGTERM handler: ``signal.signal(signal.SIGTERM, raise_terminated)``."""
+    raise Terminated(signum)

@@ -10,8 +10,10 @@ come back in the order of the logs given.
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +22,7 @@ from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 if TYPE_CHECKING:
     from concurrent.futures import Future
 
+from twincd.errors import TwincdError
 from twincd.twin.dynamics import default_threads
 
 T = TypeVar("T")
@@ -93,21 +96,38 @@ def _pooled(
     if method == "forkserver":
         # import the heavy modules once in the server, not once per worker (≈ 1 s each)
         context.set_forkserver_preload(list(PRELOAD))
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_twin_thread) as pool:
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
         futures: list[Future[R]] = [pool.submit(func, item) for item in items]
         pending = set(futures)
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)  # progress as logs finish
-            failed = [f for f in done if f.exception() is not None]
-            if progress:
-                progress(len(done), sum(samples_in(f.result()) for f in done if f not in failed))
-            if failed:
-                for f in pending:
-                    f.cancel()
-                wait(pending)
-                raise failed[0].exception()  # type: ignore[misc]
+        try:
+            while pending:
+                done, pending = wait(
+                    pending, return_when=FIRST_COMPLETED
+                )  # progress as logs finish
+                failed = [f for f in done if f.exception() is not None]
+                if progress:
+                    progress(
+                        len(done), sum(samples_in(f.result()) for f in done if f not in failed)
+                    )
+                if failed:
+                    for f in pending:
+                        f.cancel()
+                    wait(pending)
+                    raise failed[0].exception()  # type: ignore[misc]
+        except KeyboardInterrupt:
+            _stop_workers(pool)  # Ctrl-C or SIGTERM: the workers remove their temporaries
+            raise
         for f in futures:
             yield f.result()
+
+
+def _stop_workers(pool: Any) -> None:
+    """SIGTERM to every worker (each raises ``Terminated`` and cleans up), then no waiting for
+    work that would only be thrown away."""
+    for process in list(getattr(pool, "_processes", {}).values()):
+        with contextlib.suppress(Exception):
+            process.terminate()
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _size(paths: Sequence[Path]) -> int:
@@ -119,9 +139,79 @@ def _size(paths: Sequence[Path]) -> int:
     return total
 
 
-def _one_twin_thread() -> None:
-    """Each worker is one core's worth of work: the twin must not start threads of its own."""
+def _worker_init() -> None:
+    """Each worker is one core's worth of work: the twin must not start threads of its own;
+    SIGTERM cleans up like in the main process."""
+    from twincd.errors import raise_terminated
+
     os.environ["TWINCD_TWIN_THREADS"] = "1"
+    signal.signal(signal.SIGTERM, raise_terminated)
+
+
+@dataclass(frozen=True)
+class Outcome(Generic[R]):
+    """What one log's work came to: its result or its error (a ``TwincdError``), and the
+    warnings logged while it ran (one line each), whichever executor ran it."""
+
+    value: R | None
+    error: TwincdError | None
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+class Captured(Generic[T, R]):
+    """``func(item)`` as an ``Outcome`` (picklable, for any executor): twincd's warnings are
+    gathered instead of printed; with ``keep_going`` a ``TwincdError`` becomes the outcome's
+    error, otherwise it is raised and stops the run."""
+
+    def __init__(self, func: Callable[[T], R], keep_going: bool = False) -> None:
+        self.func = func
+        self.keep_going = keep_going
+
+    def __call__(self, item: T) -> Outcome[R]:
+        with captured_warnings() as warnings:
+            try:
+                value = self.func(item)
+            except TwincdError as exc:
+                if not self.keep_going:
+                    raise
+                return Outcome(None, exc, tuple(warnings))
+        return Outcome(value, None, tuple(warnings))
+
+
+class _Gather(logging.Handler):
+    """Keeps twincd's warnings; passes anything less on to the handlers it stands in for."""
+
+    def __init__(self, others: list[logging.Handler], into: list[str]) -> None:
+        super().__init__()
+        self.others = others
+        self.into = into
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno >= logging.WARNING:
+            self.into.append(record.getMessage())
+            return
+        for handler in self.others:
+            if record.levelno >= handler.level:
+                handler.handle(record)
+
+
+@contextlib.contextmanager
+def captured_warnings() -> Iterator[list[str]]:
+    """The messages of twincd's warnings logged inside the block (not printed)."""
+    logger = logging.getLogger("twincd")
+    found: list[str] = []
+    saved, saved_propagate = logger.handlers[:], logger.propagate
+    logger.handlers[:] = [_Gather(saved, found)]
+    logger.propagate = False
+    try:
+        yield found
+    finally:
+        logger.handlers[:] = saved
+        logger.propagate = saved_propagate
 
 
 class Bound(Generic[T, R]):
@@ -148,6 +238,8 @@ class MapExecutor(Protocol):
 
 def samples_in(result: object) -> int:
     """The samples a per-log result covers (its ``samples``), for progress in samples/s."""
+    if isinstance(result, Outcome):  # a result wrapped with its warnings (Captured)
+        result = result.value
     samples = getattr(result, "samples", 0)
     return samples if isinstance(samples, int) else 0
 

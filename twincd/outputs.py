@@ -43,13 +43,16 @@ def check_output_kind(target: Path) -> None:
 
 
 @contextlib.contextmanager
-def open_sink(source: Path, target: Path, joint_names: Sequence[str]) -> Iterator[FrameSink]:
-    """A sink for ``target`` by its suffix; the file appears only if the block completes."""
+def open_sink(
+    source: Path, target: Path, joint_names: Sequence[str], partial: bool = False
+) -> Iterator[FrameSink]:
+    """A sink for ``target`` by its suffix; the file appears only if the block completes.
+    ``partial``: an MCAP copy of a truncated source stops at the damage (as reading does)."""
     check_output_kind(target)
     if target.suffix.lower() == ".mcap":
         if target.resolve() == Path(source).resolve():
             raise OutputError("output would overwrite the input", str(target), "pick another")
-        with McapSink(source, target, joint_names) as sink:
+        with McapSink(source, target, joint_names, partial) as sink:
             yield sink
         return
     from twincd.io.atomic import atomic_output
@@ -69,12 +72,14 @@ def open_sink(source: Path, target: Path, joint_names: Sequence[str]) -> Iterato
 class McapSink:
     """The input log plus twincd's channels; each message stamped like its joint state."""
 
-    def __init__(self, source: Path, target: Path, joint_names: Sequence[str]) -> None:
+    def __init__(
+        self, source: Path, target: Path, joint_names: Sequence[str], partial: bool = False
+    ) -> None:
         from twincd.io.mcap_write import AugmentedMcap
 
         self.joint_names = list(joint_names)
         replaced = (RESIDUAL_TOPIC, SCORE_TOPIC, COLLISION_TOPIC, EVENT_TOPIC)
-        self._out = AugmentedMcap(source, target, replace_topics=replaced)
+        self._out = AugmentedMcap(source, target, replaced, output="detect", partial=partial)
 
     def __enter__(self) -> McapSink:
         from twincd.io.logs import JOINT_STATE
@@ -175,7 +180,8 @@ def detect_and_write(
     with contextlib.ExitStack() as outputs:
         sinks: list[FrameSink] = []
         if target is not None:
-            sinks.append(outputs.enter_context(open_sink(path, target, calibration.joint_names)))
+            sink = open_sink(path, target, calibration.joint_names, partial=not setup.strict)
+            sinks.append(outputs.enter_context(sink))
         figure_data = None
         if trace:
             from twincd.reports.traces import DetectionTrace

@@ -45,6 +45,8 @@ IntArray = NDArray[np.intp]
 DEFAULT_BLOCK = 16384  # samples per block: bounded memory, per-block Python cost negligible
 # samples looked at before the stages are set up: enough for a stable nominal period
 PEEK_SAMPLES = 1001
+# fewer usable samples than this: a log is refused, not scored (a few samples say nothing)
+MIN_SAMPLES = 20
 
 
 @dataclass(frozen=True)
@@ -67,6 +69,8 @@ class PreparedLog:
     velocity_f: FloatArray | None = None  # q̇̃, the velocity through the same filter (friction)
     coulomb_f: FloatArray | None = None  # filtered tanh(q̇/ε), (N, E, joints), ε in coulomb_eps
     coulomb_eps: tuple[float, ...] = ()
+    # True within the zero-phase filter's edge span of a segment's ends (None: no such span)
+    edge: BoolArray | None = None
 
     @property
     def source(self) -> str:
@@ -193,7 +197,17 @@ def filter_stages(
         Mapped(stack),
         Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f"),
         Mapped(split),
+        *edge_stages(lowpass, period_s),
     ]
+
+
+def edge_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
+    """An ``edge`` column (1.0 within the zero-phase filter's edge span of a segment's ends,
+    else 0.0): no stage at all for a causal filter."""
+    from twincd.signal.filters import EdgeMarker, edge_span
+
+    span = edge_span(lowpass, period_s)
+    return [Derived(EdgeMarker(span, period_s), "stamp_ns", "edge")] if span else []
 
 
 # ------------------------------------------------------------------ one log, streamed
@@ -293,7 +307,9 @@ class PreparedStream:
         use_log_sim = sim is not None and not self.force_simulate
         if use_log_sim:
             assert sim is not None
-            have = np.flatnonzero(np.isfinite(sim).all(axis=0))
+            # a joint has the log's twin effort when most samples carry it (a NaN here and
+            # there is a bad sample, dropped later)
+            have = np.flatnonzero(np.isfinite(sim).mean(axis=0) > 0.5)
             twin_names = tuple(names[i] for i in have.tolist())
             use_log_sim = bool(twin_names)
         robot: RobotModel | None
@@ -312,6 +328,14 @@ class PreparedStream:
             if missing:
                 raise JointMismatchError(
                     f"the log lacks calibrated joint(s) {', '.join(missing)}",
+                    self.source,
+                    "use a calibration made for this robot, or a joint map",
+                )
+            extra = [n for n in twin_names if n not in setup.joint_names]
+            if extra:
+                raise JointMismatchError(
+                    f"the log has joint(s) {', '.join(extra)} that the calibration lacks "
+                    f"({len(setup.joint_names)} joints calibrated, {len(twin_names)} in the log)",
                     self.source,
                     "use a calibration made for this robot, or a joint map",
                 )
@@ -368,8 +392,11 @@ class PreparedStream:
                     frame = Frame({k: v[ok] for k, v in frame.items()})
                 yield frame
 
+        at_edges = 0
         for out in chain.run(clean(frames())):
             self.samples += out.n
+            if "edge" in out:
+                at_edges += int(np.count_nonzero(out["edge"]))
             yield out
         if self.dropped_bad:
             log.warning(
@@ -377,8 +404,25 @@ class PreparedStream:
                 self.source,
                 self.dropped_bad,
             )
-        if self.samples < 2:
-            raise DataError("log too short to filter", self.source, "record at least a few seconds")
+        require_enough_samples(self.samples, self.source)
+        if 2 * at_edges > self.samples:
+            log.warning(
+                "%s is short: %d of its %d samples lie within the filter's edge spans, where "
+                "no collision is flagged",
+                self.source,
+                at_edges,
+                self.samples,
+            )
+
+
+def require_enough_samples(samples: int, source: str) -> None:
+    """A log with fewer than ``MIN_SAMPLES`` usable samples is refused, never scored."""
+    if samples < MIN_SAMPLES:
+        raise DataError(
+            f"log too short: {samples} usable sample(s), at least {MIN_SAMPLES} needed",
+            source,
+            "record at least a few seconds",
+        )
 
 
 def _frame(block: Any) -> Frame:
@@ -434,7 +478,8 @@ class Setup:
     urdf_sha256: str | None = None  # the calibration's: a changed URDF gets a warning
     period_s: float | None = None  # the calibration's sampling period
     block_size: int = DEFAULT_BLOCK
-    strict: bool = True
+    # False: a truncated log is read up to the damage, with one warning (DESIGN §1)
+    strict: bool = False
     twin_threads: int | None = None  # None: every core this process may use
     coulomb_eps: tuple[float, ...] = ()  # ε of the filtered Coulomb features (friction models)
 
@@ -559,4 +604,5 @@ def prepared_log(stream: PreparedStream, whole: Frame, lowpass: LowPass) -> Prep
         simulated=stream.simulated,
         lowpass=lowpass,
         period_s=stream.period_s,
+        edge=None if "edge" not in whole else whole["edge"] > 0,
     )

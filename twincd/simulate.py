@@ -61,7 +61,10 @@ def simulate_log(
                 "simulate it in place, or write another file",
             )
     stream = setup.open(source, filtered=False, need_effort=False, force_simulate=True)
-    with stream, AugmentedMcap(source, target, replace_topics=[options.sim_topic]) as out:
+    copy = AugmentedMcap(
+        source, target, [options.sim_topic], output="simulate", partial=not setup.strict
+    )
+    with stream, copy as out:
         channel = out.add_channel(options.sim_topic, JOINT_STATE)
         for frame in stream:
             assert stream.robot is not None  # force_simulate: the twin always has a model
@@ -84,6 +87,8 @@ def simulate_item(
     robot: str,
     options: LogOptions | None = None,
     in_place: bool = False,
+    strict: bool = False,
 ) -> SimulateResult:
     """``simulate_log`` of one (source, output) pair: the per-log step of a multi-log run."""
-    return simulate_log(item[0], item[1], robot, options, in_place=in_place)
+    setup = Setup(options=options or LogOptions(), robot=robot, strict=strict)
+    return simulate_log(item[0], item[1], robot, options, in_place=in_place, setup=setup)

@@ -91,7 +91,8 @@ def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogSc
     with setup.open(path) as stream:
         for frame in stream:
             scores = calibration.model.scores({**frame, "coulomb_eps": stream.coulomb_eps})
-            stats = stats + ScoreStats.from_scores(scores, clean_rows(frame.get("labels"), frame.n))
+            usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
+            stats = stats + ScoreStats.from_scores(scores, usable)
     return LogScores(str(path), stats, stream.samples)
 
 

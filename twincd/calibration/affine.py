@@ -12,7 +12,7 @@ import math
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,16 +32,18 @@ BoolArray = NDArray[np.bool_]
 CONDITION_RATIO = 0.1
 
 
-def clean_rows(labels: BoolArray | None, n: int) -> BoolArray:
-    """Rows usable for fitting and thresholds: all, or those labelled collision-free."""
-    if labels is None:
-        return np.ones(n, dtype=bool)
-    return ~np.asarray(labels, dtype=bool)
+def clean_rows(labels: BoolArray | None, n: int, edge: Any = None) -> BoolArray:
+    """Rows usable for fitting and thresholds: all, or those labelled collision-free; never
+    those at a filter edge (``edge`` > 0, see ``twincd.signal.filters.edge_span``)."""
+    rows = np.ones(n, dtype=bool) if labels is None else ~np.asarray(labels, dtype=bool)
+    if edge is not None:
+        rows &= np.asarray(edge) == 0
+    return rows
 
 
 def clean_mask(log_: PreparedLog) -> BoolArray:
     """``clean_rows`` of a whole prepared log."""
-    return clean_rows(log_.labels, len(log_))
+    return clean_rows(log_.labels, len(log_), log_.edge)
 
 
 def same_joints(mine: int, theirs: int) -> None:

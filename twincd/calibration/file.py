@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
@@ -22,6 +23,45 @@ from twincd.signal.filters import LowPass
 FloatArray = NDArray[np.float64]
 
 SCHEMA = "twincd.calibration/1"
+
+
+def finite_number(value: Any, name: str, where: str, *, positive: bool = False) -> float:
+    """``value`` as a float, or a ``CalibrationError``: JSON numbers only (no strings, no
+    booleans), finite, and above 0 when ``positive`` (DESIGN §4: every number is validated)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise CalibrationError(
+            f"calibration field {name} is {type(value).__name__} {value!r}, not a number",
+            where,
+            "re-run `twincd fit` to write a new one",
+        )
+    number = float(value)
+    if not math.isfinite(number) or (positive and number <= 0):
+        need = "a positive finite number" if positive else "a finite number"
+        raise CalibrationError(
+            f"calibration field {name} is {value!r}, not {need}",
+            where,
+            "re-run `twincd fit` to write a new one",
+        )
+    return number
+
+
+def finite_array(values: Sequence[Any], names: Sequence[str], field: str, where: str) -> FloatArray:
+    """One finite float per joint of ``names`` (a per-joint coefficient of any model kind), or a
+    ``CalibrationError`` naming the joint and the field at fault."""
+    if isinstance(values, (str, bytes)) or not isinstance(values, Sequence):
+        raise CalibrationError(
+            f"calibration field {field} is not a list of numbers", where, "re-run `twincd fit`"
+        )
+    if len(values) != len(names):
+        raise CalibrationError(
+            f"calibration field {field} has {len(values)} value(s) for {len(names)} joint(s)",
+            where,
+            "re-run `twincd fit` to write a new one",
+        )
+    return np.array(
+        [finite_number(v, f"{field}[{n}]", where) for v, n in zip(values, names, strict=True)],
+        dtype=np.float64,
+    )
 
 
 @dataclass(frozen=True)
@@ -177,7 +217,7 @@ class Calibration:
             )
         try:
             robot = d["robot"]
-            names = tuple(str(n) for n in robot["joint_names"])
+            names = _joint_names(robot["joint_names"], where)
             model = d["model"]
             kind = model.get("kind")
             if kind not in MODEL_KINDS:
@@ -187,8 +227,8 @@ class Calibration:
                     "re-run `twincd fit`",
                 )
             coeff = model["joints"]
-            a = np.array([float(coeff[n]["a"]) for n in names])
-            b = np.array([float(coeff[n]["b"]) for n in names])
+            a = finite_array([coeff[n]["a"] for n in names], names, "a", where)
+            b = finite_array([coeff[n]["b"] for n in names], names, "b", where)
             extra = {
                 key: _optional_column(coeff, names, key) for key in ("c", "d", "epsilon", "scale")
             }
@@ -218,18 +258,20 @@ class Calibration:
             threshold = None
             if th is not None:
                 threshold = Threshold(
-                    k_sigma=float(th["k_sigma"]),
-                    mu=float(th["mu"]),
-                    sigma=float(th["sigma"]),
+                    k_sigma=finite_number(th["k_sigma"], "threshold.k_sigma", where),
+                    mu=finite_number(th["mu"], "threshold.mu", where),
+                    sigma=finite_number(th["sigma"], "threshold.sigma", where),
                     logs=tuple(th.get("logs", ())),
                     samples=int(th.get("samples", 0)),
                 )
+            if th is not None and threshold is not None:
+                _check_threshold(threshold, th, where)
             return cls(
                 joint_names=names,
                 a=a,
                 b=b,
-                lowpass=LowPass.from_dict(d["filter"]),
-                period_s=_period(d["filter"].get("sample_rate_hz")),
+                lowpass=_lowpass(d["filter"], where),
+                period_s=_period(d["filter"].get("sample_rate_hz"), where),
                 options=options,
                 robot=robot.get("name"),
                 urdf_sha256=robot.get("urdf_sha256"),
@@ -301,13 +343,59 @@ class Calibration:
             stream.write(text.encode("utf-8"))
 
 
-def _period(rate_hz: Any) -> float | None:
+def _period(rate_hz: Any, where: str) -> float | None:
     if rate_hz is None:
         return None
-    rate = float(rate_hz)
-    if not rate > 0:
-        raise ValueError(f"sample_rate_hz must be positive, not {rate_hz!r}")
-    return 1.0 / rate
+    return 1.0 / finite_number(rate_hz, "filter.sample_rate_hz", where, positive=True)
+
+
+def _lowpass(raw: Mapping[str, Any], where: str) -> LowPass:
+    finite_number(raw["cutoff_hz"], "filter.cutoff_hz", where, positive=True)
+    order = raw["order"]
+    if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+        raise CalibrationError(
+            f"calibration field filter.order is {order!r}, not a positive integer",
+            where,
+            "re-run `twincd fit` to write a new one",
+        )
+    if not isinstance(raw["causal"], bool):
+        raise CalibrationError(
+            "calibration field filter.causal is not true or false", where, "re-run `twincd fit`"
+        )
+    return LowPass.from_dict(dict(raw))
+
+
+def _joint_names(raw: Any, where: str) -> tuple[str, ...]:
+    if not isinstance(raw, list) or not raw or not all(isinstance(n, str) and n for n in raw):
+        raise CalibrationError(
+            "calibration field robot.joint_names is not a list of joint names",
+            where,
+            "re-run `twincd fit` to write a new one",
+        )
+    if len(set(raw)) != len(raw):
+        raise CalibrationError(
+            "calibration field robot.joint_names names a joint twice", where, "re-run `twincd fit`"
+        )
+    return tuple(raw)
+
+
+def _check_threshold(threshold: Threshold, raw: Mapping[str, Any], where: str) -> None:
+    """σ ≥ 0, k ≥ 0, and a stored ``value`` that agrees with μ + kσ (a hand edit of one)."""
+    if threshold.sigma < 0 or threshold.k_sigma < 0:
+        raise CalibrationError(
+            "calibration threshold has a negative sigma or k_sigma",
+            where,
+            "re-run `twincd threshold`",
+        )
+    if "value" in raw:
+        value = finite_number(raw["value"], "threshold.value", where)
+        if not math.isclose(value, threshold.value, rel_tol=1e-9, abs_tol=1e-12):
+            raise CalibrationError(
+                f"calibration threshold value {value!r} is not mu + k_sigma·sigma "
+                f"({threshold.value!r})",
+                where,
+                "re-run `twincd threshold`, or edit mu, sigma or k_sigma instead",
+            )
 
 
 def _optional_column(coeff: Mapping[str, Any], names: Sequence[str], key: str) -> FloatArray | None:

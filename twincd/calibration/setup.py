@@ -10,6 +10,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from twincd.calibration.affine import AffineCalibration, AffineStats, clean_rows
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.calibration.models import (
@@ -42,6 +44,7 @@ class LogFit:
     robot: tuple[str, str] | None  # (name, URDF sha256) when a model was used
     seconds: float  # time spent in the regression sums, as the paper times training
     samples: int = 0  # every sample read (labelled ones too): what progress counts
+    labelled: bool = True  # the log has collision labels (else every sample is taken as clean)
 
 
 def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> LogFit:
@@ -50,10 +53,12 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
     stats: AffineStats | None = None
     friction: FrictionStats | None = None
     seconds = 0.0
+    labelled = False
     with setup.open(path) as stream:
         for frame in stream:
+            labelled |= "labels" in frame
             start = time.perf_counter()
-            clean = clean_rows(frame.get("labels"), frame.n)
+            clean = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             part = AffineStats.from_arrays(frame["sim_effort_f"], frame["effort_f"], clean)
             stats = part if stats is None else stats + part
             seconds += time.perf_counter() - start
@@ -79,6 +84,7 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
             robot=_robot_of(stream),
             seconds=seconds,
             samples=stream.samples,
+            labelled=labelled,
         )
 
 
@@ -118,6 +124,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Ca
     # a friction model's slope a is conditioned by its other terms too: no affine warning
     estimator = AffineCalibration(names, not uses_friction(model)).fit_stats(total)
     estimator.fit_s_ = sum(p.seconds for p in parts) + time.perf_counter() - start
+    _warn_about_fit(estimator, [p.source for p in parts if not p.labelled])
     robots = sorted({p.robot for p in parts if p.robot is not None})
     name, sha = robots[0] if robots else (setup.robot, None)
     cal = calibration_from_fit(
@@ -175,6 +182,39 @@ def _chain(
         return child_links(robot_for(robot, names), names)
     except TwincdError:
         return None, None
+
+
+# below this on every joint, the twin explains next to none of the measured effort
+LOW_R2 = 0.1
+
+
+def _warn_about_fit(estimator: AffineCalibration, unlabelled: list[str]) -> None:
+    """Fits that are likely wrong say so (one line each): a negative gain, a twin that explains
+    nothing (a wrong robot model or joint map), logs without labels whose collisions, if any,
+    were fitted as if normal."""
+    names = estimator.joint_names or ()
+    negative = [n for n, a in zip(names, estimator.a_, strict=True) if a < 0]
+    if negative:
+        log.warning(
+            "fit: negative a on %s: the twin's effort runs against the measured one; check the "
+            "robot model, the joint map and the effort sign",
+            ", ".join(negative),
+        )
+    r2 = estimator.r2_
+    if len(r2) and bool(np.all(np.nan_to_num(r2, nan=0.0) < LOW_R2)):
+        log.warning(
+            "fit: R² below %g on every joint (best %.3f): the twin explains almost none of the "
+            "measured effort; check the robot model and the joint map",
+            LOW_R2,
+            float(np.nanmax(r2)) if np.isfinite(r2).any() else 0.0,
+        )
+    if unlabelled:
+        log.warning(
+            "fit: %d log(s) have no collision labels (%s): every sample was taken as "
+            "collision-free; fit on logs known to be free of collisions",
+            len(unlabelled),
+            unlabelled[0] + (", ..." if len(unlabelled) > 1 else ""),
+        )
 
 
 def fit_calibration(paths: Iterable[str | Path], setup: Setup, model: str = AFFINE) -> Calibration:

@@ -50,6 +50,8 @@ class ScoringStage:
         r = self.model.residual({**frame, "coulomb_eps": self.coulomb_eps})
         scores = self.model.score(r)
         flags = scores >= self.threshold
+        if "edge" in frame:  # a filter's edge never flags a collision
+            flags &= frame["edge"] == 0
         closed = self.events.push(flags, scores, r, frame["stamp_ns"])
         return frame.with_columns(residual=r, score=scores, flag=flags), closed
 

@@ -15,6 +15,7 @@ from twincd.detection.events import Event
 from twincd.detection.online import OnlineDetector
 from twincd.errors import DataError
 from twincd.frames import Frame
+from twincd.pipeline import require_enough_samples
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
@@ -92,6 +93,7 @@ def detect_file_online(
             raise DataError("the log has no joint-state samples", str(path), "record joint states")
         _deliver(summary, sinks, Frame(), detector.close())
         summary.joint_names = calibration.joint_names
+        require_enough_samples(summary.samples, str(path))
         if detector.skipped:
             summary.warnings.append(
                 f"{path}: skipped {detector.skipped} sample(s) with non-finite values"

@@ -214,6 +214,8 @@ def _val_stats(
     for lg in val:
         scores.append(method.score(lg))
         mask = ~method.unit_labels(lg) if lg.labels is not None else None
+        if method.unit == "sample" and lg.edge is not None:  # as `threshold` does
+            mask = ~lg.edge if mask is None else mask & ~lg.edge
         total = total + ScoreStats.from_scores(scores[-1], mask)
     return total, scores
 

@@ -413,6 +413,9 @@ class TopicReader:
         self._backend = _open_backend(self.path, self.source, self.stats)
         self.topics: dict[str, str] = dict(self._backend.topics)
         if self._backend.damage is not None:
+            if not self.topics:  # nothing intact to read: an error, strict or not
+                damage, self.strict = self._backend.damage, True
+                self._damaged(damage)
             self._damaged(self._backend.damage)
 
     def __enter__(self) -> TopicReader:

@@ -9,6 +9,10 @@ emits the older ones in blocks. Rules (DESIGN §1):
   duplicate stamps (the first read — earliest log time — is kept);
 - a sample older than one already emitted is *late*: dropped and counted. A log that fits in
   the reorder buffer is therefore sorted exactly like a whole-log sort;
+- a header clock that jumps back against the log time by more than ``CLOCK_JUMP_NS`` is not
+  reordering: the samples behind the jump are dropped and counted until their stamps pass the
+  time reached before it, so two stretches of the recording are never interleaved;
+- ragged messages (filled arrays whose length differs from ``name``) are dropped and counted;
 - labels (Bool) are held from each message onto the samples' log times; a sample is emitted
   only once every label message at or before its log time has been read;
 - the twin's effort is joined by exact stamp (NaN where missing). Its messages are expected no
@@ -49,6 +53,7 @@ OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's jo
 DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
 _END = 2**63 - 1
+CLOCK_JUMP_NS = 5_000_000_000  # stamps this much further behind the log time: the clock jumped back
 _T = TypeVar("_T", bound=np.generic)
 
 
@@ -82,8 +87,15 @@ class StreamCounts:
     incomplete: int = 0  # dropped: a stream joint missing, or a non-finite position
     duplicates: int = 0  # dropped: the exact stamp of an earlier sample
     late: int = 0  # dropped: older than a sample already emitted
-    ragged: int = 0  # filled arrays whose length differs from the names
+    ragged: int = 0  # dropped: filled arrays whose length differs from the names
+    clock_back: int = 0  # dropped: behind a backward jump of the clock
+    jumps: int = 0  # backward jumps of the clock
+    largest_jump_ns: int = 0
     samples: int = 0  # emitted
+
+    @property
+    def dropped(self) -> int:
+        return self.incomplete + self.duplicates + self.late + self.ragged + self.clock_back
 
 
 def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
@@ -246,6 +258,43 @@ class _Sim:
         self.stamp, self.effort = self.stamp[first:], self.effort[first:]
 
 
+class _Clock:
+    """Backward jumps of a stream's header clock (see ``CLOCK_JUMP_NS``).
+
+    A jump shows as the stamp falling behind the log time (the recorder's clock) by
+    ``CLOCK_JUMP_NS`` more than it did before; reordering and jitter leave that offset alone.
+    Samples after a jump are behind while their stamps have not passed the latest stamp read
+    before it."""
+
+    def __init__(self) -> None:
+        low = np.iinfo(np.int64).min + CLOCK_JUMP_NS
+        self.offset = low  # the largest stamp − log time read so far
+        self.latest = low  # the latest stamp read so far
+        self.was_behind = False  # the last sample read was behind a jump
+        self.jumps = 0
+        self.largest_ns = 0
+
+    def behind(self, stamp: IntArray, log_time: IntArray) -> BoolArray:
+        """Per sample: behind a backward jump of the clock."""
+        if not len(stamp):
+            return np.zeros(0, dtype=bool)
+        offset = stamp - log_time
+        prior_offset = np.maximum.accumulate(np.concatenate(([self.offset], offset[:-1])))
+        prior_stamp = np.maximum.accumulate(np.concatenate(([self.latest], stamp[:-1])))
+        behind = (offset < prior_offset - CLOCK_JUMP_NS) & (stamp <= prior_stamp)
+        starts = behind & ~np.concatenate(([self.was_behind], behind[:-1]))
+        if starts.any():
+            self.jumps += int(starts.sum())
+            gap = prior_offset[starts] - offset[starts]
+            self.largest_ns = max(self.largest_ns, int(gap.max()))
+        ahead = ~behind
+        if ahead.any():
+            self.offset = max(self.offset, int(offset[ahead].max()))
+        self.latest = max(self.latest, int(stamp.max()))
+        self.was_behind = bool(behind[-1])
+        return behind
+
+
 # ---------------------------------------------------------------- the stream
 
 
@@ -310,6 +359,11 @@ class LogStream:
                     break
         first = [b for t, b, _ in self._head if t == self.topic and isinstance(b, JointStateBatch)]
         if not first:
+            damage = self._reader.damage
+            if damage is not None:  # the damage came before any joint state
+                raise LogReadError(
+                    damage, self.source, "repair it with `mcap recover` if it is MCAP"
+                )
             raise LogReadError(
                 f"topic {self.topic} has no messages", self.source, "record joint states"
             )
@@ -325,13 +379,18 @@ class LogStream:
                     f"{self.source}, {self.topic}",
                     "check the robot model, the topic and the joint map",
                 )
-        self.has_effort = first[0].effort.shape[1] > 0
+        # a log has effort when most of its first messages carry it (one empty message does
+        # not decide); samples without it are dropped as bad samples later
+        with_effort = sum(len(b) for b in first if b.effort.shape[1] > 0)
+        self.has_effort = 2 * with_effort > sum(len(b) for b in first)
         width = len(self.joint_names)
         self._pending = _empty_rows(width, self.has_effort)
         self._labels = _Labels() if self.has_labels else None
         self._sim = _Sim(width) if self.has_sim else None
         self._columns: dict[tuple[str, ...], NDArray[np.intp]] = {}
         self._seq = 0
+        self._clock = _Clock()
+        self._sim_clock = _Clock()
         self._last: int | None = None  # stamp of the last emitted sample
         self._out: list[_Rows] = []
         self._out_n = 0
@@ -398,28 +457,34 @@ class LogStream:
         if cols is None:
             where: dict[str, int] = {}
             for i, n in enumerate(names):
-                where.setdefault(self._joint_map.get(n, n), i)
+                mapped = self._joint_map.get(n, n)
+                if mapped in where and self._joint_map:
+                    clash = names[where[mapped]]
+                    raise JointMismatchError(
+                        f"after the joint map, log joints {clash} and {n} are both {mapped}",
+                        f"{self.source}, {self.topic}",
+                        "map every log joint to a name of its own",
+                        option="joint_map",
+                    )
+                where.setdefault(mapped, i)
             cols = np.array([where.get(j, -1) for j in self.joint_names], dtype=np.intp)
             self._columns[names] = cols
         return cols
 
-    def _check_ragged(self, batch: JointStateBatch) -> None:
-        """Filled arrays must match ``name``; counted here, refused (for now) as before."""
+    def _ragged(self, batch: JointStateBatch) -> bool:
+        """Filled arrays must match ``name``: a batch (one layout) that does not is dropped."""
         k = len(batch.names)
         kp, kv, ke = batch.position.shape[1], batch.velocity.shape[1], batch.effort.shape[1]
         if kp == k and kv in (0, k) and ke in (0, k):
-            return
+            return False
         self.counts.ragged += len(batch)
-        raise LogReadError(
-            f"ragged JointState: {k} names but {kp} position, {kv} velocity and {ke} effort values",
-            f"{self.source}, {self.topic} at log time {int(batch.log_time_ns.min())}",
-            "fix the publisher; every filled array must match `name`",
-        )
+        return True
 
     def _add_samples(self, batch: JointStateBatch) -> None:
         n = len(batch)
         self.counts.read += n
-        self._check_ragged(batch)
+        if self._ragged(batch):
+            return
         cols = self._cols(batch.names)
         if (cols < 0).any():
             self.counts.incomplete += n
@@ -430,7 +495,7 @@ class LogStream:
             return values if same else values[:, cols]  # a copy only when columns move
 
         position = pick(batch.position)
-        ok = np.isfinite(position).all(axis=1)
+        ok: BoolArray = np.asarray(np.isfinite(position).all(axis=1))
         nan = np.full((n, len(cols)), np.nan)
         velocity = pick(batch.velocity) if batch.velocity.shape[1] else nan
         effort = None
@@ -441,6 +506,11 @@ class LogStream:
         self._seq += n
         rows = _Rows(stamp, batch.log_time_ns, seq, position, velocity, effort)
         self.counts.incomplete += int((~ok).sum())
+        kept = np.flatnonzero(ok)
+        behind = self._clock.behind(stamp[kept], batch.log_time_ns[kept])
+        ok[kept[behind]] = False
+        self.counts.clock_back += int(behind.sum())
+        self.counts.jumps, self.counts.largest_jump_ns = self._clock.jumps, self._clock.largest_ns
         if self._last is not None:
             self.counts.duplicates += int((ok & (stamp == self._last)).sum())
             self.counts.late += int((ok & (stamp < self._last)).sum())
@@ -466,6 +536,9 @@ class LogStream:
         have = (cols >= 0) & (cols < width)  # like zip(name, effort): extra names get nothing
         effort[:, have] = batch.effort[:, cols[have]]
         stamp = np.where(batch.stamp_ns != 0, batch.stamp_ns, batch.log_time_ns)
+        # as their samples: never over earlier ones
+        ahead = ~self._sim_clock.behind(stamp, batch.log_time_ns)
+        stamp, effort = stamp[ahead], effort[ahead]
         if self._last is not None:  # their samples are gone already
             keep = stamp > self._last
             stamp, effort = stamp[keep], effort[keep]
@@ -518,6 +591,27 @@ class LogStream:
 
     def _report(self) -> None:
         c = self.counts
+        if c.ragged:
+            log.warning(
+                "%s: dropping %d ragged message(s) (filled arrays that do not match the names)",
+                self.source,
+                c.ragged,
+            )
+        if c.jumps:
+            log.warning(
+                "%s: the clock jumps back %d time(s) (by up to %.3g s); dropping the %d sample(s) "
+                "stamped before the time already reached",
+                self.source,
+                c.jumps,
+                c.largest_jump_ns * 1e-9,
+                c.clock_back,
+            )
+        if c.duplicates:
+            log.warning(
+                "%s: dropping %d sample(s) whose stamp repeats an earlier one",
+                self.source,
+                c.duplicates,
+            )
         if c.incomplete:
             log.warning(
                 "%s: dropping %d sample(s) that do not carry every joint", self.source, c.incomplete

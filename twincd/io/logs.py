@@ -38,6 +38,9 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
 TWIN_SUFFIX = ".twin.mcap"  # what `simulate` writes beside a log
+DETECT_SUFFIX = ".detect.mcap"  # what `detect -o FOLDER` writes per log
+# copies of a log that twincd writes: in a folder beside their source, they are not more logs
+COPY_SUFFIXES = (TWIN_SUFFIX, DETECT_SUFFIX)
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,7 @@ def expand_logs(paths: Iterable[str | Path]) -> list[Path]:
         if path.is_file() or _is_rosbag2_dir(path):
             found.append(path)
             continue
-        below = _without_twin_copies(sorted(_logs_below(path)))
+        below = _without_copies(sorted(_logs_below(path)))
         if not below:
             raise LogReadError(
                 "no logs in folder", str(path), "give .mcap, .bag or rosbag2 folders"
@@ -129,15 +132,25 @@ def _logs_below(folder: Path) -> Iterator[Path]:
             yield sub
 
 
-def _without_twin_copies(paths: list[Path]) -> list[Path]:
-    """Drop ``x.twin.mcap`` files (``simulate`` outputs) whose source log ``x`` is also here,
-    so a folder does not count the same run twice; name a twin file to use it."""
+def source_of_copy(path: Path) -> str | None:
+    """``x`` for ``x.twin.mcap`` or ``x.detect.mcap`` (twincd's copies of log ``x``), else None."""
+    for suffix in COPY_SUFFIXES:
+        if path.name.endswith(suffix) and len(path.name) > len(suffix):
+            return path.name.removesuffix(suffix)
+    return None
+
+
+def _without_copies(paths: list[Path]) -> list[Path]:
+    """Drop ``x.twin.mcap`` and ``x.detect.mcap`` files (simulate and detect outputs) whose
+    source log ``x`` is also here (``x.twin.detect.mcap``: ``x.twin.mcap``), so a folder does
+    not count the same run twice; name a copy to use it. The one place that decides which
+    files of a folder are logs of their own."""
     names = {p.name for p in paths}
     kept = []
     for p in paths:
-        stem = p.name.removesuffix(TWIN_SUFFIX)
-        if p.name.endswith(TWIN_SUFFIX) and {stem, f"{stem}.mcap", f"{stem}.bag"} & names:
-            log.info("skipping %s: the simulate output of a log in the same folder", p)
+        stem = source_of_copy(p)
+        if stem is not None and {stem, f"{stem}.mcap", f"{stem}.bag"} & names:
+            log.info("skipping %s: twincd's copy of a log in the same folder", p)
             continue
         kept.append(p)
     return kept

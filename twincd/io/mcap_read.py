@@ -26,6 +26,7 @@ _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX = 0x02, 0x03, 0x04,
 _DATA_END = 0x0F
 _MESSAGE_HEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, length, channel, sequence, log and publish time
 _RAW_REGION = 1 << 20  # bytes of unchunked top-level records read as one pseudo-chunk
+_MAX_TIME = 2**63 - 1  # nanoseconds: later log times do not fit the int64 time line
 _MAX_CHUNK = 4 << 30  # mcap's own record size limit: larger means a corrupt length field
 
 IntArray = NDArray[np.int64]
@@ -407,7 +408,10 @@ def _gather(arr: ByteArray, channel: int, offs: IntArray, where: int) -> list[Ra
     head = np.lib.stride_tricks.sliding_window_view(arr, _MESSAGE_HEAD)[offs]
     length = np.ascontiguousarray(head[:, 1:9]).view("<u8").reshape(-1).astype(np.int64)
     chan = np.ascontiguousarray(head[:, 9:11]).view("<u2").reshape(-1)
-    log_time = np.ascontiguousarray(head[:, 15:23]).view("<u8").reshape(-1).astype(np.int64)
+    raw_time = np.ascontiguousarray(head[:, 15:23]).view("<u8").reshape(-1)
+    if (raw_time > np.uint64(_MAX_TIME)).any():
+        raise McapDamage("a log time above 2^63 ns (after the year 2262)", where)
+    log_time = raw_time.astype(np.int64)
     size = length - (_MESSAGE_HEAD - 9)
     if (
         (head[:, 0] != _MESSAGE).any()

@@ -68,7 +68,7 @@ from numpy.typing import NDArray
 
 from twincd import __version__
 from twincd.errors import LogReadError, OutputError, TwincdError
-from twincd.io.atomic import atomic_output, check_writable
+from twincd.io.atomic import MARKER, atomic_output, check_writable
 from twincd.io.cdr import typestore
 
 __all__ = [
@@ -613,18 +613,19 @@ class _Truncated(Exception):
     """The input ends inside a record or before its DataEnd record."""
 
 
-def _records(stream: IO[bytes], size: int) -> Iterator[tuple[int, bytes]]:
-    """(opcode, body) of each top-level record after the header, up to DataEnd."""
+def _records(stream: IO[bytes], size: int, copy: _McapCopy) -> Iterator[tuple[int, bytes]]:
+    """(opcode, body) of each top-level record after the header, up to DataEnd; a cut-short
+    file ends the records when ``copy.partial`` (and sets ``copy.truncated``), else raises."""
     while True:
         prefix = stream.read(9)
-        if len(prefix) < 9:
-            raise _Truncated
-        opcode, length = _PREFIX.unpack(prefix)
-        if length > size - stream.tell():
-            raise _Truncated
-        body = stream.read(length)
-        if len(body) < length:
-            raise _Truncated
+        length = _PREFIX.unpack(prefix)[1] if len(prefix) == 9 else size
+        body = stream.read(length) if length <= size - stream.tell() else b""
+        if len(prefix) < 9 or len(body) < length:
+            if not copy.partial:
+                raise _Truncated
+            copy.truncated = True
+            return
+        opcode = prefix[0]
         yield opcode, body
         if opcode in (Opcode.DATA_END, Opcode.FOOTER):
             return
@@ -653,9 +654,12 @@ _UNKNOWN = -1
 class _McapCopy:
     """Copies one input MCAP file into the output, mapping its schema and channel ids."""
 
-    def __init__(self, out: _Output, replaced: frozenset[str]) -> None:
+    def __init__(self, out: _Output, replaced: frozenset[str], partial: bool = False) -> None:
         self.out = out
         self.replaced = replaced
+        # partial: a truncated input is copied up to the damage (as far as the reader reads)
+        self.partial = partial
+        self.truncated = False
         self.schema_ids: dict[int, int] = {}
         self.channel_ids: dict[int, int | None] = {}  # None: a replaced topic, dropped
         # messages outside chunks (an unchunked file), gathered into blocks per channel
@@ -707,8 +711,8 @@ class _McapCopy:
             for channel in summary.channels.values():
                 self.learn_channel(channel)
         stream.seek(8)
-        records = _records(stream, size)
-        opcode, _ = next(records)
+        records = _records(stream, size, self)
+        opcode, _ = next(records, (None, b""))
         if opcode != Opcode.HEADER:
             raise McapError("the file does not start with a header record")
         pending = next(records, None)
@@ -721,7 +725,10 @@ class _McapCopy:
                     channel_id, length = struct.unpack_from("<HI", pending[1])
                     indexes.append((channel_id, length // 16, pending[1]))
                     pending = next(records, None)
-                self.chunk(body, indexes)
+                if pending is None and self.truncated:
+                    self.rebuild(body)  # its message indexes may be cut short
+                else:
+                    self.chunk(body, indexes)
             elif opcode == Opcode.SCHEMA:
                 self.out.declare_schema(self.learn_schema(_parse(Schema, body)))
             elif opcode == Opcode.CHANNEL:
@@ -732,7 +739,8 @@ class _McapCopy:
                 self.loose_message(_parse_message(body))
             elif opcode == Opcode.METADATA:
                 metadata = _parse(Metadata, body)
-                if metadata.name != "rosbag2":  # it would no longer list the new topics
+                # rosbag2's would no longer list the new topics; the marker is written anew
+                if metadata.name not in ("rosbag2", MARKER):
                     self.out.metadata(metadata)
             elif opcode == Opcode.ATTACHMENT:
                 raw = _PREFIX.pack(opcode, len(body)) + body
@@ -872,10 +880,10 @@ def _mcap_storage_files(source: Path) -> list[Path] | None:
     return files or None
 
 
-def _copy_mcap(path: Path, out: _Output, replaced: frozenset[str]) -> None:
+def _copy_mcap(path: Path, out: _Output, replaced: frozenset[str], partial: bool) -> None:
     try:
         with open(path, "rb") as stream:
-            _McapCopy(out, replaced).run(stream)
+            _McapCopy(out, replaced, partial).run(stream)
     except TwincdError:
         raise
     except _Truncated as exc:
@@ -1010,6 +1018,12 @@ class _Batches:
 # ---------------------------------------------------------------- public writers
 
 
+def mark(out: _Output, output: str) -> None:
+    """The metadata record by which a later run knows this file as twincd's own ``output``
+    (``twincd.io.atomic.output_kind``): it may replace it without being forced."""
+    out.metadata(Metadata(name=MARKER, metadata={"output": output, "version": __version__}))
+
+
 def _finish(
     stack: contextlib.ExitStack,
     finish: Callable[[], None],
@@ -1042,9 +1056,18 @@ class AugmentedMcap:
     the source itself (a bare ``.mcap``): the rename comes after the copy.
     """
 
-    def __init__(self, source: Path, target: Path, replace_topics: Collection[str] = ()) -> None:
+    def __init__(
+        self,
+        source: Path,
+        target: Path,
+        replace_topics: Collection[str] = (),
+        output: str = "detect",
+        partial: bool = False,
+    ) -> None:
         self.source = Path(source)
         self.target = Path(target)
+        self.output = output
+        self.partial = partial  # a truncated source is copied up to the damage
         self.replace_topics = frozenset(replace_topics)
         self._stack: contextlib.ExitStack | None = None
         self._out: _Output | None = None
@@ -1059,10 +1082,11 @@ class AugmentedMcap:
             mcap_files = _mcap_storage_files(self.source)
             if mcap_files is not None:
                 for path in mcap_files:
-                    _copy_mcap(path, out, self.replace_topics)
+                    _copy_mcap(path, out, self.replace_topics, self.partial)
             else:
                 _copy_via_rosbags(self.source, out, self.replace_topics)
             self._copied_topics = {c.topic for c in out.channels.values()}
+            mark(out, self.output)
             self._out = out
             self._stack = stack.pop_all()
         return self
@@ -1116,8 +1140,9 @@ class McapLogWriter:
     ...     out.write(ch, log_time_ns, cdr_bytes)
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, output: str = "synth") -> None:
         self.path = Path(path)
+        self.output = output
         self._stack: contextlib.ExitStack | None = None
         self._out: _Output | None = None
         self._batches: _Batches | None = None
@@ -1127,6 +1152,7 @@ class McapLogWriter:
             stream = stack.enter_context(atomic_output(self.path))
             self._out = _Output(stream, str(self.path))
             stack.callback(self._out.close)
+            mark(self._out, self.output)
             self._batches = _Batches(self._out)
             self._stack = stack.pop_all()
         return self

@@ -46,6 +46,8 @@ def page(title: str, summary: Sequence[str], figures: Sequence[str], settings: s
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
+        # how twincd recognises its own report before writing over it (twincd.io.atomic)
+        '<meta name="generator" content="twincd">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
         # nothing may be fetched: not even a favicon
         '<link rel="icon" href="data:,">',

@@ -114,7 +114,7 @@ class ThinnedPairs:
             return
         from twincd.calibration.affine import clean_rows
 
-        clean = clean_rows(frame.get("labels"), frame.n)
+        clean = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))  # what fit uses
         twin = np.asarray(frame["sim_effort_f"])[clean]
         measured = np.asarray(frame["effort_f"])[clean]
         if not self.seen:

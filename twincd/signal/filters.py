@@ -46,9 +46,11 @@ __all__ = [
     "DEFAULT_CAUSAL_CUTOFF_HZ",
     "DEFAULT_CUTOFF_HZ",
     "DEFAULT_ORDER",
+    "EdgeMarker",
     "LowPass",
     "StreamingLowPass",
     "decay_margin",
+    "edge_span",
 ]
 
 # the streamed backward pass starts where its start-up transient will have decayed below this
@@ -285,3 +287,42 @@ class StreamingLowPass(SegmentedStage):
         out: FloatArray = yb[::-1][: self._n - self._next]
         self._reset()
         return out if len(out) else np.zeros((0, width))
+
+
+def edge_span(lowpass: LowPass, period_s: float) -> int:
+    """Samples at each end of a segment that a zero-phase filter's edges may distort: half a
+    period of the cut-off. sosfiltfilt's odd extension treats measured and twin effort alike
+    but their edge transients differ (PITFALLS): these samples are filtered but never flag a
+    collision and never enter a fit or μ, σ. Causal filtering has no end edge and 0 here."""
+    if lowpass.causal:
+        return 0
+    return max(1, math.ceil(0.5 / (lowpass.cutoff_hz * period_s) - 1e-9))
+
+
+class EdgeMarker(SegmentedStage):
+    """1.0 for samples within ``span`` samples of their segment's start or end, else 0.0 (the
+    values pushed are ignored; segments cut at gaps as every stage does). A sample is emitted
+    once ``span`` later samples of its segment are known, or its segment has ended."""
+
+    def __init__(self, span: int, period_s: float, gap_factor: float = DEFAULT_GAP_FACTOR):
+        super().__init__(period_s, gap_factor)
+        self.span = span
+        self.lookahead = span
+        self._n = 0  # samples of the current segment seen
+        self._next = 0  # segment index of the next sample to emit
+
+    def _marks(self, stop: int, end: bool) -> FloatArray:
+        index = np.arange(self._next, stop)
+        near = (index < self.span) | end
+        self._next = stop
+        out: FloatArray = near.astype(np.float64)[:, None]
+        return out
+
+    def _extend(self, t: IntArray, y: FloatArray) -> FloatArray:
+        self._n += len(t)
+        return self._marks(max(self._next, self._n - self.span), end=False)
+
+    def _end_segment(self) -> FloatArray:
+        out = self._marks(self._n, end=True)
+        self._n = self._next = 0
+        return out

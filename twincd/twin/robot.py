@@ -13,6 +13,7 @@ import hashlib
 import importlib.metadata
 import logging
 import os
+import re
 import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -250,6 +251,10 @@ def _full_model(urdf_path: Path) -> pin.Model:
     return model
 
 
+# gripper joints: the arm's twin does not drive them (DESIGN §1: locked, never fitted)
+_UNDRIVEN = re.compile(r"finger|gripper", re.IGNORECASE)
+
+
 def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = None) -> RobotModel:
     """Load a robot; with ``keep``, lock every model joint not listed (at its neutral value).
 
@@ -264,9 +269,12 @@ def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = N
         raise RobotModelError("the URDF has no movable 1-DoF joints", str(urdf), "use an arm URDF")
     locked: tuple[str, ...] = ()
     model = full
+    names = [s.name for s in specs]
+    undriven = [n for n in names if _UNDRIVEN.search(n)]
+    if len(undriven) < len(names) and undriven:  # an arm with a gripper: the arm is the twin
+        keep = [n for n in (names if keep is None else keep) if n not in undriven]
     if keep is not None:
         wanted = set(keep)
-        names = [s.name for s in specs]
         if not wanted & set(names):
             raise JointMismatchError(
                 "no joint of the log is in the robot model",
@@ -278,11 +286,13 @@ def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = N
         if locked:
             ids = [full.getJointId(n) for n in locked]
             model = pin.buildReducedModel(full, ids, pin.neutral(full))
-            log.warning(
-                "locking %d model joint(s) the log lacks at their neutral value: %s",
-                len(locked),
-                ", ".join(locked),
-            )
+            lacking = [n for n in locked if n not in undriven]
+            if lacking:
+                log.warning(
+                    "locking %d model joint(s) the log lacks at their neutral value: %s",
+                    len(lacking),
+                    ", ".join(lacking),
+                )
             specs = _joint_specs(model)
     label = name_or_path if name_or_path in list_robots() else str(urdf)
     return RobotModel(
