@@ -175,3 +175,14 @@ def test_test_logs_used_for_thresholds_are_flagged(calibration, split, caplog):
     with caplog.at_level("WARNING", logger="twincd"):
         evaluate(split["test"], ["proposed"], setup, calibration, val_paths=split["test"][:1])
     assert "also used for fitting or thresholds" in caplog.text
+
+
+def test_samples_at_the_filter_edges_are_not_judged(calibration, split):
+    # detect never flags within the zero-phase filter's edge spans: evaluate judges the same
+    setup = Setup.from_calibration(calibration)
+    result = evaluate(split["test"], ["proposed"], setup, calibration)
+    logs = [setup.prepare(p) for p in split["test"]]
+    edges = sum(int(lg.edge.sum()) for lg in logs if lg.edge is not None)
+    assert edges > 0
+    (row,) = result.methods
+    assert row.units == sum(len(lg) for lg in logs) - edges

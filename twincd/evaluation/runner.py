@@ -214,10 +214,18 @@ def _val_stats(
     for lg in val:
         scores.append(method.score(lg))
         mask = ~method.unit_labels(lg) if lg.labels is not None else None
-        if method.unit == "sample" and lg.edge is not None:  # as `threshold` does
-            mask = ~lg.edge if mask is None else mask & ~lg.edge
+        judged = _judged(method, lg, len(scores[-1]))  # as `threshold` does
+        mask = judged if mask is None else mask & judged
         total = total + ScoreStats.from_scores(scores[-1], mask)
     return total, scores
+
+
+def _judged(method: ScoringMethod, lg: PreparedLog, units: int) -> BoolArray:
+    """The units of ``lg`` that count: all but the samples at a zero-phase filter's edges,
+    which ``detect`` never flags (their transients differ between measured and twin effort)."""
+    if method.unit == "sample" and lg.edge is not None and len(lg.edge) == units:
+        return ~np.asarray(lg.edge, dtype=bool)
+    return np.ones(units, dtype=bool)
 
 
 def _events(
@@ -230,7 +238,7 @@ def _events(
     """Event counts of ``logs`` flagged at ``threshold``, merged over the logs."""
     total = EventCounts()
     for lg, score in zip(logs, scores, strict=True):
-        flags = np.asarray(score) >= threshold
+        flags = (np.asarray(score) >= threshold) & _judged(method, lg, len(score))
         labels = lg.labels if lg.labels is not None else np.zeros(len(lg), dtype=bool)
         truth = links.get(lg.source)
         named = method.flag_links(lg, flags) if truth is not None else None
@@ -283,8 +291,10 @@ def _run_once(
     start = time.perf_counter()
     scores = [method.score(lg) for lg in test]
     test_s = time.perf_counter() - start
-    y_score = np.concatenate(scores) if scores else np.zeros(0)
-    y_true = np.concatenate([method.unit_labels(lg) for lg in test])
+    # what detect judges: never a sample within the zero-phase filter's edge span
+    judged = [_judged(method, lg, len(score)) for lg, score in zip(test, scores, strict=True)]
+    y_score = np.concatenate([s[j] for s, j in zip(scores, judged, strict=True)] or [np.zeros(0)])
+    y_true = np.concatenate([method.unit_labels(lg)[j] for lg, j in zip(test, judged, strict=True)])
     if len(y_score) != len(y_true) or not np.isfinite(y_score).all():
         raise DataError(
             f"method {method.name!r} gave {len(y_score)} scores for {len(y_true)} units, "
