@@ -341,10 +341,30 @@ def run_per_log(
     cluster at ``scheduler``, with a progress bar. Each log's warnings are printed (one line
     each) once the bar is gone; with ``keep_going`` a failing log is reported in one line and
     the others go on."""
-    from twincd.executors import Captured, open_executor
+    from twincd.executors import open_executor
 
     with open_executor(jobs, scheduler, paths) as executor:
-        outcomes = map_per_log(executor, Captured(func, keep_going), items, description, quiet)
+        run = run_on(executor, func, items, paths, description, quiet, keep_going)
+    if not run.results and run.errors:
+        raise typer.Exit(2)  # nothing to go on with
+    return run
+
+
+def run_on(
+    executor: MapExecutor,
+    func: Callable[[T], Any],
+    items: Sequence[T],
+    paths: Sequence[Path],
+    description: str,
+    quiet: bool,
+    keep_going: bool = False,
+) -> LogRun:
+    """``run_per_log`` on an executor the caller holds (``evaluate`` reads three sets of logs
+    on one): each log's warnings printed, its failure reported in one line with
+    ``keep_going`` (else raised)."""
+    from twincd.executors import Captured
+
+    outcomes = map_per_log(executor, Captured(func, keep_going), items, description, quiet)
     run = LogRun([], [])
     for path, outcome in zip(paths, outcomes, strict=True):
         for line in outcome.warnings:
@@ -354,8 +374,6 @@ def run_per_log(
             run.errors.append((path, outcome.error))
         else:
             run.results.append(outcome.value)
-    if not run.results and run.errors:
-        raise typer.Exit(2)  # nothing to go on with
     return run
 
 

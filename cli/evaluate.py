@@ -22,7 +22,9 @@ from .common import (
     Jobs,
     JointMap,
     Junit,
+    KeepGoing,
     LabelTopic,
+    LogRun,
     Logs,
     NoSummary,
     Quiet,
@@ -34,8 +36,8 @@ from .common import (
     Topic,
     check_reports,
     command,
-    map_per_log,
     progress,
+    run_on,
     stdout,
 )
 
@@ -146,6 +148,7 @@ def evaluate(
         ),
     ] = DEFAULT_LINK_TOPIC,
     strict: Strict = False,
+    keep_going: KeepGoing = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -190,9 +193,12 @@ def evaluate(
 
     every_log = [*test_paths, *train_paths, *val_paths]
     with open_executor(jobs, scheduler, every_log) as executor:
+        failed = LogRun([], [])
 
         def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:
-            return map_per_log(executor, Bound(prepare_log, setup), paths, desc, quiet)
+            run = run_on(executor, Bound(prepare_log, setup), paths, paths, desc, quiet, keep_going)
+            failed.errors.extend(run.errors)  # with --keep-going: reported, the rest goes on
+            return list(run.results)
 
         result = run_evaluation(
             test_paths,
@@ -216,7 +222,7 @@ def evaluate(
     missed = result.missed_gates(min_f1, min_auc)
     _write_reports(result, missed, cal, report, junit, no_summary, (min_f1, min_auc))
     if json_:
-        doc = {**result.to_dict(), "warnings": list(WARNINGS)}
+        doc = {**result.to_dict(), "errors": failed.error_docs(), "warnings": list(WARNINGS)}
         stdout.out(json.dumps(doc), highlight=False)
     else:
         table = Table(
@@ -245,6 +251,7 @@ def evaluate(
     for m in result.methods:
         if m.skipped is not None:
             log.warning("method %s skipped: %s", m.name, m.skipped)
+    failed.exit_if_failed()  # --keep-going: a log that failed is exit 2, before any gate
     if missed:
         for line in missed:
             log.warning("gate missed: %s", line)

@@ -369,6 +369,21 @@ def test_keep_going_reports_each_failure_and_exits_2(world, tmp_path):
     assert result.exit_code == 2 and (tmp_path / "c.json").is_file()
 
 
+def test_evaluate_keeps_going_past_a_bad_test_log(world, twin_dataset, tmp_path):
+    bad = tmp_path / "b_bad.mcap"
+    bad.write_bytes(MCAP_MAGIC + b"garbage")
+    test = sorted((twin_dataset / "test").iterdir())
+    result = run("evaluate", *test, bad, "-c", world["cal"], "--json")
+    assert_one_line_error(result, "b_bad.mcap")
+    result = run("evaluate", *test, bad, "-c", world["cal"], "--json", "--keep-going")
+    assert result.exit_code == 2  # every other log evaluated, the failure still fails the run
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("twincd: error: ") and "b_bad" in lines[0]
+    doc = json.loads(result.stdout)
+    assert [e["path"] for e in doc["errors"]] == [str(bad)]
+    assert doc["methods"][0]["f1_best"] > 0 and doc["samples"] > 0
+
+
 def test_help_shows_no_bool_metavar():
     for command in ("detect", "fit", "threshold", "evaluate", "simulate", "synth"):
         result = run(command, "--help")
