@@ -7,7 +7,7 @@ import pickle
 import pytest
 
 from twincd.errors import LogReadError, TwincdError
-from twincd.executors import Bound, Executor
+from twincd.executors import POOL_MIN_BYTES, Bound, Executor
 
 
 def _square_or_fail(x: int, bad: int) -> int:
@@ -33,15 +33,20 @@ def test_a_worker_error_is_raised_as_itself(jobs: int) -> None:
         Executor(jobs).map(Bound(_square_or_fail, 3), list(range(8)))
 
 
-def test_automatic_jobs_keep_a_few_small_logs_in_this_process(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_automatic_jobs_keep_small_logs_in_this_process(tmp_path) -> None:  # type: ignore[no-untyped-def]
     logs = []
-    for i in range(3):
+    for i in range(40):  # forty sample-sized logs: less work than starting workers
         logs.append(tmp_path / f"{i}.mcap")
         logs[-1].write_bytes(b"x" * 1000)
     assert Executor.for_logs(0, logs).workers == 1
     assert Executor.for_logs(2, logs).workers == 2  # asked for explicitly: as asked
-    many = logs * 3  # nine logs: worth a pool
-    assert Executor.for_logs(0, many).workers == Executor(0).workers
+    big = []
+    for i in range(2):  # enough work to pay for a pool (sparse files: no disk used)
+        big.append(tmp_path / f"big{i}.mcap")
+        with open(big[-1], "wb") as f:
+            f.truncate(POOL_MIN_BYTES // 2 + 1)
+    assert Executor.for_logs(0, big).workers == Executor(0).workers
+    assert Executor.for_logs(0, big[:1]).workers == 1  # one log: nothing to share out
 
 
 class _Counted:

@@ -28,9 +28,10 @@ from twincd.twin.dynamics import default_threads
 T = TypeVar("T")
 # logs just finished, and the samples they held: what a progress display shows
 Progress = Callable[[int, int], None]
-# below both, an automatic run stays serial (measured on sample-sized logs, 2 cores)
-POOL_MIN_LOGS = 8
-POOL_MIN_BYTES = 100_000_000
+# below this, an automatic run stays serial: per-log work runs at about 40 ms per MB of MCAP
+# and a pool costs about 0.85 s to start (benchmarks/bench_fleet.py, 40 sample logs, 2 cores:
+# -j 2 took 1.85 s where -j 1 took 1.30 s), so two workers only pay past ≈ 45 MB of logs
+POOL_MIN_BYTES = 50_000_000
 # what a worker needs for any command; importing them starts no OpenMP thread
 PRELOAD = (
     "numpy",
@@ -55,9 +56,9 @@ class Executor:
 
     @classmethod
     def for_logs(cls, jobs: int, paths: Sequence[Path]) -> Executor:
-        """``jobs`` processes; with 0 (every core), a run of a few small logs stays in this
-        process: starting a worker costs about a second, more than it would save there."""
-        if jobs == 0 and len(paths) < POOL_MIN_LOGS and _size(paths) < POOL_MIN_BYTES:
+        """``jobs`` processes; with 0 (every core), a run whose logs are too small to pay for
+        starting workers stays in this process (``POOL_MIN_BYTES``)."""
+        if jobs == 0 and (len(paths) < 2 or _size(paths) < POOL_MIN_BYTES):
             return cls(1)
         return cls(jobs)
 
