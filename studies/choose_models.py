@@ -102,14 +102,20 @@ def epsilon_table(train: Sequence[PreparedLog]) -> str:
     return "\n".join(lines)
 
 
+def judged(lg: PreparedLog) -> np.ndarray:
+    """What ``detect`` judges: every sample but those within the zero-phase filter's edge span
+    of a segment's ends (they never flag and are left out of μ, σ, as in ``threshold``)."""
+    return np.ones(len(lg), dtype=bool) if lg.edge is None else ~np.asarray(lg.edge, dtype=bool)
+
+
 def study(name: str, train: Sequence[PreparedLog], val: Sequence[PreparedLog], rounds: int) -> str:
     method = make_method(name).fit(train)
     clean = ScoreStats()
     for lg in val:
-        clean = clean + ScoreStats.from_scores(method.score(lg))
+        clean = clean + ScoreStats.from_scores(method.score(lg), judged(lg))
     threshold = clean.mu + 4 * clean.sigma
     clean_alarms = sum(
-        len(runs(method.score(lg) >= threshold)) for lg in val
+        len(runs((method.score(lg) >= threshold) & judged(lg))) for lg in val
     )  # runs of flags on the untouched logs
     own = isinstance(method, ModelMethod)
     assert isinstance(method, ModelMethod | ProposedMethod)
@@ -128,9 +134,10 @@ def study(name: str, train: Sequence[PreparedLog], val: Sequence[PreparedLog], r
         else:  # the paper's method: a, b and the plain sum of squares
             residual = inputs["effort_f"] - (method.a_ * lg.sim_effort_f + method.b_)
             score = np.einsum("ij,ij->i", residual, residual)
-        flags = score >= threshold
-        scores.append(score)
-        labels.append(lab)
+        keep = judged(lg)
+        flags = (score >= threshold) & keep
+        scores.append(score[keep])
+        labels.append(lab[keep])
         stamps = lg.states.stamp_ns
         events = events + event_counts(stamps, lab, stamps, flags, links)
         # isolation: the link named for each flagged run inside a press, for every κ
