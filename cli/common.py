@@ -341,7 +341,7 @@ def run_per_log(
     cluster at ``scheduler``, with a progress bar. Each log's warnings are printed (one line
     each) once the bar is gone; with ``keep_going`` a failing log is reported in one line and
     the others go on."""
-    from twincd.executors import open_executor
+    from twincd.cluster import open_executor
 
     with open_executor(jobs, scheduler, paths) as executor:
         run = run_on(executor, func, items, paths, description, quiet, keep_going)

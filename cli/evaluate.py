@@ -166,6 +166,7 @@ def evaluate(
     Example: twincd evaluate logs/test -c calibration.json --report report.html
     """
     from twincd.calibration import Calibration
+    from twincd.cluster import open_executor
     from twincd.evaluation.reports import (
         SHORT_COLUMNS,
         SHORT_EVENT_COLUMNS,
@@ -174,7 +175,7 @@ def evaluate(
     )
     from twincd.evaluation.runner import evaluate as run_evaluation
     from twincd.evaluation.runner import parse_methods
-    from twincd.executors import Bound, open_executor
+    from twincd.executors import Bound
     from twincd.io.logs import expand_logs
     from twincd.pipeline import prepare_log
 

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from twincd.errors import ClusterError, LogReadError, UsageError
-from twincd.executors import Progress, samples_in
+from twincd.executors import Executor, MapExecutor, Progress, samples_in
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -241,3 +241,15 @@ def _on_worker(item: T, work: Callable[[T], R], stop: str) -> R:
             "put the logs on storage every worker mounts under the same path",
         )
     return work(item)
+
+
+@contextlib.contextmanager
+def open_executor(jobs: int, scheduler: str | None, paths: Sequence[Path]) -> Iterator[MapExecutor]:
+    """The executor a run asks for: ``scheduler`` (a Dask scheduler's address, or ``"local"``
+    for a LocalCluster of ``jobs`` workers) when given, else ``jobs`` local processes; a
+    cluster started here is shut down when the block ends."""
+    if scheduler is None:
+        yield Executor.for_logs(jobs, paths)
+        return
+    with DaskExecutor(scheduler, workers=jobs) as executor:
+        yield executor

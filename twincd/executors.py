@@ -243,17 +243,3 @@ def samples_in(result: object) -> int:
         result = result.value
     samples = getattr(result, "samples", 0)
     return samples if isinstance(samples, int) else 0
-
-
-@contextlib.contextmanager
-def open_executor(jobs: int, scheduler: str | None, paths: Sequence[Path]) -> Iterator[MapExecutor]:
-    """The executor a run asks for: ``scheduler`` (a Dask scheduler's address, or ``"local"``
-    for a LocalCluster of ``jobs`` workers) when given, else ``jobs`` local processes; a
-    cluster started here is shut down when the block ends."""
-    if scheduler is None:
-        yield Executor.for_logs(jobs, paths)
-        return
-    from twincd.cluster import DaskExecutor
-
-    with DaskExecutor(scheduler, workers=jobs) as executor:
-        yield executor

@@ -82,6 +82,13 @@ class Stage(Protocol):
     def finish(self) -> Frame: ...
 
 
+class FrameSink(Protocol):
+    """Where per-sample results go while a log streams (an output file, a figure's envelope):
+    each frame of results and the events that closed in it."""
+
+    def write(self, frame: Frame, events: list[Any]) -> None: ...
+
+
 class SignalStage(Protocol):
     """What twincd.signal's streaming classes offer: values in, values out, possibly delayed."""
 

@@ -15,11 +15,11 @@ from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
-from twincd.detection.detect import DetectionSummary, FrameSink, LogDetection
+from twincd.detection.detect import DetectionSummary, LogDetection
 from twincd.detection.events import Event
 from twincd.detection.files import detect_file
 from twincd.errors import OutputError
-from twincd.frames import Frame
+from twincd.frames import Frame, FrameSink
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration

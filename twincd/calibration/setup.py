@@ -26,7 +26,7 @@ from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedStream, Setup, same_joints
 
 if TYPE_CHECKING:
-    from twincd.detection.detect import FrameSink
+    from twincd.frames import FrameSink
 
 log = logging.getLogger("twincd")
 

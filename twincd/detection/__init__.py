@@ -3,7 +3,6 @@ whole logs, streamed logs and live samples (one code path)."""
 
 from twincd.detection.detect import (
     DetectionSummary,
-    FrameSink,
     LogDetection,
     ScoringStage,
     detect,
@@ -12,6 +11,7 @@ from twincd.detection.events import Event, EventTracker, find_events, runs
 from twincd.detection.files import detect_file
 from twincd.detection.online import OnlineDetector, OnlineResult
 from twincd.detection.score import affine_score, residual
+from twincd.frames import FrameSink
 
 __all__ = [
     "DetectionSummary",

@@ -5,19 +5,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from twincd.detection.events import Event, EventTracker
 from twincd.detection.isolation import isolator_for
-from twincd.frames import Frame
+from twincd.frames import Frame, FrameSink
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.pipeline import PreparedLog
-    from twincd.reports.traces import DetectionTrace
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -106,12 +105,6 @@ def detect(log: PreparedLog, calibration: Calibration) -> LogDetection:
 # ------------------------------------------------------------------ a log streamed
 
 
-class FrameSink(Protocol):
-    """Where per-sample results go while a log streams (an output file)."""
-
-    def write(self, frame: Frame, events: list[Event]) -> None: ...
-
-
 @dataclass
 class DetectionSummary:
     """What ``detect`` reports of one log: counts and events, never per-sample arrays."""
@@ -124,8 +117,8 @@ class DetectionSummary:
     joint_names: tuple[str, ...] = ()
     first_stamp_ns: int = 0
     warnings: list[str] = field(default_factory=list)
-    # what a report's figure draws (bounded envelopes), when a report was asked for
-    trace: DetectionTrace | None = None
+    # what a report's figure draws (a sink of bounded envelopes), when a report was asked for
+    trace: FrameSink | None = None
 
     def to_dict(self) -> dict[str, object]:
         return {

@@ -10,11 +10,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.detection.detect import DetectionSummary, FrameSink, ScoringStage
+from twincd.detection.detect import DetectionSummary, ScoringStage
 from twincd.detection.events import Event
 from twincd.detection.online import OnlineDetector
 from twincd.errors import DataError
-from twincd.frames import Frame
+from twincd.frames import Frame, FrameSink
 from twincd.pipeline import require_enough_samples
 
 if TYPE_CHECKING:

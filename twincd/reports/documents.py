@@ -144,6 +144,7 @@ def detection_html(
     summaries: Sequence[DetectionSummary], settings: Sequence[tuple[str, str]] = ()
 ) -> str:
     from twincd.reports.figures import detection_figure, svg_text
+    from twincd.reports.traces import DetectionTrace
 
     found, text = _detect_verdict(summaries)
     summary = [html.verdict(text, found)]
@@ -152,7 +153,7 @@ def detection_html(
         summary.append(f"<h2>{html.escape(s.source)}</h2><p>{html.escape(_log_line(s))}</p>")
         if s.events:
             summary.append(html.table(event_columns(s), event_rows(s), cls="events"))
-        if s.trace is not None:
+        if isinstance(s.trace, DetectionTrace):
             figures.append(html.figure(svg_text(detection_figure(s, s.trace)), f"{i}. {s.source}"))
     return html.page("twincd detect", summary, figures, _settings_html(settings))
 
