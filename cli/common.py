@@ -53,6 +53,7 @@ SimTopic = Annotated[
 JointMap = Annotated[
     str | None, typer.Option("--joint-map", help="rename log joints: old=new,old2=new2")
 ]
+Json = Annotated[bool, typer.Option("--json", help="Print one JSON document.", metavar="")]
 Quiet = Annotated[
     bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.", metavar="")
 ]

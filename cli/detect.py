@@ -23,6 +23,7 @@ from .common import (
     Force,
     Jobs,
     JointMap,
+    Json,
     Junit,
     KeepGoing,
     LabelTopic,
@@ -119,9 +120,7 @@ def detect(
             "/twincd/collision), .csv or .jsonl; a folder for several logs.",
         ),
     ] = None,
-    json_: Annotated[
-        bool, typer.Option("--json", help="Print one JSON document.", metavar="")
-    ] = False,
+    json_: Json = False,
     report: Report = None,
     junit: Junit = None,
     no_summary: NoSummary = False,

@@ -21,6 +21,7 @@ from .common import (
     Force,
     Jobs,
     JointMap,
+    Json,
     Junit,
     KeepGoing,
     LabelTopic,
@@ -118,9 +119,7 @@ def evaluate(
             min=1,
         ),
     ] = DEFAULT_REPEATS,
-    json_: Annotated[
-        bool, typer.Option("--json", help="Print one JSON document.", metavar="")
-    ] = False,
+    json_: Json = False,
     report: Report = None,
     junit: Junit = None,
     no_summary: NoSummary = False,
