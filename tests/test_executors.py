@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import pickle
+import subprocess
+import sys
+import threading
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from twincd.errors import LogReadError, TwincdError
-from twincd.executors import POOL_MIN_BYTES, Bound, Executor
+from twincd.executors import POOL_MIN_BYTES, Bound, Executor, start_method
 
 
 def _square_or_fail(x: int, bad: int) -> int:
@@ -35,7 +40,7 @@ def test_a_worker_error_is_raised_as_itself(jobs: int) -> None:
 
 def test_automatic_jobs_keep_small_logs_in_this_process(tmp_path) -> None:  # type: ignore[no-untyped-def]
     logs = []
-    for i in range(40):  # forty sample-sized logs: less work than starting workers
+    for i in range(8):  # a few small logs: less work than starting workers
         logs.append(tmp_path / f"{i}.mcap")
         logs[-1].write_bytes(b"x" * 1000)
     assert Executor.for_logs(0, logs).workers == 1
@@ -44,7 +49,7 @@ def test_automatic_jobs_keep_small_logs_in_this_process(tmp_path) -> None:  # ty
     for i in range(2):  # enough work to pay for a pool (sparse files: no disk used)
         big.append(tmp_path / f"big{i}.mcap")
         with open(big[-1], "wb") as f:
-            f.truncate(POOL_MIN_BYTES // 2 + 1)
+            f.truncate(POOL_MIN_BYTES[start_method()] // 2 + 1)
     assert Executor.for_logs(0, big).workers == Executor(0).workers
     assert Executor.for_logs(0, big[:1]).workers == 1  # one log: nothing to share out
 
@@ -64,3 +69,49 @@ def test_progress_counts_logs_and_their_samples(jobs: int) -> None:
     results = Executor(jobs).map(_counted, [10, 20, 30], lambda logs, n: calls.append((logs, n)))
     assert [r.samples for r in results] == [10, 20, 30]
     assert sum(c[0] for c in calls) == 3 and sum(c[1] for c in calls) == 60
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork is used on Linux only")
+def test_workers_are_forked_only_while_that_is_safe(monkeypatch: pytest.MonkeyPatch) -> None:
+    import twincd.twin.dynamics as dynamics
+
+    monkeypatch.setattr(dynamics, "_team_started", False)
+    monkeypatch.delitem(sys.modules, "torch", raising=False)
+    monkeypatch.setattr(threading, "active_count", lambda: 1)  # other tests may leave threads
+    assert start_method() == "fork"
+    monkeypatch.setattr(dynamics, "_team_started", True)  # the batched RNEA ran on 2 threads
+    assert start_method() == "forkserver"
+    monkeypatch.setattr(dynamics, "_team_started", False)
+    monkeypatch.setitem(sys.modules, "torch", object())  # the learned baselines' OpenMP
+    assert start_method() == "forkserver"
+    monkeypatch.delitem(sys.modules, "torch")
+    # another Python thread: a lock it holds would stay held in the child forever
+    monkeypatch.setattr(threading, "active_count", lambda: 2)
+    assert start_method() == "forkserver"
+
+
+def _twin_torque(n: int) -> float:
+    from twincd.pipeline import robot_for
+    from twincd.twin.dynamics import inverse_dynamics
+
+    robot = robot_for("xarm7", tuple(f"joint{i}" for i in range(1, 8)))
+    q = np.full((n, robot.dof), 0.1)
+    return float(inverse_dynamics(robot, q, q, q, threads=2).sum())
+
+
+def test_a_pool_after_the_twin_ran_on_threads_in_this_process_does_not_hang() -> None:
+    """The deadlock fork would bring: OpenMP threads have run here, then a pool's workers run
+    OpenMP again. Run in a child process, so that this one stays fork-safe for other tests."""
+    code = (
+        "from tests.test_executors import _twin_torque\n"
+        "from twincd.executors import Executor, start_method\n"
+        "_twin_torque(64)\n"
+        "assert start_method() != 'fork', start_method()\n"
+        "print(Executor(2).map(_twin_torque, [64, 64, 64]))\n"
+    )
+    root = Path(__file__).resolve().parent.parent
+    done = subprocess.run(
+        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.count(",") == 2

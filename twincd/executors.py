@@ -10,10 +10,13 @@ come back in the order of the logs given.
 from __future__ import annotations
 
 import contextlib
+import gc
+import importlib
 import logging
 import multiprocessing
 import os
 import signal
+import sys
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,10 +31,12 @@ from twincd.twin.dynamics import default_threads
 T = TypeVar("T")
 # logs just finished, and the samples they held: what a progress display shows
 Progress = Callable[[int, int], None]
-# below this, an automatic run stays serial: per-log work runs at about 40 ms per MB of MCAP
-# and a pool costs about 0.85 s to start (benchmarks/bench_fleet.py, 40 sample logs, 2 cores:
-# -j 2 took 1.85 s where -j 1 took 1.30 s), so two workers only pay past ≈ 45 MB of logs
-POOL_MIN_BYTES = 50_000_000
+# below this, an automatic run stays serial: per-log work runs at about 30 ms per MB of MCAP,
+# and a pool whose workers are forked starts in milliseconds but pays the imports a serial run
+# would pay later (benchmarks/bench_fleet.py, 2 cores: -j 2 even with -j 1 on 10 sample logs,
+# 3.8 MB; 1.1–1.2× on 40, 15 MB); one that starts a forkserver costs ≈ 0.85 s more (40 logs:
+# -j 2 took 1.85 s where -j 1 took 1.30 s), so then two workers only pay past ≈ 45 MB of logs
+POOL_MIN_BYTES = {"fork": 10_000_000, "forkserver": 50_000_000, "spawn": 50_000_000}
 # what a worker needs for any command; importing them starts no OpenMP thread
 PRELOAD = (
     "numpy",
@@ -40,6 +45,10 @@ PRELOAD = (
     "twincd.pipeline",
     "twincd.outputs",
     "twincd.threshold",
+    "twincd.io.blocks",
+    "mcap.reader",  # and the decompressors it loads
+    "lz4.frame",
+    "zstandard",
 )
 R = TypeVar("R")
 
@@ -58,7 +67,7 @@ class Executor:
     def for_logs(cls, jobs: int, paths: Sequence[Path]) -> Executor:
         """``jobs`` processes; with 0 (every core), a run whose logs are too small to pay for
         starting workers stays in this process (``POOL_MIN_BYTES``)."""
-        if jobs == 0 and (len(paths) < 2 or _size(paths) < POOL_MIN_BYTES):
+        if jobs == 0 and (len(paths) < 2 or _size(paths) < POOL_MIN_BYTES[start_method()]):
             return cls(1)
         return cls(jobs)
 
@@ -90,15 +99,24 @@ def _pooled(
 ) -> Iterator[R]:
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    # not fork: Pinocchio's batched RNEA runs on OpenMP, and an OpenMP runtime that has run in
-    # the parent deadlocks in a forked child; forkserver children start from a clean process
-    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    method = start_method()
     context = multiprocessing.get_context(method)
-    if method == "forkserver":
+    if method == "fork":
+        # the workers inherit what this process imported: import it once, here
+        for module in PRELOAD:
+            with contextlib.suppress(ImportError):  # as a forkserver's preload does
+                importlib.import_module(module)
+    elif method == "forkserver":
         # import the heavy modules once in the server, not once per worker (≈ 1 s each)
         context.set_forkserver_preload(list(PRELOAD))
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
-        futures: list[Future[R]] = [pool.submit(func, item) for item in items]
+        # the objects alive now are the children's too: out of the collector's sight, so that
+        # collecting in a child does not copy every page they sit on (copy-on-write)
+        gc.freeze()
+        try:
+            futures: list[Future[R]] = [pool.submit(func, item) for item in items]
+        finally:
+            gc.unfreeze()
         pending = set(futures)
         try:
             while pending:
@@ -120,6 +138,29 @@ def _pooled(
             raise
         for f in futures:
             yield f.result()
+
+
+def start_method() -> str:
+    """How a pool starts its workers: ``fork`` when this process is in a state a child can
+    inherit, as a command's process is before it has done any work (workers then start in
+    milliseconds, where a forkserver costs ≈ 0.5 s of imports before the first log); otherwise
+    ``forkserver`` (children from a clean process), or ``spawn`` where there is neither.
+
+    Not fork once an OpenMP team has run here (Pinocchio's batched RNEA on several threads, or
+    torch, loaded by the learned baselines): a forked child of such a process hangs at its own
+    first parallel region. Nor with other Python threads running (a lock one of them holds
+    stays held in the child forever)."""
+    import threading
+
+    from twincd.twin.dynamics import openmp_team_started
+
+    methods = multiprocessing.get_all_start_methods()
+    safe = not openmp_team_started() and "torch" not in sys.modules
+    # only on Linux: macOS system libraries are not fork-safe (Python's default there is spawn)
+    linux = sys.platform.startswith("linux")
+    if linux and "fork" in methods and safe and threading.active_count() == 1:
+        return "fork"
+    return "forkserver" if "forkserver" in methods else "spawn"
 
 
 def _stop_workers(pool: Any) -> None:

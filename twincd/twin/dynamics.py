@@ -26,6 +26,16 @@ from twincd.twin.robot import RobotModel
 FloatArray = NDArray[np.float64]
 
 
+# whether an OpenMP team of more than one thread has run in this process: a process forked after
+# that hangs at its own first parallel region, so a pool must then start its workers afresh
+_team_started = False
+
+
+def openmp_team_started() -> bool:
+    """True once the batched RNEA has run on more than one thread in this process."""
+    return _team_started
+
+
 def default_threads() -> int:
     """The cores this process may use (Linux affinity, else the CPU count), or
     ``TWINCD_TWIN_THREADS`` (a worker of a process pool is given one)."""
@@ -80,6 +90,9 @@ def inverse_dynamics(
         v = np.asfortranarray(robot.velocity_vector(velocity).T)
         a = np.asfortranarray(robot.velocity_vector(acceleration).T)
     tau = np.empty((robot.model.nv, n), order="F")
+    if threads > 1:
+        global _team_started
+        _team_started = True
     pin.rneaInParallel(threads, robot.pool(threads), q, v, a, tau)
     out: FloatArray = tau.T if robot.plain_layout else robot.joint_values(tau.T)
     return out
