@@ -122,9 +122,8 @@ def test_the_progress_bar_leaves_a_pool_free_to_fork(monkeypatch: pytest.MonkeyP
     own: a thread would make every pool start from a forkserver (≈ 0.85 s)."""
     import io
 
+    import twincd_cli.common as common
     from rich.console import Console
-
-    import cli.common as common
 
     monkeypatch.setattr(common, "show_progress", lambda quiet: True)
     screen = io.StringIO()
