@@ -189,7 +189,9 @@ def fit(
         typer.Option(
             "--model",
             help="Calibration model: affine (the paper's a·twin + b), affine-whitened, "
-            "friction (+ c·tanh(q̇/ε) + d·q̇), friction-whitened (score weighted per joint).",
+            "friction (+ c·tanh(q̇/ε) + d·q̇), identified (+ the URDF's inertial parameters "
+            "re-fitted through the joint-torque regressor; needs the URDF); *-whitened: the "
+            "score weighted per joint.",
         ),
     ] = "affine",
     jobs: Jobs = 0,

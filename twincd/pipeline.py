@@ -69,6 +69,8 @@ class PreparedLog:
     velocity_f: FloatArray | None = None  # q̇̃, the velocity through the same filter (friction)
     coulomb_f: FloatArray | None = None  # filtered tanh(q̇/ε), (N, E, joints), ε in coulomb_eps
     coulomb_eps: tuple[float, ...] = ()
+    # Y(q, q̇, q̈) through the same filter, (N, joints, parameters) (identified models)
+    regressor_f: FloatArray | None = None
     # True within the zero-phase filter's edge span of a segment's ends (None: no such span)
     edge: BoolArray | None = None
 
@@ -119,7 +121,8 @@ def pick_columns(columns: IntArray) -> Mapped:
     return Mapped(pick)
 
 
-_JOINT_COLUMNS = ("position", "velocity", "effort", "sim_effort")
+# per-joint arrays: joints on axis 1 (the regressor has a third axis, its parameters)
+_JOINT_COLUMNS = ("position", "velocity", "effort", "sim_effort", "regressor")
 
 
 def _fill_velocity(frame: Frame) -> Frame:
@@ -134,35 +137,40 @@ def twin_stages(
     causal: bool,
     fill_velocity: bool,
     threads: int | None = None,
+    regressor: RobotModel | None = None,
 ) -> list[Stage]:
-    """Velocity (from position where the log has none), acceleration, τ̂ = RNEA(q, q̇, q̈).
+    """Velocity (from position where the log has none), acceleration, τ̂ = RNEA(q, q̇, q̈), and
+    with ``regressor`` the joint-torque regressor Y(q, q̇, q̈) (column ``regressor``, (N, D, P);
+    the ``identified`` models).
 
     Columns must be in the robot's joint order. ``robot`` None: the frames carry
-    ``sim_effort`` already, only the velocity is completed.
+    ``sim_effort`` already, only the velocity (and the regressor) is completed.
     """
     from twincd.signal.derivatives import StreamingDerivative
-    from twincd.twin.dynamics import inverse_dynamics
+    from twincd.twin.dynamics import inverse_dynamics, torque_regressor
 
     stages: list[Stage] = []
     if fill_velocity:
         dq = StreamingDerivative(period_s=period_s, causal=causal)
         stages += [Derived(dq, "position", "dq"), Mapped(_fill_velocity)]
-    if robot is None:
+    if robot is None and regressor is None:
         return stages
     ddq = StreamingDerivative(period_s=period_s, causal=causal)
 
     def twin(frame: Frame) -> Frame:
-        tau = inverse_dynamics(
-            robot, frame["position"], frame["velocity"], frame["ddq"], threads=threads
-        )
-        rest = {k: v for k, v in frame.items() if k != "ddq"}
-        return Frame(rest).with_columns(sim_effort=tau)
+        q, v, a = frame["position"], frame["velocity"], frame["ddq"]
+        out = Frame({k: x for k, x in frame.items() if k != "ddq"})
+        if robot is not None:
+            out = out.with_columns(sim_effort=inverse_dynamics(robot, q, v, a, threads=threads))
+        if regressor is not None:
+            out = out.with_columns(regressor=torque_regressor(regressor, q, v, a))
+        return out
 
     return [*stages, Derived(ddq, "velocity", "ddq"), Mapped(twin)]
 
 
 def filter_stages(
-    lowpass: LowPass, period_s: float, coulomb_eps: Sequence[float] = ()
+    lowpass: LowPass, period_s: float, coulomb_eps: Sequence[float] = (), regressor: bool = False
 ) -> list[Stage]:
     """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
 
@@ -170,27 +178,39 @@ def filter_stages(
     for each ε (``coulomb_f``, (N, E, joints)) through the same filter, so that they lag as the
     efforts do: the Coulomb friction steps where a joint turns, and only the step itself
     filtered matches the filtered effort (tanh of the filtered velocity steps too sharply
-    there). Without, nothing more is filtered: the seed's model costs what it did."""
+    there). With ``regressor`` (identified models), the joint-torque regressor (N, D, P) too, as
+    ``regressor_f``. Without either, nothing more is filtered: the seed's model costs what it
+    did."""
     from twincd.signal.filters import StreamingLowPass
 
     eps = tuple(float(e) for e in coulomb_eps)
     extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
+    params: list[int] = []  # the regressor's parameter count, known at the first frame
 
     def stack(frame: Frame) -> Frame:
         v = frame["velocity"]
         friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
-        return frame.with_columns(both=np.hstack((frame["effort"], frame["sim_effort"], *friction)))
+        columns = [frame["effort"], frame["sim_effort"], *friction]
+        if regressor:
+            y = frame["regressor"]
+            params[:] = [y.shape[2]]
+            columns.append(y.reshape(len(y), -1))
+        rest = {k: x for k, x in frame.items() if k != "regressor"}
+        return Frame(rest, frame.n).with_columns(both=np.hstack(columns))
 
     def split(frame: Frame) -> Frame:
         both = frame["both_f"]
-        d = both.shape[1] // (2 + extra)
+        p = params[0] if regressor else 0
+        d = both.shape[1] // (2 + extra + p)
         rest = {k: v for k, v in frame.items() if k not in ("both", "both_f")}
         out = Frame(rest).with_columns(effort_f=both[:, :d], sim_effort_f=both[:, d : 2 * d])
         if eps:
             out = out.with_columns(
                 velocity_f=both[:, 2 * d : 3 * d],
-                coulomb_f=both[:, 3 * d :].reshape(len(both), len(eps), d),
+                coulomb_f=both[:, 3 * d : (3 + len(eps)) * d].reshape(len(both), len(eps), d),
             )
+        if regressor:
+            out = out.with_columns(regressor_f=both[:, (2 + extra) * d :].reshape(len(both), d, p))
         return out
 
     return [
@@ -252,6 +272,7 @@ class PreparedStream:
         self.dropped_bad = 0
         self.velocity_from_position = False
         self.coulomb_eps = setup.coulomb_eps if filtered else ()
+        self.regressor = setup.regressor and filtered  # identified models: Y(q, q̇, q̈) filtered
         self._log: LogStream | None = None
 
     @property
@@ -322,6 +343,20 @@ class PreparedStream:
             robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
             twin_names = model.joint_names
         self.robot = robot
+        regressor = None
+        usable = robot is not None and robot.joint_names == twin_names
+        if self.regressor and not usable and setup.regressor_optional:
+            self.regressor = False  # evaluate: the identified methods are then skipped
+        if self.regressor:
+            if robot is None or not usable:
+                raise DataError(
+                    "the identified model needs the robot model of every joint (its URDF)",
+                    self.source,
+                    "name the robot the log was recorded on, or fit a model that needs no URDF "
+                    "(friction-whitened)",
+                    option="robot",
+                )
+            regressor = robot
         final = twin_names
         if setup.joint_names is not None:
             missing = [n for n in setup.joint_names if n not in twin_names]
@@ -357,11 +392,13 @@ class PreparedStream:
         causal = setup.lowpass.causal
         stages: list[Stage] = [
             pick_columns(to_twin),
-            *twin_stages(model, self.period_s, causal, fill, setup.twin_threads),
+            *twin_stages(model, self.period_s, causal, fill, setup.twin_threads, regressor),
             pick_columns(to_final),
         ]
         if self.filtered:
-            stages += filter_stages(setup.lowpass, self.period_s, setup.coulomb_eps)
+            stages += filter_stages(
+                setup.lowpass, self.period_s, setup.coulomb_eps, regressor is not None
+            )
         self.velocity_from_position = fill
         return Chain(stages), to_twin
 
@@ -459,6 +496,8 @@ class CalibrationSettings(Protocol):
     @property
     def coulomb_eps(self) -> tuple[float, ...]: ...
     @property
+    def regressor(self) -> bool: ...
+    @property
     def period_s(self) -> float | None: ...
 
 
@@ -482,6 +521,9 @@ class Setup:
     strict: bool = False
     twin_threads: int | None = None  # None: every core this process may use
     coulomb_eps: tuple[float, ...] = ()  # ε of the filtered Coulomb features (friction models)
+    regressor: bool = False  # the filtered joint-torque regressor too (identified models)
+    # with ``regressor``: leave it out, rather than refuse a log, where no robot model is known
+    regressor_optional: bool = False
 
     @classmethod
     def from_calibration(cls, calibration: CalibrationSettings) -> Setup:
@@ -493,6 +535,7 @@ class Setup:
             urdf_sha256=calibration.urdf_sha256,
             period_s=calibration.period_s,
             coulomb_eps=calibration.coulomb_eps,
+            regressor=calibration.regressor,
         )
 
     def open(self, path: str | Path, **kwargs: Any) -> PreparedStream:
@@ -600,6 +643,7 @@ def prepared_log(stream: PreparedStream, whole: Frame, lowpass: LowPass) -> Prep
         velocity_f=whole.get("velocity_f"),
         coulomb_f=whole.get("coulomb_f"),
         coulomb_eps=stream.coulomb_eps,
+        regressor_f=whole.get("regressor_f"),
         robot=stream.robot,
         simulated=stream.simulated,
         lowpass=lowpass,

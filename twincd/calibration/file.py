@@ -119,6 +119,8 @@ class Calibration:
     d: FloatArray | None = None  # friction models: viscous coefficient of q̇̃
     epsilon: FloatArray | None = None  # friction models: ε (rad/s) chosen on the training logs
     scale: FloatArray | None = None  # whitened models: residual RMS per joint on training logs
+    # identified models: per joint the weights (D, P) of the filtered joint-torque regressor
+    theta: FloatArray | None = None
     # the body each joint moves (its child link), for naming the link an event touched
     links: tuple[str, ...] | None = None
     depths: tuple[int, ...] | None = None  # each joint's depth in the kinematic tree
@@ -129,9 +131,16 @@ class Calibration:
         return () if self.epsilon is None else tuple(sorted({float(e) for e in self.epsilon}))
 
     @property
+    def regressor(self) -> bool:
+        """Scoring needs the filtered joint-torque regressor (identified models)."""
+        return self.theta is not None
+
+    @property
     def model(self) -> ResidualModel:
         """The map and score that detection applies."""
-        return ResidualModel(self.kind, self.a, self.b, self.c, self.d, self.epsilon, self.scale)
+        return ResidualModel(
+            self.kind, self.a, self.b, self.c, self.d, self.epsilon, self.scale, self.theta
+        )
 
     def require_threshold(self) -> Threshold:
         if self.threshold is None:
@@ -191,12 +200,14 @@ class Calibration:
             "threshold": None if self.threshold is None else self.threshold.to_dict(),
         }
 
-    def _coefficients(self, i: int) -> dict[str, float]:
-        out = {"a": float(self.a[i]), "b": float(self.b[i])}
+    def _coefficients(self, i: int) -> dict[str, Any]:
+        out: dict[str, Any] = {"a": float(self.a[i]), "b": float(self.b[i])}
         for key in ("c", "d", "epsilon", "scale"):
             values = getattr(self, key)
             if values is not None:
                 out[key] = float(values[i])
+        if self.theta is not None:
+            out["theta"] = [float(x) for x in self.theta[i]]
         return out
 
     @classmethod
@@ -232,7 +243,8 @@ class Calibration:
             extra = {
                 key: _optional_column(coeff, names, key) for key in ("c", "d", "epsilon", "scale")
             }
-            _require_coefficients(str(kind), extra, where)
+            theta = _theta(coeff, names, where)
+            _require_coefficients(str(kind), {**extra, "theta": theta}, where)
             links, depths = robot.get("links"), robot.get("depths")
             for key, values in (("links", links), ("depths", depths)):
                 if values is not None and len(values) != len(names):
@@ -288,6 +300,7 @@ class Calibration:
                 kind=str(kind),
                 links=None if links is None else tuple(str(x) for x in links),
                 depths=None if depths is None else tuple(int(x) for x in depths),
+                theta=theta,
                 **extra,
             )
         except CalibrationError:
@@ -408,12 +421,43 @@ def _optional_column(coeff: Mapping[str, Any], names: Sequence[str], key: str) -
     return np.array([float(v) for v in values])
 
 
-def _require_coefficients(kind: str, extra: Mapping[str, FloatArray | None], where: str) -> None:
-    from twincd.calibration.models import is_whitened, uses_friction
-
-    needed = (["c", "d", "epsilon"] if uses_friction(kind) else []) + (
-        ["scale"] if is_whitened(kind) else []
+def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatArray | None:
+    """The identified models' per-joint regressor weights: all joints, of one length, or none."""
+    rows = [coeff[n].get("theta") for n in names]
+    if all(r is None for r in rows):
+        return None
+    if any(r is None for r in rows):
+        raise ValueError("coefficient 'theta' is missing for some joints")
+    lengths = {len(r) if isinstance(r, list) else -1 for r in rows}
+    if len(lengths) != 1 or -1 in lengths:
+        raise CalibrationError(
+            "calibration field theta is not a list of numbers of one length per joint",
+            where,
+            "re-run `twincd fit`",
+        )
+    return np.array(
+        [
+            [finite_number(v, f"theta[{n}]", where) for v in r]
+            for r, n in zip(rows, names, strict=True)
+        ],
+        dtype=np.float64,
     )
+
+
+def _require_coefficients(kind: str, extra: Mapping[str, FloatArray | None], where: str) -> None:
+    from twincd.calibration.models import is_whitened, uses_friction, uses_regressor
+
+    needed = (
+        (["c", "d", "epsilon"] if uses_friction(kind) else [])
+        + (["scale"] if is_whitened(kind) else [])
+        + (["theta"] if uses_regressor(kind) else [])
+    )
+    if extra.get("theta") is not None and not uses_regressor(kind):
+        raise CalibrationError(
+            f"the {kind} model has regressor weights (theta), which only identified models use",
+            where,
+            "re-run `twincd fit`",
+        )
     missing = [k for k in needed if extra.get(k) is None]
     if missing:
         raise CalibrationError(

@@ -7,6 +7,12 @@
   per joint from ``EPSILON_GRID`` by the smallest training residual: statistics for every
   candidate are gathered in one pass, so the choice uses the training logs only and still
   merges exactly.
+- ``identified``: per joint τ̃ ≈ a·τ̂̃ + Ỹ_j θ_j + b + c·LP[tanh(q̇/ε)] + d·q̇̃, with Ỹ the
+  joint-torque regressor (Pinocchio) through the same filter: θ_j corrects the URDF's inertial
+  parameters (masses, centres of mass, inertias) as joint j sees them, which the gain a alone
+  cannot (a payload or a heavier link changes the torque differently along each path). It
+  needs the robot's URDF; ε is chosen as for ``friction``. Least squares with a small ridge on
+  standardised columns, because most of θ is not identifiable from joint torques.
 - ``…-whitened``: the same map, score Σ_j (r_j / s_j)² with s_j the joint's residual RMS on the
   collision-free training samples, so that one noisy joint does not drown a push on a quiet one.
 
@@ -18,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,15 +39,33 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 AFFINE = "affine"
-MODEL_KINDS = ("affine", "affine-whitened", "friction", "friction-whitened")
+MODEL_KINDS = (
+    "affine",
+    "affine-whitened",
+    "friction",
+    "friction-whitened",
+    "identified",
+    "identified-whitened",
+)
 # ε candidates (rad/s) of the Coulomb term tanh(q̇/ε): from a near step to a soft ramp
 EPSILON_GRID: tuple[float, ...] = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 # a joint whose residual is almost zero on training data must not get an infinite weight
 _MIN_SCALE = 1e-6
 
 
+# ridge of the identified model's least squares, relative to each (standardised) column's own
+# spread: enough to pin θ's unidentifiable combinations at zero, far below any real signal
+IDENTIFIED_RIDGE = 1e-6
+
+
 def uses_friction(kind: str) -> bool:
-    return kind.startswith("friction")
+    """The model has the Coulomb and viscous terms (and so needs their features)."""
+    return kind.startswith(("friction", "identified"))
+
+
+def uses_regressor(kind: str) -> bool:
+    """The model corrects the inertial parameters (and so needs the URDF's regressor)."""
+    return kind.startswith("identified")
 
 
 def is_whitened(kind: str) -> bool:
@@ -118,22 +142,102 @@ class FrictionStats:
         return cls(len(x), mean, cross)
 
     def __add__(self, other: FrictionStats) -> FrictionStats:
-        if self.n == 0:
-            return other
-        if other.n == 0:
-            return self
-        from twincd.calibration.affine import same_joints
+        return FrictionStats(*merge_moments(self, other, joint_axis=1))
 
-        same_joints(self.mean.shape[1], other.mean.shape[1])
-        n = self.n + other.n
-        delta = other.mean - self.mean
-        return FrictionStats(
-            n,
-            self.mean + delta * (other.n / n),
-            self.cross
-            + other.cross
-            + np.einsum("eda,edb->edab", delta, delta) * (self.n * other.n / n),
-        )
+
+class Moments(Protocol):
+    """Count, means (..., K) and centred cross-products (..., K, K) of K columns."""
+
+    @property
+    def n(self) -> int: ...
+    @property
+    def mean(self) -> FloatArray: ...
+    @property
+    def cross(self) -> FloatArray: ...
+
+
+def merge_moments(
+    mine: Moments, theirs: Moments, joint_axis: int
+) -> tuple[int, FloatArray, FloatArray]:
+    """Chan et al.'s exact pairwise merge of two ``Moments`` (of the same joints)."""
+    if mine.n == 0:
+        return theirs.n, theirs.mean, theirs.cross
+    if theirs.n == 0:
+        return mine.n, mine.mean, mine.cross
+    from twincd.calibration.affine import same_joints
+
+    same_joints(mine.mean.shape[joint_axis], theirs.mean.shape[joint_axis])
+    n = mine.n + theirs.n
+    delta = theirs.mean - mine.mean
+    outer = delta[..., :, None] * delta[..., None, :]
+    return (
+        n,
+        mine.mean + delta * (theirs.n / n),
+        mine.cross + theirs.cross + outer * (mine.n * theirs.n / n),
+    )
+
+
+@dataclass(frozen=True)
+class IdentifiedStats:
+    """Mergeable statistics of the identified model's regression, every ε at once.
+
+    ``mean`` (D, K) and centred cross-products ``cross`` (D, K, K) of the per-joint columns
+    [τ̂̃, Ỹ_j (P), q̇̃, LP[tanh(q̇/ε)] for each ε of ``EPSILON_GRID``, τ̃] over ``n`` samples:
+    one Gram matrix per joint serves every ε, since only the Coulomb column changes with it.
+    """
+
+    n: int
+    mean: FloatArray
+    cross: FloatArray
+
+    @classmethod
+    def zeros(cls, joints: int, params: int) -> IdentifiedStats:
+        k = params + 3 + len(EPSILON_GRID)
+        return cls(0, np.zeros((joints, k)), np.zeros((joints, k, k)))
+
+    @classmethod
+    def from_arrays(
+        cls,
+        sim_effort_f: FloatArray,
+        regressor_f: FloatArray,
+        velocity_f: FloatArray,
+        coulomb_f: FloatArray,
+        effort_f: FloatArray,
+        mask: BoolArray | None = None,
+    ) -> IdentifiedStats:
+        """Statistics of (N, D) efforts and velocity, the (N, D, P) filtered regressor and the
+        (N, E, D) Coulomb features (one per ε of ``EPSILON_GRID``), rows where ``mask`` holds."""
+        f = np.asarray(coulomb_f, dtype=np.float64)
+        if f.ndim != 3 or f.shape[1] != len(EPSILON_GRID):
+            raise DataError(
+                f"Coulomb features of shape {f.shape} do not match the ε grid",
+                "identified fit",
+                "prepare the logs with coulomb_eps=EPSILON_GRID",
+            )
+        cols = np.concatenate(
+            [
+                np.asarray(sim_effort_f, dtype=np.float64)[..., None],
+                np.asarray(regressor_f, dtype=np.float64),
+                np.asarray(velocity_f, dtype=np.float64)[..., None],
+                np.moveaxis(f, 1, 2),
+                np.asarray(effort_f, dtype=np.float64)[..., None],
+            ],
+            axis=2,
+        )  # (N, D, K)
+        if mask is not None:
+            cols = cols[mask]
+        if len(cols) == 0:
+            return cls.zeros(cols.shape[1], cols.shape[2] - 3 - len(EPSILON_GRID))
+        mean = cols.mean(axis=0)
+        centred = np.moveaxis(cols - mean, 0, 1)  # (D, N, K): one BLAS product per joint
+        return cls(len(cols), mean, np.matmul(np.swapaxes(centred, 1, 2), centred))
+
+    @property
+    def params(self) -> int:
+        return int(self.mean.shape[1]) - 3 - len(EPSILON_GRID)
+
+    def __add__(self, other: IdentifiedStats) -> IdentifiedStats:
+        return IdentifiedStats(*merge_moments(self, other, joint_axis=0))
 
 
 @dataclass(frozen=True)
@@ -179,10 +283,63 @@ def solve_friction(stats: FrictionStats) -> FrictionSolution:
 
 
 @dataclass(frozen=True)
+class IdentifiedSolution:
+    friction: FrictionSolution
+    theta: FloatArray  # (D, P): per joint, the regressor's weights
+
+
+def solve_identified(stats: IdentifiedStats) -> IdentifiedSolution:
+    """Ridge least squares per joint and ε on standardised columns; per joint the ε of least
+    training error (as ``solve_friction``)."""
+    from twincd.calibration.affine import require_samples
+
+    require_samples(stats.n, 5)
+    p, e = stats.params, len(EPSILON_GRID)
+    sse = []
+    betas = []
+    for i in range(e):
+        # columns: τ̂̃, Ỹ (P), q̇̃, this ε's Coulomb feature; target τ̃ (the last)
+        use = np.r_[0 : p + 2, p + 2 + i]
+        cxx = stats.cross[:, use[:, None], use[None, :]]  # (D, m, m)
+        cxy = stats.cross[:, use, -1]  # (D, m)
+        spread = np.sqrt(np.diagonal(cxx, axis1=1, axis2=2))
+        live = spread > 1e-12 * np.maximum(spread.max(axis=1, keepdims=True), 1e-300)
+        unit = np.where(live, spread, 1.0)  # a column that never varies gets a zero weight
+        gram = cxx / (unit[:, :, None] * unit[:, None, :]) * (live[:, :, None] & live[:, None, :])
+        gram = gram + IDENTIFIED_RIDGE * np.eye(len(use))
+        beta = np.linalg.solve(gram, (cxy / unit * live)[..., None])[..., 0] / unit
+        fitted = np.einsum("da,dab,db->d", beta, cxx, beta)
+        sse.append(np.maximum(stats.cross[:, -1, -1] - 2 * (beta * cxy).sum(1) + fitted, 0.0))
+        betas.append(beta)
+    errors = np.array(sse)  # (E, D)
+    best = np.argmin(errors, axis=0)
+    joints = np.arange(errors.shape[1])
+    coef = np.array(betas)[best, joints]  # (D, P + 3)
+    x_mean = np.concatenate(
+        [stats.mean[joints, : p + 2], stats.mean[joints, p + 2 + best][:, None]], axis=1
+    )
+    b = stats.mean[:, -1] - np.einsum("da,da->d", coef, x_mean)
+    err = errors[best, joints]
+    total = stats.cross[:, -1, -1]
+    r2 = np.where(total > 0, 1.0 - err / np.where(total > 0, total, 1.0), 1.0)
+    friction = FrictionSolution(
+        a=coef[:, 0],
+        b=b,
+        c=coef[:, p + 2],
+        d=coef[:, p + 1],
+        epsilon=np.asarray(EPSILON_GRID)[best],
+        r2=r2,
+        rmse=np.sqrt(err / stats.n),
+    )
+    return IdentifiedSolution(friction, coef[:, 1 : p + 1])
+
+
+@dataclass(frozen=True)
 class ResidualModel:
     """What scoring needs of a calibration: the map from twin to measured effort and the score.
 
-    ``c``, ``d``, ``epsilon`` are set for friction models; ``scale`` for whitened ones.
+    ``c``, ``d``, ``epsilon`` are set for friction and identified models, ``theta`` (D, P) for
+    identified ones, ``scale`` for whitened ones.
     """
 
     kind: str
@@ -192,11 +349,12 @@ class ResidualModel:
     d: FloatArray | None = None
     epsilon: FloatArray | None = None
     scale: FloatArray | None = None
+    theta: FloatArray | None = None
 
     def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
         """The twin's effort mapped to the real robot's, (N, D), from prepared samples
         (``sim_effort_f``; friction models also ``velocity_f``, ``coulomb_f`` and
-        ``coulomb_eps``)."""
+        ``coulomb_eps``; identified ones ``regressor_f``)."""
         out: FloatArray = self.a * np.asarray(inputs["sim_effort_f"], dtype=np.float64) + self.b
         if self.c is not None and self.d is not None and self.epsilon is not None:
             if inputs.get("coulomb_f") is None or inputs.get("velocity_f") is None:
@@ -207,6 +365,16 @@ class ResidualModel:
                 )
             coulomb = coulomb_columns(inputs["coulomb_f"], inputs["coulomb_eps"], self.epsilon)
             out = out + self.c * coulomb + self.d * np.asarray(inputs["velocity_f"])
+        if self.theta is not None:
+            regressor = inputs.get("regressor_f")
+            if regressor is None or np.shape(regressor)[1:] != self.theta.shape:
+                raise DataError(
+                    f"the {self.kind} model needs the filtered joint-torque regressor of "
+                    f"{self.theta.shape[1]} parameters per joint",
+                    "scoring",
+                    "prepare logs with the calibration's settings (Setup.from_calibration)",
+                )
+            out = out + np.einsum("ndp,dp->nd", regressor, self.theta)
         return out
 
     def residual(self, inputs: Mapping[str, Any]) -> FloatArray:
@@ -232,6 +400,7 @@ def model_inputs(log: PreparedLog) -> dict[str, Any]:
         "velocity_f": log.velocity_f,
         "coulomb_f": log.coulomb_f,
         "coulomb_eps": log.coulomb_eps,
+        "regressor_f": log.regressor_f,
     }
 
 
@@ -244,10 +413,27 @@ class ModelFit:
     rmse: FloatArray
 
 
-def fit_model(kind: str, affine: AffineStats, friction: FrictionStats) -> ModelFit:
-    """``kind`` fitted from merged statistics (both kinds of statistics come from one pass)."""
+def fit_model(
+    kind: str,
+    affine: AffineStats,
+    friction: FrictionStats,
+    identified: IdentifiedStats | None = None,
+) -> ModelFit:
+    """``kind`` fitted from merged statistics (all kinds of statistics come from one pass)."""
     from twincd.calibration.affine import solve
 
+    if uses_regressor(kind):
+        if identified is None:
+            raise DataError(
+                f"the {kind} model needs the joint-torque regressor's statistics",
+                "fit",
+                "prepare the logs with the robot model (setup_for_model)",
+            )
+        ident = solve_identified(identified)
+        fr = ident.friction
+        scale = fr.rmse if is_whitened(kind) else None
+        model = ResidualModel(kind, fr.a, fr.b, fr.c, fr.d, fr.epsilon, scale, ident.theta)
+        return ModelFit(model, fr.r2, fr.rmse)
     if uses_friction(kind):
         fr = solve_friction(friction)
         scale = fr.rmse if is_whitened(kind) else None

@@ -19,8 +19,10 @@ from twincd.calibration.models import (
     EPSILON_GRID,
     MODEL_KINDS,
     FrictionStats,
+    IdentifiedStats,
     fit_model,
     uses_friction,
+    uses_regressor,
 )
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedStream, Setup, same_joints
@@ -45,6 +47,7 @@ class LogFit:
     seconds: float  # time spent in the regression sums, as the paper times training
     samples: int = 0  # every sample read (labelled ones too): what progress counts
     labelled: bool = True  # the log has collision labels (else every sample is taken as clean)
+    identified: IdentifiedStats | None = None  # when prepared with the regressor
 
 
 def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> LogFit:
@@ -52,6 +55,7 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
     goes to ``sinks`` (e.g. what a report's figure draws)."""
     stats: AffineStats | None = None
     friction: FrictionStats | None = None
+    identified: IdentifiedStats | None = None
     seconds = 0.0
     labelled = False
     with setup.open(path) as stream:
@@ -71,6 +75,16 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
                     clean,
                 )
                 friction = more if friction is None else friction + more
+            if stream.regressor and stream.coulomb_eps == EPSILON_GRID:
+                part_id = IdentifiedStats.from_arrays(
+                    frame["sim_effort_f"],
+                    frame["regressor_f"],
+                    frame["velocity_f"],
+                    frame["coulomb_f"],
+                    frame["effort_f"],
+                    clean,
+                )
+                identified = part_id if identified is None else identified + part_id
             for sink in sinks:
                 sink.write(frame, [])
         assert stats is not None  # the stream raises on logs without samples
@@ -85,6 +99,7 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
             seconds=seconds,
             samples=stream.samples,
             labelled=labelled,
+            identified=identified,
         )
 
 
@@ -105,9 +120,14 @@ def check_model(model: str) -> None:
 
 
 def setup_for_model(setup: Setup, model: str) -> Setup:
-    """The setup that prepares what fitting ``model`` needs (friction: every ε candidate)."""
+    """The setup that prepares what fitting ``model`` needs (friction: every ε candidate;
+    identified: the joint-torque regressor too)."""
     check_model(model)
-    return replace(setup, coulomb_eps=EPSILON_GRID if uses_friction(model) else ())
+    return replace(
+        setup,
+        coulomb_eps=EPSILON_GRID if uses_friction(model) else (),
+        regressor=uses_regressor(model),
+    )
 
 
 def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Calibration:
@@ -150,7 +170,11 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Ca
                     "prepare the logs with setup_for_model(setup, model)",
                 )
             friction = friction if p.friction is None else friction + p.friction
-        fitted = fit_model(model, total, friction)
+        identified = None
+        for p in parts:
+            if p.identified is not None:
+                identified = p.identified if identified is None else identified + p.identified
+        fitted = fit_model(model, total, friction, identified)
         m = fitted.model
         cal = replace(
             cal,
@@ -160,6 +184,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Ca
             d=m.d,
             epsilon=m.epsilon,
             scale=m.scale,
+            theta=m.theta,
             r2=fitted.r2,
             rmse=fitted.rmse,
             fit_s=cal.fit_s + time.perf_counter() - start,

@@ -95,6 +95,7 @@ def detect(log: PreparedLog, calibration: Calibration) -> LogDetection:
             "sim_effort_f": log.sim_effort_f,
             "velocity_f": log.velocity_f,
             "coulomb_f": log.coulomb_f,
+            "regressor_f": log.regressor_f,
         }
     )
     out, events = stage.push(frame)

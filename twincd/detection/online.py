@@ -108,21 +108,23 @@ class OnlineDetector:
 
     def _build(self, fill: bool) -> Chain:
         names = self.joint_names
+        cal = self.calibration
         stages: list[Stage]
-        if self.use_sim:
+        if self.use_sim and not cal.regressor:
             stages = twin_stages(None, self.period_s, True, fill)
         else:
-            robot = robot_for(self.calibration.robot or DEFAULT_ROBOT, tuple(names))
+            # the twin's effort, or (identified models) the regressor, needs the robot model
+            robot = robot_for(cal.robot or DEFAULT_ROBOT, tuple(names))
             to_model = np.array([names.index(n) for n in robot.joint_names], dtype=np.intp)
             back = np.array([robot.joint_names.index(n) for n in names], dtype=np.intp)
+            twin = None if self.use_sim else robot
+            regressor = robot if cal.regressor else None
             stages = [
                 pick_columns(to_model),
-                *twin_stages(robot, self.period_s, True, fill, self._threads),
+                *twin_stages(twin, self.period_s, True, fill, self._threads, regressor),
                 pick_columns(back),
             ]
-        stages += filter_stages(
-            self.calibration.lowpass, self.period_s, self.calibration.coulomb_eps
-        )
+        stages += filter_stages(cal.lowpass, self.period_s, cal.coulomb_eps, cal.regressor)
         return Chain(stages)
 
     def _columns(self, values: object, n: int, what: str) -> FloatArray:

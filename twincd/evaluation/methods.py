@@ -40,6 +40,8 @@ METHOD_NAMES = (
     "affine-whitened",
     "friction",
     "friction-whitened",
+    "identified",
+    "identified-whitened",
 )
 
 
@@ -103,6 +105,8 @@ BUILTIN: dict[str, str] = {
     "affine-whitened": "twincd.evaluation.own:AffineWhitened",
     "friction": "twincd.evaluation.own:Friction",
     "friction-whitened": "twincd.evaluation.own:FrictionWhitened",
+    "identified": "twincd.evaluation.own:Identified",
+    "identified-whitened": "twincd.evaluation.own:IdentifiedWhitened",
 }
 _REGISTRY: dict[str, str] = dict(BUILTIN)
 

@@ -14,10 +14,12 @@ from twincd.calibration.affine import AffineStats, clean_mask
 from twincd.calibration.models import (
     EPSILON_GRID,
     FrictionStats,
+    IdentifiedStats,
     ResidualModel,
     fit_model,
     model_inputs,
     uses_friction,
+    uses_regressor,
 )
 from twincd.detection.events import runs
 from twincd.detection.isolation import DEFAULT_KAPPA, LinkIsolator
@@ -44,12 +46,15 @@ class ModelMethod(ScoringMethod):
     def check(self, logs: Sequence[PreparedLog]) -> None:
         if uses_friction(self.model_kind) and any(lg.coulomb_eps != EPSILON_GRID for lg in logs):
             raise MethodSkipped("needs logs prepared with every ε candidate's Coulomb feature")
+        if uses_regressor(self.model_kind) and any(lg.regressor_f is None for lg in logs):
+            raise MethodSkipped("needs the robot model (URDF) of every joint, for its regressor")
 
     def fit(self, train: Sequence[PreparedLog]) -> ModelMethod:
         if not train:
             raise DataError("no training logs", self.name, "give collision-free training logs")
         affine = AffineStats.zeros(train[0].sim_effort_f.shape[1])
         friction = FrictionStats.zeros(train[0].sim_effort_f.shape[1])
+        identified: IdentifiedStats | None = None
         for lg in train:
             mask = clean_mask(lg)
             affine = affine + AffineStats.from_arrays(lg.sim_effort_f, lg.effort_f, mask)
@@ -57,7 +62,17 @@ class ModelMethod(ScoringMethod):
                 friction = friction + FrictionStats.from_arrays(
                     lg.sim_effort_f, lg.velocity_f, lg.coulomb_f, lg.effort_f, mask
                 )
-        fitted = fit_model(self.model_kind, affine, friction)
+                if uses_regressor(self.model_kind) and lg.regressor_f is not None:
+                    part = IdentifiedStats.from_arrays(
+                        lg.sim_effort_f,
+                        lg.regressor_f,
+                        lg.velocity_f,
+                        lg.coulomb_f,
+                        lg.effort_f,
+                        mask,
+                    )
+                    identified = part if identified is None else identified + part
+        fitted = fit_model(self.model_kind, affine, friction, identified)
         self.model_: ResidualModel = fitted.model
         self.rmse_: FloatArray = fitted.rmse
         return self
@@ -111,3 +126,13 @@ class Friction(ModelMethod):
 class FrictionWhitened(ModelMethod):
     name = "friction-whitened"
     model_kind = "friction-whitened"
+
+
+class Identified(ModelMethod):
+    name = "identified"
+    model_kind = "identified"
+
+
+class IdentifiedWhitened(ModelMethod):
+    name = "identified-whitened"
+    model_kind = "identified-whitened"

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.calibration import Calibration
-from twincd.calibration.models import EPSILON_GRID, uses_friction
+from twincd.calibration.models import EPSILON_GRID, uses_friction, uses_regressor
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
@@ -485,6 +485,8 @@ def evaluate(
     _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
     if any(uses_friction(name) for name in methods):
         setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
+    if any(uses_regressor(name) for name in methods):
+        setup = replace(setup, regressor=True, regressor_optional=True)
     if load is None:
 
         def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:

@@ -1,0 +1,273 @@
+"""The identified calibration models (twincd/calibration/models.py): the joint-torque regressor
+against RNEA, mergeable statistics, the recovery of a plant whose inertial parameters differ from
+the URDF's, the calibration file, and fit → threshold → detect, batch and live, end to end."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from builders import trajectory
+from clitools import assert_one_line_error, run
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_pipeline import jittered_xarm_log
+
+from twincd.calibration import Calibration, fit_calibration
+from twincd.calibration.affine import AffineStats
+from twincd.calibration.models import (
+    EPSILON_GRID,
+    FrictionStats,
+    IdentifiedStats,
+    fit_model,
+    solve_identified,
+)
+from twincd.detection import OnlineDetector, detect_file
+from twincd.errors import CalibrationError
+from twincd.pipeline import Setup
+from twincd.signal.derivatives import differentiate
+from twincd.signal.filters import LowPass
+from twincd.threshold import threshold_calibration
+from twincd.twin.dynamics import inertial_parameters, inverse_dynamics, torque_regressor
+from twincd.twin.robot import load_robot
+
+
+@pytest.fixture(scope="module")
+def xarm():  # type: ignore[no-untyped-def]
+    return load_robot("xarm7")
+
+
+def _motion(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.01
+    w = rng.uniform(0.3, 1.2, 7)
+    phase = rng.uniform(0, np.pi, 7)
+    q = 0.8 * np.sin(w * t[:, None] + phase)
+    qd = 0.8 * w * np.cos(w * t[:, None] + phase)
+    qdd = -0.8 * w**2 * np.sin(w * t[:, None] + phase)
+    return q, qd, qdd
+
+
+def test_regressor_times_the_urdf_parameters_is_rnea(xarm) -> None:  # type: ignore[no-untyped-def]
+    q, qd, qdd = _motion(200, 0)
+    y = torque_regressor(xarm, q, qd, qdd)
+    assert y.shape == (200, 7, 70)
+    tau = inverse_dynamics(xarm, q, qd, qdd)
+    np.testing.assert_allclose(y @ inertial_parameters(xarm), tau, atol=1e-9)
+    # joint j feels only the links it carries: a link's parameters never act on the joints
+    # beyond it (the kinematic chain, the same fact isolation rests on)
+    for j in range(7):
+        assert not np.any(y[:, j, : 10 * j])
+
+
+def test_regressor_of_a_reduced_model_follows_its_joints() -> None:
+    reduced = load_robot("xarm7", keep=("joint1", "joint2", "joint4"))
+    t = np.linspace(0, 3, 60)
+    q, qd, _ = trajectory(t)
+    q, qd = q[:, :3], qd[:, :3]
+    qdd = differentiate(t, qd)
+    y = torque_regressor(reduced, q, qd, qdd)
+    tau = inverse_dynamics(reduced, q, qd, qdd)
+    np.testing.assert_allclose(y @ inertial_parameters(reduced), tau, atol=1e-9)
+
+
+def _heavier_plant(xarm, n: int, seed: int):  # type: ignore[no-untyped-def]
+    """What a plant whose inertial parameters are off the URDF's by 20 % each (a heavier link,
+    a shifted centre of mass), with friction, measures: features and efforts as the fit reads
+    them (unfiltered stand-ins)."""
+    q, qd, qdd = _motion(n, seed)
+    y = torque_regressor(xarm, q, qd, qdd)
+    theta = inertial_parameters(xarm)
+    true = theta * (1 + 0.2 * np.random.default_rng(99).standard_normal(theta.shape))
+    coulomb = np.stack([np.tanh(qd / e) for e in EPSILON_GRID], axis=1)
+    rng = np.random.default_rng(seed + 1)
+    effort = y @ true + 0.8 * np.tanh(qd / 0.02) + 0.3 * qd + 0.2
+    effort = effort + 0.01 * rng.standard_normal(effort.shape)
+    return y @ theta, y, qd, coulomb, effort
+
+
+def test_identified_model_recovers_a_plant_the_affine_map_cannot(xarm) -> None:  # type: ignore[no-untyped-def]
+    twin, y, qd, coulomb, effort = _heavier_plant(xarm, 3000, 1)
+    stats = IdentifiedStats.from_arrays(twin, y, qd, coulomb, effort)
+    sol = solve_identified(stats)
+    np.testing.assert_allclose(sol.friction.epsilon, 0.02)
+    np.testing.assert_allclose(sol.friction.c, 0.8, atol=0.02)
+    np.testing.assert_allclose(sol.friction.d, 0.3, atol=0.02)
+    affine = AffineStats.from_arrays(twin, effort)
+    friction = FrictionStats.from_arrays(twin, qd, coulomb, effort)
+    inputs = {
+        "effort_f": effort,
+        "sim_effort_f": twin,
+        "velocity_f": qd,
+        "coulomb_f": coulomb,
+        "coulomb_eps": EPSILON_GRID,
+        "regressor_f": y,
+    }
+    # on motion it was not fitted on, the residual is near the noise (0.01) on every joint
+    twin2, y2, qd2, coulomb2, effort2 = _heavier_plant(xarm, 2000, 7)
+    unseen = {**inputs, "effort_f": effort2, "sim_effort_f": twin2, "velocity_f": qd2}
+    unseen.update(coulomb_f=coulomb2, regressor_f=y2)
+    rms = {}
+    for kind in ("friction", "identified", "identified-whitened"):
+        model = fit_model(kind, affine, friction, stats).model
+        assert (model.theta is not None) == kind.startswith("identified")
+        rms[kind] = np.sqrt(np.mean(model.residual(unseen) ** 2, axis=0))
+    assert np.all(rms["identified"] < 0.04), rms["identified"]
+    assert np.max(rms["friction"]) > 4 * np.max(rms["identified"]), rms
+    np.testing.assert_allclose(rms["identified-whitened"], rms["identified"])
+
+
+@settings(max_examples=20, deadline=None)
+@given(cuts=st.lists(st.integers(1, 299), max_size=4), seed=st.integers(0, 1000))
+def test_identified_statistics_merge_exactly_in_any_split(cuts: list[int], seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n, d, p = 300, 3, 5
+    twin, qd, effort = (rng.standard_normal((n, d)) + 1e3 for _ in range(3))  # big offsets
+    y = rng.standard_normal((n, d, p))
+    coulomb = np.stack([np.tanh(qd / e) for e in EPSILON_GRID], axis=1)
+    mask = rng.uniform(size=n) < 0.8
+    whole = IdentifiedStats.from_arrays(twin, y, qd, coulomb, effort, mask)
+    bounds = [0, *sorted(set(cuts)), n]
+    merged = IdentifiedStats.zeros(d, p)
+    for a, b in reversed(list(itertools.pairwise(bounds))):  # the order does not matter
+        part = IdentifiedStats.from_arrays(
+            twin[a:b], y[a:b], qd[a:b], coulomb[a:b], effort[a:b], mask[a:b]
+        )
+        merged = merged + part
+    assert merged.n == whole.n and merged.params == p
+    np.testing.assert_allclose(merged.mean, whole.mean, rtol=1e-12)
+    np.testing.assert_allclose(merged.cross, whole.cross, rtol=1e-9, atol=1e-7)
+
+
+def test_chunked_regressor_equals_the_whole_log(tmp_path: Path) -> None:
+    log = jittered_xarm_log(tmp_path / "run.mcap")
+    setup = Setup(robot="xarm7", coulomb_eps=EPSILON_GRID, regressor=True, block_size=1 << 20)
+    whole = setup.prepare(log)
+    parts = replace(setup, block_size=7).prepare(log)
+    assert whole.regressor_f is not None and parts.regressor_f is not None
+    assert whole.regressor_f.shape == (len(whole), 7, 70)
+    scale = np.ptp(whole.regressor_f, axis=0) + 1e-12
+    assert np.all(np.abs(parts.regressor_f - whole.regressor_f) <= 1e-9 * scale)
+    # the filter is linear: the filtered regressor times the URDF's θ is the filtered twin
+    assert whole.robot is not None
+    np.testing.assert_allclose(
+        whole.regressor_f @ inertial_parameters(whole.robot),
+        whole.sim_effort_f,
+        atol=1e-6 * float(np.ptp(whole.sim_effort_f)),
+    )
+
+
+# ---------------------------------------------------------------- the file and the CLI
+
+
+@pytest.fixture(scope="module")
+def xarm_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("xarm_dataset")
+    args = ["--seed", "3", "--train", "2", "--val", "1", "--test", "1"]
+    result = run("synth", root, *args, "--min-duration", "10", "--max-duration", "12", "-q")
+    assert result.exit_code == 0, result.output
+    return root
+
+
+@pytest.fixture(scope="module")
+def identified_cal(xarm_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("identified") / "cal.json"
+    model = ["--model", "identified-whitened"]
+    assert run("fit", xarm_dataset / "train", "-o", path, *model, "-q").exit_code == 0
+    assert run("threshold", xarm_dataset / "val", "-c", path, "-k", "8", "-q").exit_code == 0
+    return path
+
+
+def test_fit_threshold_detect_end_to_end(identified_cal: Path, xarm_dataset: Path) -> None:
+    doc = json.loads(identified_cal.read_text())
+    assert doc["model"]["kind"] == "identified-whitened"
+    for coeff in doc["model"]["joints"].values():
+        assert len(coeff["theta"]) == 70 and {"a", "b", "c", "d", "epsilon", "scale"} <= set(coeff)
+    cal = Calibration.load(identified_cal)
+    assert cal.regressor and cal.theta is not None and cal.theta.shape == (7, 70)
+    assert Calibration.from_dict(cal.to_dict()).theta is not None  # the round trip keeps θ
+    # the synthetic plant's links are not the URDF's: the identified residual is far smaller
+    friction_rmse = Calibration.load(identified_cal).rmse
+    assert friction_rmse is not None and np.all(friction_rmse < 0.1)
+    hit = run("detect", xarm_dataset / "test" / "test_000.mcap", "-c", identified_cal, "--json")
+    assert hit.exit_code == 1, hit.output
+    events = json.loads(hit.stdout)["logs"][0]["events"]
+    assert events and all(e["link"] for e in events)
+    clean = run("detect", xarm_dataset / "val" / "val_000.mcap", "-c", identified_cal)
+    assert clean.exit_code == 0, clean.output
+
+
+def test_identified_needs_a_urdf(twin_dataset: Path, tmp_path: Path) -> None:
+    # the fixture's logs carry their own twin effort for joints no robot model has
+    out = tmp_path / "c.json"
+    result = run("fit", twin_dataset / "train", "-o", out, "--model", "identified")
+    assert_one_line_error(result, "URDF")
+    assert not out.exists()
+    # evaluate skips the method there, and still runs the others
+    result = run(
+        "evaluate", twin_dataset / "test", "--train", twin_dataset / "train", "--val",
+        twin_dataset / "val", "-m", "friction,identified", "--json",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    rows = {m["name"]: m for m in json.loads(result.stdout)["methods"]}
+    assert rows["friction"]["auc"] > 0.9
+    assert "URDF" in rows["identified"]["skipped"] and rows["identified"].get("auc") is None
+
+
+def test_broken_theta_is_refused(identified_cal: Path) -> None:
+    doc = json.loads(identified_cal.read_text())
+    ragged = json.loads(json.dumps(doc))
+    next(iter(ragged["model"]["joints"].values()))["theta"].pop()
+    with pytest.raises(CalibrationError, match="one length"):
+        Calibration.from_dict(ragged)
+    nan = json.loads(json.dumps(doc))
+    next(iter(nan["model"]["joints"].values()))["theta"][3] = "NaN"
+    with pytest.raises(CalibrationError, match="theta"):
+        Calibration.from_dict(nan)
+    missing = json.loads(json.dumps(doc))
+    for coeff in missing["model"]["joints"].values():
+        del coeff["theta"]
+    with pytest.raises(CalibrationError, match="lacks its coefficient"):
+        Calibration.from_dict(missing)
+    stray = json.loads(json.dumps(doc))
+    stray["model"]["kind"] = "friction-whitened"
+    with pytest.raises(CalibrationError, match="only identified models"):
+        Calibration.from_dict(stray)
+
+
+@pytest.mark.parametrize("chunk", [1, 333])
+def test_online_detector_equals_batch_with_an_identified_model(
+    xarm_dataset: Path, chunk: int
+) -> None:
+    setup = Setup(robot="xarm7", lowpass=LowPass(cutoff_hz=3.0, causal=True))
+    cal = fit_calibration(sorted((xarm_dataset / "train").glob("*.mcap")), setup, "identified")
+    val = sorted((xarm_dataset / "val").glob("*.mcap"))
+    cal = threshold_calibration(val, cal, Setup.from_calibration(cal), 6.0)
+    log = xarm_dataset / "test" / "test_000.mcap"
+    scores: list[np.ndarray] = []
+
+    class Keep:
+        def write(self, frame, events):  # type: ignore[no-untyped-def]
+            if frame.n:
+                scores.append(frame["score"])
+
+    batch = detect_file(log, cal, Setup.from_calibration(cal), [Keep()])
+    assert batch.events
+    states = Setup.from_calibration(cal).prepare(log).states
+    det = OnlineDetector(cal)
+    live: list[np.ndarray] = []
+    events = []
+    for a in range(0, len(states), chunk):
+        sl = slice(a, a + chunk)
+        out = det.push(
+            states.stamp_ns[sl], states.position[sl], states.velocity[sl], states.effort[sl]
+        )
+        live.append(out.score)
+        events += out.events
+    events += det.close()
+    np.testing.assert_allclose(np.concatenate(live), np.concatenate(scores), rtol=1e-12)
+    assert events == batch.events
