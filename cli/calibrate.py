@@ -252,9 +252,20 @@ def threshold(
     logs: Logs,
     calibration: CalibrationIn,
     sigma: Annotated[
-        float,
-        typer.Option("--sigma", "-k", help="k of the threshold μ + kσ (the paper uses 4).", min=0),
-    ] = DEFAULT_K_SIGMA,
+        float | None,
+        typer.Option(
+            "--sigma", "-k", help="k of the threshold μ + kσ (default 4, as the paper).", min=0
+        ),
+    ] = None,
+    false_alarms_per_hour: Annotated[
+        float | None,
+        typer.Option(
+            "--false-alarms-per-hour",
+            help="Instead of k: the lowest threshold with at most this many false alarms per "
+            "hour of the validation logs (give an hour or more of them).",
+            min=0,
+        ),
+    ] = None,
     output: Annotated[
         Path | None,
         typer.Option("--output", "-o", help="Write here instead of rewriting -c in place."),
@@ -286,6 +297,13 @@ def threshold(
     from twincd.io.logs import expand_logs
     from twincd.threshold import score_log, with_threshold
 
+    if sigma is not None and false_alarms_per_hour is not None:
+        raise UsageError(
+            "give k or a false-alarm budget, not both",
+            "threshold",
+            "drop one of them",
+            option="sigma,false_alarms_per_hour",
+        )
     cal = Calibration.load(calibration)
     target = output or calibration
     paths = expand_logs(logs)
@@ -295,12 +313,19 @@ def threshold(
     done = run_per_log(
         work, paths, paths, jobs, "scoring", quiet, keep_going=keep_going, scheduler=scheduler
     )
-    cal = with_threshold(done.results, cal, sigma)
+    k = DEFAULT_K_SIGMA if sigma is None else sigma
+    cal = with_threshold(done.results, cal, k, false_alarms_per_hour)
     cal.save(target)
     th = cal.require_threshold()
+    budget = ""
+    if th.budget_per_hour is not None and th.judged_s is not None:
+        budget = (
+            f"; {th.false_alarms} false alarm(s) in {th.judged_s / 3600:.3g} h "
+            f"(budget {th.budget_per_hour:g}/h)"
+        )
     stdout.print(
-        f"μ = {th.mu:.6g}  σ = {th.sigma:.6g}  threshold = μ + {th.k_sigma:g}σ = {th.value:.6g}"
-        f"  ({th.samples} samples, {len(th.logs)} log(s))",
+        f"μ = {th.mu:.6g}  σ = {th.sigma:.6g}  threshold = μ + {th.k_sigma:.4g}σ = "
+        f"{th.value:.6g}  ({th.samples} samples, {len(th.logs)} log(s){budget})",
         soft_wrap=True,
     )
     log.info("wrote %s", target)

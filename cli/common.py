@@ -193,6 +193,8 @@ FLAGS: dict[str, str] = {
     "in_place": "--in-place",
     "output": "--output",
     "model": "--model",
+    "sigma": "-k/--sigma",
+    "false_alarms_per_hour": "--false-alarms-per-hour",
     "link_topic": "--link-topic",
     "report": "--report",
     "junit": "--junit",

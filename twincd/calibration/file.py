@@ -73,13 +73,18 @@ class Threshold:
     sigma: float
     logs: tuple[str, ...] = ()
     samples: int = 0
+    # set when k was chosen for a false-alarm budget: the budget (per hour), the alarms the
+    # validation logs gave at the threshold, and their collision-free time judged (s)
+    budget_per_hour: float | None = None
+    false_alarms: int | None = None
+    judged_s: float | None = None
 
     @property
     def value(self) -> float:
         return self.mu + self.k_sigma * self.sigma
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "k_sigma": self.k_sigma,
             "mu": self.mu,
             "sigma": self.sigma,
@@ -87,6 +92,13 @@ class Threshold:
             "logs": list(self.logs),
             "samples": self.samples,
         }
+        if self.budget_per_hour is not None:
+            out["false_alarm_budget"] = {
+                "per_hour": self.budget_per_hour,
+                "false_alarms": self.false_alarms,
+                "hours": None if self.judged_s is None else self.judged_s / 3600.0,
+            }
+        return out
 
 
 @dataclass(frozen=True)
@@ -275,6 +287,7 @@ class Calibration:
                     sigma=finite_number(th["sigma"], "threshold.sigma", where),
                     logs=tuple(th.get("logs", ())),
                     samples=int(th.get("samples", 0)),
+                    **_budget(th.get("false_alarm_budget"), where),
                 )
             if th is not None and threshold is not None:
                 _check_threshold(threshold, th, where)
@@ -390,6 +403,21 @@ def _joint_names(raw: Any, where: str) -> tuple[str, ...]:
             "calibration field robot.joint_names names a joint twice", where, "re-run `twincd fit`"
         )
     return tuple(raw)
+
+
+def _budget(raw: Any, where: str) -> dict[str, Any]:
+    """The threshold's false-alarm budget fields, when k was chosen for one."""
+    if raw is None:
+        return {}
+    hours = raw.get("hours")
+    alarms = raw.get("false_alarms")
+    return {
+        "budget_per_hour": finite_number(raw["per_hour"], "false_alarm_budget.per_hour", where),
+        "false_alarms": None if alarms is None else int(alarms),
+        "judged_s": None
+        if hours is None
+        else 3600.0 * finite_number(hours, "false_alarm_budget.hours", where),
+    }
 
 
 def _check_threshold(threshold: Threshold, raw: Mapping[str, Any], where: str) -> None:

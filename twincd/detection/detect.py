@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.detection.events import Event, EventTracker
-from twincd.detection.isolation import isolator_for
+from twincd.detection.isolation import isolator_for, kappa_for
 from twincd.frames import Frame, FrameSink
 
 if TYPE_CHECKING:
@@ -39,6 +39,7 @@ class ScoringStage:
             calibration.links,
             calibration.depths,
             calibration.scale if calibration.scale is not None else calibration.rmse,
+            kappa_for(calibration.kind),
         )
         self.events = EventTracker(joint_names or calibration.joint_names, isolator)
 

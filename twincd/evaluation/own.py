@@ -22,7 +22,7 @@ from twincd.calibration.models import (
     uses_regressor,
 )
 from twincd.detection.events import runs
-from twincd.detection.isolation import DEFAULT_KAPPA, LinkIsolator
+from twincd.detection.isolation import LinkIsolator, kappa_for
 from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.pipeline import PreparedLog
@@ -40,8 +40,8 @@ class ModelMethod(ScoringMethod):
     learns = True
     calibrated = True
 
-    def __init__(self, kappa: float = DEFAULT_KAPPA) -> None:
-        self.kappa = kappa
+    def __init__(self, kappa: float | None = None) -> None:
+        self.kappa = kappa  # None: the model's own (twincd.detection.isolation.kappa_for)
 
     def check(self, logs: Sequence[PreparedLog]) -> None:
         if uses_friction(self.model_kind) and any(lg.coulomb_eps != EPSILON_GRID for lg in logs):
@@ -104,7 +104,8 @@ class ModelMethod(ScoringMethod):
         links, depths = child_links(log.robot, log.joint_names)
         scale = self._model().scale if self._model().scale is not None else self.rmse_
         assert scale is not None
-        isolator = LinkIsolator(links, depths, scale, self.kappa)
+        kappa = kappa_for(self.model_kind) if self.kappa is None else self.kappa
+        isolator = LinkIsolator(links, depths, scale, kappa)
         r = self.residual(log)
         out: list[str | None] = [None] * len(flags)
         for first, last in runs(flags):
