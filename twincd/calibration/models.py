@@ -90,6 +90,18 @@ def coulomb_columns(
     return out
 
 
+def coulomb_grid(coulomb_f: Any, where: str) -> FloatArray:
+    """(N, E, D) Coulomb features with one column per ε of ``EPSILON_GRID``, or a clear error."""
+    f: FloatArray = np.asarray(coulomb_f, dtype=np.float64)
+    if f.ndim != 3 or f.shape[1] != len(EPSILON_GRID):
+        raise DataError(
+            f"Coulomb features of shape {f.shape} do not match the ε grid",
+            where,
+            "prepare the logs with coulomb_eps=EPSILON_GRID",
+        )
+    return f
+
+
 @dataclass(frozen=True)
 class FrictionStats:
     """Mergeable statistics of the friction-aware regression for every ε of ``EPSILON_GRID``.
@@ -120,14 +132,8 @@ class FrictionStats:
         per ε of ``EPSILON_GRID``, rows where ``mask`` holds."""
         x = np.asarray(sim_effort_f, dtype=np.float64)
         v = np.asarray(velocity_f, dtype=np.float64)
-        f = np.asarray(coulomb_f, dtype=np.float64)
+        f = coulomb_grid(coulomb_f, "friction fit")
         y = np.asarray(effort_f, dtype=np.float64)
-        if f.ndim != 3 or f.shape[1] != len(EPSILON_GRID):
-            raise DataError(
-                f"Coulomb features of shape {f.shape} do not match the ε grid",
-                "friction fit",
-                "prepare the logs with coulomb_eps=EPSILON_GRID",
-            )
         if mask is not None:
             x, v, f, y = x[mask], v[mask], f[mask], y[mask]
         joints = x.shape[1] if x.ndim == 2 else 0
@@ -207,13 +213,7 @@ class IdentifiedStats:
     ) -> IdentifiedStats:
         """Statistics of (N, D) efforts and velocity, the (N, D, P) filtered regressor and the
         (N, E, D) Coulomb features (one per ε of ``EPSILON_GRID``), rows where ``mask`` holds."""
-        f = np.asarray(coulomb_f, dtype=np.float64)
-        if f.ndim != 3 or f.shape[1] != len(EPSILON_GRID):
-            raise DataError(
-                f"Coulomb features of shape {f.shape} do not match the ε grid",
-                "identified fit",
-                "prepare the logs with coulomb_eps=EPSILON_GRID",
-            )
+        f = coulomb_grid(coulomb_f, "identified fit")
         cols = np.concatenate(
             [
                 np.asarray(sim_effort_f, dtype=np.float64)[..., None],
