@@ -68,6 +68,14 @@ FilterOrder = Annotated[
         "--filter-order", help=f"Butterworth filter order (default {DEFAULT_ORDER}).", min=1
     ),
 ]
+FilterKind = Annotated[
+    str | None,
+    typer.Option(
+        "--filter-kind",
+        help="Low-pass kind: butterworth, or critical (no overshoot, no ringing around a "
+        "push). Default: butterworth; fit: critical for the identified models.",
+    ),
+]
 Causal = Annotated[
     bool | None,
     typer.Option(
@@ -97,8 +105,10 @@ def resolve_setup(
     filter_order: int | None = None,
     causal: bool | None = None,
     strict: bool = False,
+    filter_kind: str | None = None,
 ) -> Setup:
-    """Settings for reading logs: explicit options over the calibration's, never against them."""
+    """Settings for reading logs: explicit options over the calibration's, never against them
+    (``filter_kind`` None: Butterworth without a calibration)."""
     from twincd.io.logs import parse_joint_map
     from twincd.pipeline import Setup
     from twincd.signal.filters import LowPass
@@ -109,6 +119,7 @@ def resolve_setup(
             cutoff_hz=default_cutoff if cutoff is None else cutoff,
             order=DEFAULT_ORDER if filter_order is None else filter_order,
             causal=bool(causal),
+            kind=filter_kind or "butterworth",
         )
         options = log_options(topic, label_topic, sim_topic, joint_map)
         return Setup(options, robot, lowpass, strict=strict)
@@ -140,6 +151,8 @@ def resolve_setup(
     ):
         if given_f is not None and given_f != was_f:
             _contradiction(option, f"{given_f:g}", f"{was_f:g}", cal)
+    if filter_kind is not None and filter_kind != lp.kind:
+        _contradiction("--filter-kind", filter_kind, lp.kind, cal)
     setup = replace(Setup.from_calibration(cal), strict=strict)
     if robot is not None and cal.robot is None:
         setup = replace(setup, robot=robot)
@@ -183,6 +196,7 @@ def fit(
     joint_map: JointMap = None,
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
+    filter_kind: FilterKind = None,
     causal: Causal = None,
     model: Annotated[
         str,
@@ -219,9 +233,15 @@ def fit(
     paths = expand_logs(logs)
     check_target(output, "calibration", force=force, inputs=paths)
     check_reports(report, None, force=force, inputs=paths)
+    from twincd.calibration.models import uses_regressor
+
+    # the identified models' residual is at the noise floor, where a Butterworth filter's
+    # ringing around a push shows as alarms before and after it: they filter without overshoot
+    kind = filter_kind or ("critical" if uses_regressor(model) else "butterworth")
     setup = resolve_setup(
-        None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal, strict
-    )
+        None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal,
+        strict, kind,
+    )  # fmt: skip
     setup = setup_for_model(setup, model)
     figure = report is not None and report.suffix.lower() == ".html"
     if figure:

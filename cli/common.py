@@ -194,6 +194,7 @@ FLAGS: dict[str, str] = {
     "output": "--output",
     "model": "--model",
     "sigma": "-k/--sigma",
+    "filter_kind": "--filter-kind",
     "false_alarms_per_hour": "--false-alarms-per-hour",
     "link_topic": "--link-topic",
     "report": "--report",

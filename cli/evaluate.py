@@ -14,7 +14,7 @@ from rich.table import Table
 
 from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 
-from .calibrate import Causal, Cutoff, FilterOrder, resolve_setup
+from .calibrate import Causal, Cutoff, FilterKind, FilterOrder, resolve_setup
 from .common import (
     WARNINGS,
     Debug,
@@ -136,6 +136,7 @@ def evaluate(
     joint_map: JointMap = None,
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
+    filter_kind: FilterKind = None,
     causal: Causal = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
@@ -185,8 +186,9 @@ def evaluate(
     val_paths = expand_logs(val) if val else []
     check_reports(report, junit, force=force, inputs=[*test_paths, *train_paths, *val_paths])
     setup = resolve_setup(
-        cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal, strict
-    )
+        cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal,
+        strict, filter_kind,
+    )  # fmt: skip
 
     def bar(items: Sequence[Any], desc: str) -> Iterable[Any]:
         return progress(items, desc, quiet)

@@ -185,6 +185,7 @@ def identified_cal(xarm_dataset: Path, tmp_path_factory: pytest.TempPathFactory)
 def test_fit_threshold_detect_end_to_end(identified_cal: Path, xarm_dataset: Path) -> None:
     doc = json.loads(identified_cal.read_text())
     assert doc["model"]["kind"] == "identified-whitened"
+    assert doc["filter"]["kind"] == "critical"  # the identified models' default: no ringing
     for coeff in doc["model"]["joints"].values():
         assert len(coeff["theta"]) == 70 and {"a", "b", "c", "d", "epsilon", "scale"} <= set(coeff)
     cal = Calibration.load(identified_cal)
@@ -271,3 +272,17 @@ def test_online_detector_equals_batch_with_an_identified_model(
     events += det.close()
     np.testing.assert_allclose(np.concatenate(live), np.concatenate(scores), rtol=1e-12)
     assert events == batch.events
+
+
+def test_filter_kind_is_a_choice_and_the_calibration_keeps_it(
+    identified_cal: Path, xarm_dataset: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "b.json"
+    args = ["--model", "identified", "--filter-kind", "butterworth", "-q"]
+    assert run("fit", xarm_dataset / "train", "-o", out, *args).exit_code == 0
+    assert json.loads(out.read_text())["filter"]["kind"] == "butterworth"
+    test_log = xarm_dataset / "test" / "test_000.mcap"
+    result = run("evaluate", test_log, "-c", identified_cal, "--filter-kind", "butterworth")
+    assert_one_line_error(result, "--filter-kind")
+    result = run("fit", xarm_dataset / "train", "-o", out, "--filter-kind", "bessel")
+    assert_one_line_error(result, "--filter-kind")

@@ -154,13 +154,16 @@ def test_scipy_is_not_imported_with_the_module():
     cutoff=st.sampled_from([2.0, 5.0, 15.0, 25.0]),  # 25 Hz, order 1: margin = padlen
     order=st.integers(1, 4),
     how=st.sampled_from([1, 7, 1000, "whole", "random"]),
+    kind=st.sampled_from(["butterworth", "critical"]),
 )
-def test_streamed_equals_scipy_on_each_segment(seed, n, gaps, channels, causal, cutoff, order, how):
+def test_streamed_equals_scipy_on_each_segment(
+    seed, n, gaps, channels, causal, cutoff, order, how, kind
+):
     rng = np.random.default_rng(seed)
     period_ns = 10_000_000  # 100 Hz: margins of 100–900 samples, so long segments exceed them
     stamps = make_stamps(rng, n, period_ns, gaps)
     x = make_values(rng, n, channels)
-    lp = LowPass(cutoff, order, causal=causal)
+    lp = LowPass(cutoff, order, causal=causal, kind=kind)
     if how == 1:  # one push per sample costs a backward pass each: keep those runs short
         stamps, x = stamps[:400], x[:400]
     whole = chunked(StreamingLowPass(lp, period_ns * 1e-9), stamps, x, [])

@@ -1,4 +1,5 @@
-"""twincd.signal.iir: Butterworth design and the section recursion, against scipy.signal."""
+"""twincd.signal.iir: Butterworth and critically damped designs and the section recursion,
+against scipy.signal."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
-from twincd.signal.iir import butter_lowpass_sos, rest_state, sosfilt
+from twincd.signal.filters import LowPass
+from twincd.signal.iir import butter_lowpass_sos, critical_lowpass_sos, rest_state, sosfilt
 
 
 @pytest.mark.parametrize("order", range(1, 11))
@@ -22,6 +24,34 @@ def test_design_is_scipys_butter(order, cutoff):
     assert ours.shape == theirs.shape
     # the same recipe and pairing: equal to the last bit or so
     np.testing.assert_allclose(ours, theirs, rtol=1e-15, atol=1e-15 * np.abs(theirs).max())
+
+
+@pytest.mark.parametrize("order", range(1, 7))
+@pytest.mark.parametrize("cutoff", [0.3, 1.0, 3.0, 10.0])
+def test_critical_design_is_scipys_bilinear_of_equal_real_poles(order, cutoff):
+    fs = 1000.0
+    pole = 2 * fs * np.tan(np.pi * cutoff / fs) / np.sqrt(2 ** (1 / order) - 1)
+    z, p, k = signal.bilinear_zpk([], [-pole] * order, pole**order, fs)
+    ours = critical_lowpass_sos(order, cutoff, fs)
+    _, theirs = signal.freqz_zpk(z, p, k, worN=256, fs=fs)
+    _, mine = signal.sosfreqz(ours, worN=256, fs=fs)
+    np.testing.assert_allclose(mine, theirs, atol=1e-12)
+    _, at_cutoff = signal.sosfreqz(ours, worN=[0.0, cutoff], fs=fs)
+    assert abs(at_cutoff[0]) == pytest.approx(1.0, abs=1e-9)  # unit gain at 0 Hz
+    assert abs(at_cutoff[1]) ** 2 == pytest.approx(0.5, rel=1e-9)  # 3 dB down at the cut-off
+
+
+@pytest.mark.parametrize("kind, rings", [("butterworth", True), ("critical", False)])
+def test_only_the_critical_filter_is_free_of_ringing_around_a_step(kind, rings):
+    # what a push does to the residual: a step, zero-phase filtered; Butterworth swings below
+    # before it and above after it (the lobes that crossed the identified models' threshold)
+    t = np.arange(2000) * 0.01
+    step = (t >= 10.0).astype(float)
+    out = LowPass(1.0, 4, kind=kind).apply(t, step)
+    swing = max(-out[t < 10.0].min(), out[t >= 10.0].max() - 1.0)
+    assert (swing > 0.01) == rings, swing
+    if not rings:
+        assert swing < 1e-9 and np.all(np.diff(out) >= -1e-12)  # monotonic
 
 
 @pytest.mark.parametrize("bad", [(0, 1.0), (2, 0.0), (2, 500.0), (2, -1.0)])

@@ -1,6 +1,7 @@
 """Low-pass filtering of effort signals (the paper's τ̃ and τ̂̃), whole or streamed.
 
-A Butterworth filter as second-order sections, run zero-phase (the result of
+A Butterworth (or critically damped, ``kind="critical"``) filter as second-order sections, run
+zero-phase (the result of
 ``scipy.signal.sosfiltfilt`` with an odd-extension pad of ``padlen`` samples at each segment's
 ends; the default for offline logs) or causal (forward only, started in steady state
 at each segment's first value: what a live detector sees). Streams are cut at gaps
@@ -31,7 +32,7 @@ from numpy.typing import ArrayLike
 
 from twincd.defaults import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from twincd.errors import DataError, UsageError
-from twincd.signal.iir import butter_lowpass_sos, rest_state, sosfilt
+from twincd.signal.iir import butter_lowpass_sos, critical_lowpass_sos, rest_state, sosfilt
 from twincd.signal.stream import (
     DEFAULT_GAP_FACTOR,
     FloatArray,
@@ -47,6 +48,7 @@ __all__ = [
     "DEFAULT_CAUSAL_CUTOFF_HZ",
     "DEFAULT_CUTOFF_HZ",
     "DEFAULT_ORDER",
+    "FILTER_KINDS",
     "EdgeMarker",
     "LowPass",
     "StreamingLowPass",
@@ -61,9 +63,14 @@ DECAY_TOLERANCE = 1e-12
 _BLOCK = 16384
 
 
+# butterworth: the flattest pass band (the default); critical: equal real poles, no overshoot,
+# no ringing around a step (what a residual at the noise floor needs: the identified models)
+FILTER_KINDS = ("butterworth", "critical")
+
+
 @dataclass(frozen=True)
 class LowPass:
-    """Butterworth low-pass settings; recorded in the calibration (DESIGN §4 ``filter``)."""
+    """Low-pass settings; recorded in the calibration (DESIGN §4 ``filter``)."""
 
     cutoff_hz: float = DEFAULT_CUTOFF_HZ
     order: int = DEFAULT_ORDER
@@ -71,8 +78,13 @@ class LowPass:
     kind: str = "butterworth"
 
     def __post_init__(self) -> None:
-        if self.kind != "butterworth":
-            raise UsageError(f"unknown filter kind {self.kind!r}", "filter", "use butterworth")
+        if self.kind not in FILTER_KINDS:
+            raise UsageError(
+                f"unknown filter kind {self.kind!r}",
+                "filter",
+                f"use one of {', '.join(FILTER_KINDS)}",
+                option="filter_kind",
+            )
         if self.order < 1 or not self.cutoff_hz > 0:
             raise UsageError(
                 "filter order must be >= 1 and cut-off > 0 Hz",
@@ -88,6 +100,8 @@ class LowPass:
                 "filter settings",
                 "pick a lower cut-off",
             )
+        if self.kind == "critical":
+            return critical_lowpass_sos(self.order, self.cutoff_hz, fs_hz)
         return butter_lowpass_sos(self.order, self.cutoff_hz, fs_hz)
 
     def padlen(self, fs_hz: float) -> int:

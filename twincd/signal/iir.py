@@ -25,6 +25,26 @@ FloatArray = NDArray[np.float64]
 __all__ = ["butter_lowpass_sos", "rest_state", "sosfilt"]
 
 
+def critical_lowpass_sos(order: int, cutoff_hz: float, fs_hz: float) -> FloatArray:
+    """Critically damped low-pass as second-order sections, (sections, 6): ``order`` equal real
+    poles, so its step response never overshoots and it does not ring (a Butterworth filter
+    rings for about a period of its cut-off after a step, and zero-phase before it too). 3 dB
+    down at ``cutoff_hz`` (|H|² = 1/2), unit gain at 0 Hz; the analog cascade mapped by the
+    bilinear transform as ``scipy.signal.bilinear_zpk`` maps it."""
+    if order < 1 or not 0 < cutoff_hz < fs_hz / 2:
+        raise ValueError(f"need order ≥ 1 and 0 < cut-off < fs/2 (got {order}, {cutoff_hz})")
+    # the cut-off pre-warped, as ``scipy.signal.butter`` does: the digital filter is then 3 dB
+    # down exactly there; the analog pole puts the cascade's half power at that frequency
+    warped = 2 * fs_hz * math.tan(math.pi * cutoff_hz / fs_hz)
+    analog = warped / math.sqrt(2.0 ** (1.0 / order) - 1.0)
+    pole = (2 * fs_hz - analog) / (2 * fs_hz + analog)
+    gain = (1 - pole) / 2  # (1 + z⁻¹)/(1 − p z⁻¹) has gain 2/(1 − p) at z = 1
+    sections = [[gain**2, 2 * gain**2, gain**2, 1.0, -2 * pole, pole * pole]] * (order // 2)
+    if order % 2:
+        sections.append([gain, gain, 0.0, 1.0, -pole, 0.0])
+    return np.array(sections, dtype=np.float64)
+
+
 def butter_lowpass_sos(order: int, cutoff_hz: float, fs_hz: float) -> FloatArray:
     """Digital Butterworth low-pass as second-order sections, (sections, 6): the result of
     ``scipy.signal.butter(order, cutoff_hz, fs=fs_hz, output="sos")``."""
