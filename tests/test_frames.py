@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import itertools
+import threading
+import time
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twincd.frames import Chain, Derived, Frame, Mapped
+from twincd.frames import Chain, Derived, Frame, Mapped, prefetched
 
 
 class Lag:
@@ -81,3 +83,29 @@ def test_a_stage_that_loses_samples_is_an_error() -> None:
 def test_frame_rejects_ragged_columns() -> None:
     with pytest.raises(ValueError, match="different lengths"):
         Frame({"a": np.zeros(3), "b": np.zeros(4)})
+
+
+def test_prefetched_gives_the_items_and_their_error_in_order() -> None:
+    assert list(prefetched(range(50), depth=3)) == list(range(50))
+
+    def failing():  # type: ignore[no-untyped-def]
+        yield 1
+        raise ValueError("damaged block")
+
+    got = prefetched(failing())
+    assert next(got) == 1
+    with pytest.raises(ValueError, match="damaged block"):
+        next(got)
+
+
+@pytest.mark.parametrize("items", [[1, 2], [1, 2, 3, 4]])
+def test_leaving_prefetched_early_never_waits_for_ever(items: list[int]) -> None:
+    # the consumer leaves (an error, SIGTERM) while the reader waits on a full queue, with its
+    # last item or its end marker: the reader must notice, or the leaving join hangs
+    got = prefetched(iter(items), depth=1)
+    assert next(got) == 1
+    time.sleep(0.3)  # the reader fills the queue and blocks on its next put
+    closer = threading.Thread(target=got.close, daemon=True)
+    closer.start()
+    closer.join(timeout=5.0)
+    assert not closer.is_alive(), "closing prefetched() hung"

@@ -219,20 +219,25 @@ def prefetched(items: Iterable[T], depth: int = 2) -> Iterator[T]:
     box: queue.Queue[Any] = queue.Queue(maxsize=depth)
     stop = threading.Event()
 
+    def offer(item: Any) -> bool:
+        # never a blocking put: a consumer that has left (an error, SIGTERM) drains nothing, and
+        # its join must not wait for ever on a full queue
+        while not stop.is_set():
+            try:
+                box.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
     def produce() -> None:
         try:
             for item in items:
-                while not stop.is_set():
-                    try:
-                        box.put(item, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
+                if not offer(item):
                     return
-            box.put(_DONE)
+            offer(_DONE)
         except BaseException as exc:  # handed over to the consumer
-            box.put(exc)
+            offer(exc)
 
     worker = threading.Thread(target=produce, name="twincd-reader", daemon=True)
     worker.start()
