@@ -303,13 +303,17 @@ def threshold(
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
-    """Set the detection threshold μ + kσ from the score on collision-free logs.
+    """Set the detection threshold μ + kσ (or for a false-alarm budget) from the score on
+    collision-free logs.
 
     Give validation logs other than those given to fit.
 
     The calibration file is rewritten atomically (or written to -o).
 
     Example: twincd threshold logs/val/*.mcap -c calibration.json --sigma 4
+
+    Or, on an hour or more of clean logs, for a false-alarm budget:
+    twincd threshold logs/val_1h -c calibration.json --false-alarms-per-hour 1
     """
     from twincd.calibration import Calibration
     from twincd.executors import Bound
