@@ -64,9 +64,7 @@ Cutoff = Annotated[
 ]
 FilterOrder = Annotated[
     int | None,
-    typer.Option(
-        "--filter-order", help=f"Butterworth filter order (default {DEFAULT_ORDER}).", min=1
-    ),
+    typer.Option("--filter-order", help=f"Low-pass filter order (default {DEFAULT_ORDER}).", min=1),
 ]
 FilterKind = Annotated[
     str | None,
@@ -119,7 +117,7 @@ def resolve_setup(
             cutoff_hz=default_cutoff if cutoff is None else cutoff,
             order=DEFAULT_ORDER if filter_order is None else filter_order,
             causal=bool(causal),
-            kind=filter_kind or "butterworth",
+            kind="butterworth" if filter_kind is None else filter_kind,
         )
         options = log_options(topic, label_topic, sim_topic, joint_map)
         return Setup(options, robot, lowpass, strict=strict)
@@ -237,7 +235,9 @@ def fit(
 
     # the identified models' residual is at the noise floor, where a Butterworth filter's
     # ringing around a push shows as alarms before and after it: they filter without overshoot
-    kind = filter_kind or ("critical" if uses_regressor(model) else "butterworth")
+    kind = filter_kind
+    if kind is None:
+        kind = "critical" if uses_regressor(model) else "butterworth"
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal,
         strict, kind,
@@ -319,7 +319,7 @@ def threshold(
     from twincd.executors import Bound
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.threshold import score_log, with_threshold
+    from twincd.threshold import check_threshold_settings, score_log, with_threshold
 
     if sigma is not None and false_alarms_per_hour is not None:
         raise UsageError(
@@ -328,6 +328,7 @@ def threshold(
             "drop one of them",
             option="sigma,false_alarms_per_hour",
         )
+    check_threshold_settings(DEFAULT_K_SIGMA if sigma is None else sigma, false_alarms_per_hour)
     cal = Calibration.load(calibration)
     target = output or calibration
     paths = expand_logs(logs)

@@ -12,11 +12,11 @@ and validation logs only (the test logs are never read).
    false alarms at μ + 4σ, and which link the isolation rule names, for several κ and per-joint
    statistics of the flagged run (the kept one and the alternatives tried), with the kept rule's
    misses. κ is kept per model (``kappa_for``): 3 for the affine and friction models, 3.25 for
-   the identified ones, whose best on 12 rounds of presses (216) it is.
+   the identified ones, whose best on 12 rounds of presses (216) it is, with either filter.
 
     python studies/choose_models.py sample_logs/train sample_logs/val
     python studies/choose_models.py sample_logs/train sample_logs/val --rounds 12 \
-        --models identified-whitened,identified
+        --models identified-whitened,identified [--filter-kind critical]
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from twincd.evaluation.own import ModelMethod
 from twincd.evaluation.proposed import ProposedMethod
 from twincd.io.logs import expand_logs
 from twincd.pipeline import PreparedLog, Setup
+from twincd.signal.filters import FILTER_KINDS, LowPass
 from twincd.synth.plant import contact_torque
 from twincd.threshold import ScoreStats
 from twincd.twin.robot import child_links
@@ -236,8 +237,10 @@ def main() -> None:
     parser.add_argument("val", type=Path)
     parser.add_argument("--rounds", type=int, default=6, help="press sets per validation log")
     parser.add_argument("--models", default=",".join(MODELS), help="comma-separated")
+    parser.add_argument("--filter-kind", default="butterworth", choices=FILTER_KINDS)
     args = parser.parse_args()
-    setup = Setup(robot="xarm7", coulomb_eps=EPSILON_GRID, regressor=True)
+    lowpass = LowPass(kind=args.filter_kind)
+    setup = Setup(robot="xarm7", lowpass=lowpass, coulomb_eps=EPSILON_GRID, regressor=True)
     train = list(setup.prepare_all(expand_logs([args.train])))
     val = list(setup.prepare_all(expand_logs([args.val])))
     print(epsilon_table(train))

@@ -229,6 +229,11 @@ def test_broken_theta_is_refused(identified_cal: Path) -> None:
     next(iter(nan["model"]["joints"].values()))["theta"][3] = "NaN"
     with pytest.raises(CalibrationError, match="theta"):
         Calibration.from_dict(nan)
+    short = json.loads(json.dumps(doc))
+    for coeff in short["model"]["joints"].values():
+        coeff["theta"] = coeff["theta"][:65]
+    with pytest.raises(CalibrationError, match="not 10 per link"):
+        Calibration.from_dict(short)
     missing = json.loads(json.dumps(doc))
     for coeff in missing["model"]["joints"].values():
         del coeff["theta"]

@@ -124,3 +124,15 @@ def test_scipy_signal_is_not_imported_to_filter():
         "assert 'scipy.signal' not in sys.modules, 'imported'"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_a_critical_filter_that_would_ring_is_refused():
+    from twincd.errors import UsageError
+    from twincd.signal.iir import critical_max_cutoff
+
+    highest = critical_max_cutoff(2, 100.0)  # ≈ 18 Hz: poles at 0 there
+    assert critical_lowpass_sos(2, highest * 0.99, 100.0)[0, 4] < 0  # a − 2p < 0: p > 0
+    with pytest.raises(ValueError, match="overshoots"):
+        critical_lowpass_sos(2, highest * 1.01, 100.0)
+    with pytest.raises(UsageError, match="too high for a critically damped"):
+        LowPass(20.0, 2, kind="critical").sos(100.0)

@@ -16,12 +16,14 @@ from hypothesis import strategies as st
 
 from twincd.calibration import Calibration
 from twincd.detection.events import runs
+from twincd.errors import UsageError
 from twincd.threshold import (
     ALARM_GRID,
     AlarmCounter,
     AlarmCounts,
     ScoreStats,
     budget_threshold,
+    check_threshold_settings,
 )
 
 
@@ -63,16 +65,31 @@ def test_the_budget_picks_the_lowest_threshold_that_keeps_it() -> None:
         assert th.false_alarms == int((scores >= th.value).sum())
         assert th.false_alarms <= per_hour * 2
         assert th.value == pytest.approx(stats.mu + th.k_sigma * stats.sigma)
-    # a budget every score keeps: never below μ
-    assert budget_threshold(counts, stats, 1e6).value == pytest.approx(stats.mu)
+    # a budget every score keeps: never below μ, and the alarms counted are those at the value
+    lavish = budget_threshold(counts, stats, 1e6)
+    assert stats.mu <= lavish.value <= stats.mu * 1.04 and lavish.k_sigma >= 0
+    assert lavish.false_alarms == len(runs(scores >= lavish.value))
 
 
-def test_a_budget_on_too_little_data_says_so(caplog: pytest.LogCaptureFixture) -> None:
+@pytest.mark.parametrize("per_hour", [0.0, 1.0])
+def test_a_budget_on_too_little_data_says_so(
+    caplog: pytest.LogCaptureFixture, per_hour: float
+) -> None:
     counts, stats = _counts(np.linspace(1.0, 2.0, 6000), 0.01)  # one minute
     with caplog.at_level(logging.WARNING, logger="twincd"):
-        th = budget_threshold(counts, stats, 1.0)
+        th = budget_threshold(counts, stats, per_hour)
     assert "1 min of collision-free data" in caplog.text and "1 h or more" in caplog.text
     assert th.value > 2.0 and th.false_alarms == 0
+
+
+@pytest.mark.parametrize("k, budget", [(float("inf"), None), (4.0, float("inf")), (4.0, -1.0)])
+def test_settings_that_cannot_make_a_threshold_are_refused(k: float, budget: float | None) -> None:
+    counts, stats = _counts(np.ones(100), 0.01)
+    with pytest.raises(UsageError, match="finite number"):
+        check_threshold_settings(k, budget)
+    if budget is not None:
+        with pytest.raises(UsageError):
+            budget_threshold(counts, stats, budget)
 
 
 def test_cli_threshold_for_a_budget(twin_calibration: Path, twin_dataset: Path, tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -97,3 +114,6 @@ def test_cli_threshold_for_a_budget(twin_calibration: Path, twin_dataset: Path, 
         "-k", "4", "--false-alarms-per-hour", "1",
     )  # fmt: skip
     assert_one_line_error(both, "--false-alarms-per-hour")
+    for bad in (["--false-alarms-per-hour", "inf"], ["-k", "inf"]):
+        result = run("threshold", twin_dataset / "val", "-c", twin_calibration, "-o", out, *bad)
+        assert_one_line_error(result, "finite number")

@@ -13,6 +13,7 @@ validation data is what a CI gate or an operator can rely on.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,35 +137,48 @@ class AlarmCounter:
         return self._counts
 
 
-def budget_threshold(
-    counts: AlarmCounts, stats: ScoreStats, per_hour: float, logs: Sequence[str] = ()
-) -> Threshold:
-    """The lowest threshold of ``ALARM_GRID`` (and ≥ μ) above which the logs' false alarms per
-    hour never exceed ``per_hour``, as μ + kσ with its k."""
-    if not per_hour >= 0:
+def check_threshold_settings(k_sigma: float, per_hour: float | None = None) -> None:
+    """A finite k ≥ 0, and a finite budget ≥ 0 when one is given (checked before any work)."""
+    if not (math.isfinite(k_sigma) and k_sigma >= 0):
         raise UsageError(
-            "the false-alarm budget must be 0 or more per hour",
-            f"{per_hour}",
+            f"k of the threshold μ + kσ must be a finite number ≥ 0, not {k_sigma}",
+            "threshold",
+            "give k such as 4 (the paper's)",
+            option="sigma",
+        )
+    if per_hour is not None and not (math.isfinite(per_hour) and per_hour >= 0):
+        raise UsageError(
+            f"the false-alarm budget must be a finite number ≥ 0 per hour, not {per_hour}",
+            "threshold",
             "give a budget such as 1 (per hour)",
             option="false_alarms_per_hour",
         )
+
+
+def budget_threshold(
+    counts: AlarmCounts, stats: ScoreStats, per_hour: float, logs: Sequence[str] = ()
+) -> Threshold:
+    """The lowest value of ``ALARM_GRID`` at or above μ, above which the logs' false alarms
+    per hour never exceed ``per_hour``, as μ + kσ with its k and the alarms at that value."""
+    check_threshold_settings(0.0, per_hour)
     mu = stats.mu  # no collision-free samples: a clear error here
     allowed = per_hour * counts.seconds / 3600.0
     over = np.flatnonzero(counts.runs > allowed + 1e-9)
-    index = int(over[-1]) + 1 if len(over) else 0
-    value = max(float(ALARM_GRID[min(index, len(ALARM_GRID) - 1)]), mu)
+    lowest = int(np.searchsorted(ALARM_GRID, mu, side="left"))  # never below μ (k ≥ 0)
+    index = min(max(int(over[-1]) + 1 if len(over) else 0, lowest), len(ALARM_GRID) - 1)
+    value = float(ALARM_GRID[index])
     sigma = stats.sigma
     k_sigma = (value - mu) / sigma if sigma > 0 else 0.0
-    alarms = int(counts.runs[min(index, len(ALARM_GRID) - 1)])
     hours = counts.seconds / 3600.0
-    if 0 < per_hour * hours < 1.0:
+    needed = max(1.0, 1.0 / per_hour) if per_hour > 0 else 1.0
+    if hours < needed and per_hour * hours < 1.0:
         log.warning(
             "the validation logs hold %.3g min of collision-free data: a budget of %g false "
-            "alarm(s) per hour is only shown by %.3g h or more; the threshold then sits above "
-            "the highest score seen and may alarm more often on other logs",
+            "alarm(s) per hour needs %.3g h or more of it to be shown; the threshold then sits "
+            "above the highest score seen and may alarm more often on other logs",
             counts.seconds / 60.0,
             per_hour,
-            1.0 / per_hour,
+            needed,
         )
     return Threshold(
         k_sigma,
@@ -173,7 +187,7 @@ def budget_threshold(
         tuple(logs),
         stats.n,
         budget_per_hour=per_hour,
-        false_alarms=alarms,
+        false_alarms=int(counts.runs[index]),
         judged_s=counts.seconds,
     )
 
@@ -228,6 +242,7 @@ def with_threshold(
             len(reused),
             reused[0],
         )
+    check_threshold_settings(k_sigma, false_alarms_per_hour)
     if false_alarms_per_hour is not None:
         threshold = budget_threshold(alarms, total, false_alarms_per_hour, seen)
         return calibration.with_threshold(threshold)

@@ -463,6 +463,13 @@ def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatA
             where,
             "re-run `twincd fit`",
         )
+    length = lengths.pop()
+    if length == 0 or length % 10:
+        raise CalibrationError(
+            f"calibration field theta has {length} numbers per joint, not 10 per link",
+            where,
+            "re-run `twincd fit`",
+        )
     return np.array(
         [
             [finite_number(v, f"theta[{n}]", where) for v in r]

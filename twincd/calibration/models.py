@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.errors import DataError
+from twincd.errors import DataError, JointMismatchError
 
 if TYPE_CHECKING:
     from twincd.calibration.affine import AffineStats
@@ -367,12 +367,18 @@ class ResidualModel:
             out = out + self.c * coulomb + self.d * np.asarray(inputs["velocity_f"])
         if self.theta is not None:
             regressor = inputs.get("regressor_f")
-            if regressor is None or np.shape(regressor)[1:] != self.theta.shape:
+            if regressor is None:
                 raise DataError(
-                    f"the {self.kind} model needs the filtered joint-torque regressor of "
-                    f"{self.theta.shape[1]} parameters per joint",
+                    f"the {self.kind} model needs the filtered joint-torque regressor",
                     "scoring",
                     "prepare logs with the calibration's settings (Setup.from_calibration)",
+                )
+            if np.shape(regressor)[1:] != self.theta.shape:
+                raise JointMismatchError(
+                    f"the calibration's theta holds {self.theta.shape[1]} inertial parameters "
+                    f"per joint, the robot model has {np.shape(regressor)[2]}",
+                    "scoring",
+                    "use a calibration fitted with this robot's URDF, or re-run `twincd fit`",
                 )
             out = out + np.einsum("ndp,dp->nd", regressor, self.theta)
         return out

@@ -27,8 +27,8 @@ FloatArray = NDArray[np.float64]
 DEFAULT_KAPPA = 3.0
 # κ per calibration model where validation chose another: the identified models' residual is
 # near the sensor noise, so its training RMS is small and a push's significance larger
-# (studies/choose_models.py, 216 simulated presses on validation logs: 0.926 at κ = 3.25
-# against 0.902 at κ = 3)
+# (studies/choose_models.py, 216 simulated presses on validation logs, with their default
+# critically damped filter: 0.916 at κ = 3.25 against 0.912 at κ = 3; Butterworth: 0.926, 0.902)
 KAPPA_BY_MODEL = {"identified": 3.25, "identified-whitened": 3.25}
 
 

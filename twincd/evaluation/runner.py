@@ -167,14 +167,20 @@ class Evaluation:
     test_logs: list[str] = field(default_factory=list)
     train_logs: list[str] = field(default_factory=list)
     val_logs: list[str] = field(default_factory=list)
+    # the low-pass every method's logs went through (the identified models fit with the
+    # critical kind by default; evaluate filters all methods alike)
+    lowpass: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out = {
             "samples": self.samples,
             "positives": self.positives,
             "methods": [m.to_dict() for m in self.methods],
             "logs": {"test": self.test_logs, "train": self.train_logs, "val": self.val_logs},
         }
+        if self.lowpass is not None:
+            out["filter"] = self.lowpass
+        return out
 
     def missed_gates(self, min_f1: float | None, min_auc: float | None) -> list[str]:
         """Why the gates fail (empty: passed); a gate judges every method that ran."""
@@ -519,4 +525,5 @@ def evaluate(
         test_logs=[lg.source for lg in test],
         train_logs=[lg.source for lg in train],
         val_logs=[lg.source for lg in val],
+        lowpass=setup.lowpass.to_dict(),
     )

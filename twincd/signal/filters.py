@@ -32,7 +32,13 @@ from numpy.typing import ArrayLike
 
 from twincd.defaults import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from twincd.errors import DataError, UsageError
-from twincd.signal.iir import butter_lowpass_sos, critical_lowpass_sos, rest_state, sosfilt
+from twincd.signal.iir import (
+    butter_lowpass_sos,
+    critical_lowpass_sos,
+    critical_max_cutoff,
+    rest_state,
+    sosfilt,
+)
 from twincd.signal.stream import (
     DEFAULT_GAP_FACTOR,
     FloatArray,
@@ -101,6 +107,16 @@ class LowPass:
                 "pick a lower cut-off",
             )
         if self.kind == "critical":
+            highest = critical_max_cutoff(self.order, fs_hz)
+            if self.cutoff_hz > highest:
+                raise UsageError(
+                    f"cut-off {self.cutoff_hz:g} Hz is too high for a critically damped filter "
+                    f"of order {self.order} at {fs_hz:.4g} Hz (it would ring above "
+                    f"{highest:.3g} Hz)",
+                    "filter settings",
+                    "pick a lower cut-off, a higher order, or the butterworth kind",
+                    option="cutoff",
+                )
             return critical_lowpass_sos(self.order, self.cutoff_hz, fs_hz)
         return butter_lowpass_sos(self.order, self.cutoff_hz, fs_hz)
 

@@ -35,6 +35,11 @@ def critical_lowpass_sos(order: int, cutoff_hz: float, fs_hz: float) -> FloatArr
         raise ValueError(f"need order ≥ 1 and 0 < cut-off < fs/2 (got {order}, {cutoff_hz})")
     # the cut-off pre-warped, as ``scipy.signal.butter`` does: the digital filter is then 3 dB
     # down exactly there; the analog pole puts the cascade's half power at that frequency
+    if cutoff_hz > critical_max_cutoff(order, fs_hz):
+        raise ValueError(
+            f"a critically damped filter of order {order} overshoots above a cut-off of "
+            f"{critical_max_cutoff(order, fs_hz):.4g} Hz at {fs_hz:g} Hz (got {cutoff_hz:g})"
+        )
     warped = 2 * fs_hz * math.tan(math.pi * cutoff_hz / fs_hz)
     analog = warped / math.sqrt(2.0 ** (1.0 / order) - 1.0)
     pole = (2 * fs_hz - analog) / (2 * fs_hz + analog)
@@ -43,6 +48,12 @@ def critical_lowpass_sos(order: int, cutoff_hz: float, fs_hz: float) -> FloatArr
     if order % 2:
         sections.append([gain, gain, 0.0, 1.0, -pole, 0.0])
     return np.array(sections, dtype=np.float64)
+
+
+def critical_max_cutoff(order: int, fs_hz: float) -> float:
+    """The highest cut-off whose critically damped poles stay at or above 0: beyond it the
+    bilinear transform puts them on the negative real axis, and the filter alternates (rings)."""
+    return fs_hz / math.pi * math.atan(math.sqrt(2.0 ** (1.0 / order) - 1.0))
 
 
 def butter_lowpass_sos(order: int, cutoff_hz: float, fs_hz: float) -> FloatArray:
