@@ -32,7 +32,12 @@ from twincd.pipeline import Setup
 from twincd.signal.derivatives import differentiate
 from twincd.signal.filters import LowPass
 from twincd.threshold import threshold_calibration
-from twincd.twin.dynamics import inertial_parameters, inverse_dynamics, torque_regressor
+from twincd.twin.dynamics import (
+    inertial_parameters,
+    inverse_dynamics,
+    regressor_mask,
+    torque_regressor,
+)
 from twincd.twin.robot import load_robot
 
 
@@ -62,6 +67,10 @@ def test_regressor_times_the_urdf_parameters_is_rnea(xarm) -> None:  # type: ign
     # beyond it (the kinematic chain, the same fact isolation rests on)
     for j in range(7):
         assert not np.any(y[:, j, : 10 * j])
+    # what the filter stage keeps: every entry that is ever non-zero, about half of them
+    mask = regressor_mask(xarm)
+    assert np.any(y != 0, axis=0).sum() <= mask.sum() < 0.6 * mask.size
+    assert not np.any(y[:, ~mask])
 
 
 def test_regressor_of_a_reduced_model_follows_its_joints() -> None:

@@ -170,7 +170,10 @@ def twin_stages(
 
 
 def filter_stages(
-    lowpass: LowPass, period_s: float, coulomb_eps: Sequence[float] = (), regressor: bool = False
+    lowpass: LowPass,
+    period_s: float,
+    coulomb_eps: Sequence[float] = (),
+    regressor: BoolArray | None = None,
 ) -> list[Stage]:
     """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
 
@@ -178,30 +181,29 @@ def filter_stages(
     for each ε (``coulomb_f``, (N, E, joints)) through the same filter, so that they lag as the
     efforts do: the Coulomb friction steps where a joint turns, and only the step itself
     filtered matches the filtered effort (tanh of the filtered velocity steps too sharply
-    there). With ``regressor`` (identified models), the joint-torque regressor (N, D, P) too, as
-    ``regressor_f``. Without either, nothing more is filtered: the seed's model costs what it
-    did."""
+    there). With ``regressor`` (identified models: the (D, P) mask of the regressor's entries
+    that can be non-zero, ``twincd.twin.dynamics.regressor_mask``, in the frames' joint order),
+    the joint-torque regressor too, as ``regressor_f`` (N, D, P); only the masked entries are
+    filtered, the others stay 0. Without either, nothing more is filtered: the seed's model
+    costs what it did."""
     from twincd.signal.filters import StreamingLowPass
 
     eps = tuple(float(e) for e in coulomb_eps)
     extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
-    params: list[int] = []  # the regressor's parameter count, known at the first frame
+    kept = 0 if regressor is None else int(np.count_nonzero(regressor))
 
     def stack(frame: Frame) -> Frame:
         v = frame["velocity"]
         friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
         columns = [frame["effort"], frame["sim_effort"], *friction]
-        if regressor:
-            y = frame["regressor"]
-            params[:] = [y.shape[2]]
-            columns.append(y.reshape(len(y), -1))
+        if regressor is not None:
+            columns.append(frame["regressor"][:, regressor])
         rest = {k: x for k, x in frame.items() if k != "regressor"}
         return Frame(rest, frame.n).with_columns(both=np.hstack(columns))
 
     def split(frame: Frame) -> Frame:
         both = frame["both_f"]
-        p = params[0] if regressor else 0
-        d = both.shape[1] // (2 + extra + p)
+        d = (both.shape[1] - kept) // (2 + extra)
         rest = {k: v for k, v in frame.items() if k not in ("both", "both_f")}
         out = Frame(rest).with_columns(effort_f=both[:, :d], sim_effort_f=both[:, d : 2 * d])
         if eps:
@@ -209,8 +211,10 @@ def filter_stages(
                 velocity_f=both[:, 2 * d : 3 * d],
                 coulomb_f=both[:, 3 * d : (3 + len(eps)) * d].reshape(len(both), len(eps), d),
             )
-        if regressor:
-            out = out.with_columns(regressor_f=both[:, (2 + extra) * d :].reshape(len(both), d, p))
+        if regressor is not None:
+            full = np.zeros((len(both), *regressor.shape))
+            full[:, regressor] = both[:, (2 + extra) * d :]
+            out = out.with_columns(regressor_f=full)
         return out
 
     return [
@@ -396,9 +400,12 @@ class PreparedStream:
             pick_columns(to_final),
         ]
         if self.filtered:
-            stages += filter_stages(
-                setup.lowpass, self.period_s, setup.coulomb_eps, regressor is not None
-            )
+            mask = None
+            if regressor is not None:
+                from twincd.twin.dynamics import regressor_mask
+
+                mask = regressor_mask(regressor)[to_final]  # robot order → the final one
+            stages += filter_stages(setup.lowpass, self.period_s, setup.coulomb_eps, mask)
         self.velocity_from_position = fill
         return Chain(stages), to_twin
 

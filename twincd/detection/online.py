@@ -124,7 +124,12 @@ class OnlineDetector:
                 *twin_stages(twin, self.period_s, True, fill, self._threads, regressor),
                 pick_columns(back),
             ]
-        stages += filter_stages(cal.lowpass, self.period_s, cal.coulomb_eps, cal.regressor)
+        mask = None
+        if cal.regressor:
+            from twincd.twin.dynamics import regressor_mask
+
+            mask = regressor_mask(robot)[back]  # robot order → the calibration's
+        stages += filter_stages(cal.lowpass, self.period_s, cal.coulomb_eps, mask)
         return Chain(stages)
 
     def _columns(self, values: object, n: int, what: str) -> FloatArray:

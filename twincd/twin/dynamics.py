@@ -147,6 +147,23 @@ def torque_regressor(
     return picked
 
 
+def regressor_mask(robot: RobotModel) -> NDArray[np.bool_]:
+    """(dof, 10·links): the entries of ``torque_regressor`` that are not zero by the robot's
+    structure (a link's parameters never act on the joints beyond it, and some act on no
+    revolute joint). Found from random states, where no structural zero is missed and a
+    non-structural entry is never exactly 0; only these are filtered (half of xArm 7's)."""
+    cached: NDArray[np.bool_] | None = robot.__dict__.get("_regressor_mask")
+    if cached is None:
+        rng = np.random.default_rng(0)
+        shape = (64, robot.dof)
+        y = torque_regressor(
+            robot, rng.uniform(-3, 3, shape), rng.normal(size=shape), rng.normal(size=shape)
+        )
+        cached = np.any(y != 0.0, axis=0)
+        robot.__dict__["_regressor_mask"] = cached
+    return cached
+
+
 def inertial_parameters(robot: RobotModel) -> FloatArray:
     """θ of the URDF, (10·links,): with ``torque_regressor``, Y θ = RNEA (an identity for tests)."""
     model = robot.model
