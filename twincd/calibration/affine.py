@@ -140,6 +140,12 @@ def require_samples(n: int, minimum: int) -> None:
         )
 
 
+def r_squared(sse: FloatArray, total: FloatArray) -> FloatArray:
+    """1 − SSE/SST per joint; 1 where the measured effort does not vary at all."""
+    out: FloatArray = np.where(total > 0, 1.0 - sse / np.where(total > 0, total, 1.0), 1.0)
+    return out
+
+
 @dataclass(frozen=True)
 class AffineSolution:
     a: FloatArray
@@ -158,7 +164,7 @@ def solve(stats: AffineStats) -> AffineSolution:
     a = np.where(degenerate, 0.0, cxy / np.where(degenerate, 1.0, cxx))
     b = stats.mean_y - a * stats.mean_x
     sse = np.maximum(cyy - a * cxy, 0.0)
-    r2 = np.where(cyy > 0, 1.0 - sse / np.where(cyy > 0, cyy, 1.0), 1.0)
+    r2 = r_squared(sse, cyy)
     rmse = np.sqrt(sse / n)
     ill = degenerate | (np.sqrt(cxx) < CONDITION_RATIO * np.sqrt(cyy))
     return AffineSolution(a, b, r2, rmse, ill)

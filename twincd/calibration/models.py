@@ -253,7 +253,7 @@ class FrictionSolution:
 
 def solve_friction(stats: FrictionStats) -> FrictionSolution:
     """Least squares per joint and ε from merged statistics; per joint the ε of least error."""
-    from twincd.calibration.affine import require_samples
+    from twincd.calibration.affine import r_squared, require_samples
 
     require_samples(stats.n, 5)
     cxx = stats.cross[..., :3, :3]  # (E, D, 3, 3)
@@ -270,7 +270,7 @@ def solve_friction(stats: FrictionStats) -> FrictionSolution:
     b = mean[:, 3] - np.einsum("da,da->d", coef, mean[:, :3])
     err = sse[best, joints]
     total = cyy[best, joints]
-    r2 = np.where(total > 0, 1.0 - err / np.where(total > 0, total, 1.0), 1.0)
+    r2 = r_squared(err, total)
     return FrictionSolution(
         a=coef[:, 0],
         b=b,
@@ -291,7 +291,7 @@ class IdentifiedSolution:
 def solve_identified(stats: IdentifiedStats) -> IdentifiedSolution:
     """Ridge least squares per joint and ε on standardised columns; per joint the ε of least
     training error (as ``solve_friction``)."""
-    from twincd.calibration.affine import require_samples
+    from twincd.calibration.affine import r_squared, require_samples
 
     require_samples(stats.n, 5)
     p, e = stats.params, len(EPSILON_GRID)
@@ -321,7 +321,7 @@ def solve_identified(stats: IdentifiedStats) -> IdentifiedSolution:
     b = stats.mean[:, -1] - np.einsum("da,da->d", coef, x_mean)
     err = errors[best, joints]
     total = stats.cross[:, -1, -1]
-    r2 = np.where(total > 0, 1.0 - err / np.where(total > 0, total, 1.0), 1.0)
+    r2 = r_squared(err, total)
     friction = FrictionSolution(
         a=coef[:, 0],
         b=b,
