@@ -9,7 +9,7 @@ from typer.core import TyperCommand, TyperGroup
 
 from twincd import __version__
 
-from . import calibrate, detect, evaluate, simulate, synth
+from . import calibrate, detect, evaluate, inspect, simulate, synth
 
 
 class _NoFlagMetavar:
@@ -64,6 +64,7 @@ app.command("threshold", cls=_Command)(calibrate.threshold)
 app.command("detect", cls=_Command)(detect.detect)
 app.command("evaluate", cls=_Command)(evaluate.evaluate)
 app.command("synth", cls=_Command)(synth.synth)
+app.command("inspect", cls=_Command)(inspect.inspect)
 
 
 def main() -> None:

@@ -1,0 +1,156 @@
+"""``twincd inspect``: what a log holds and what twincd will make of it, without the twin."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from rich.table import Table
+
+from .calibrate import resolve_setup
+from .common import (
+    WARNINGS,
+    Debug,
+    JointMap,
+    Json,
+    LabelTopic,
+    Logs,
+    Quiet,
+    Robot,
+    SimTopic,
+    Strict,
+    Topic,
+    command,
+    stdout,
+)
+
+if TYPE_CHECKING:
+    from twincd.inspect import Inspection
+
+
+def _number(value: float | None, spec: str = ".4g") -> str:
+    return "—" if value is None or value != value else format(value, spec)
+
+
+def _joint_table(found: Inspection) -> Table:
+    table = Table(title="joints (position in rad or m, effort in N·m or N)", title_justify="left")
+    for col in ("joint", "position min", "max", "model limits", "effort min", "max", "std"):
+        table.add_column(col, justify="left" if col == "joint" else "right")
+    for j in found.joints:
+        limits = (
+            "—"
+            if j.lower_limit is None or j.upper_limit is None
+            else f"{j.lower_limit:.4g} … {j.upper_limit:.4g}"
+        )
+        table.add_row(
+            j.name,
+            _number(j.position_min),
+            _number(j.position_max),
+            limits,
+            _number(j.effort_min),
+            _number(j.effort_max),
+            _number(j.effort_std),
+        )
+    return table
+
+
+def render(found: Inspection) -> None:
+    """The inspection as a person reads it."""
+    say = stdout.print
+    say(f"[bold]{found.path}[/bold]")
+    say("  topics: " + ", ".join(f"{t.name} ({t.type.rsplit('/', 1)[-1]})" for t in found.topics))
+    if found.joint_topic:
+        say(f"  joint states: {found.joint_topic}, {len(found.joint_sets)} joint set(s):")
+        for s in found.joint_sets:
+            parts = [f"{s.messages} msgs"]
+            if s.with_velocity < s.messages:
+                parts.append(f"{s.messages - s.with_velocity} without velocity")
+            if s.with_effort < s.messages:
+                parts.append(f"{s.messages - s.with_effort} without effort")
+            if s.zero_stamps:
+                parts.append(f"{s.zero_stamps} unstamped (log time used)")
+            say(f"    [{', '.join(s.joints)}]: {'; '.join(parts)}", soft_wrap=True, markup=False)
+    if found.robot:
+        say(f"  robot model: {found.robot}")
+        say(f"    matched: {', '.join(found.matched) or 'none'}", soft_wrap=True)
+        if found.ignored:
+            say(f"    ignored (not in the model): {', '.join(found.ignored)}", soft_wrap=True)
+        if found.locked:
+            say(f"    locked at neutral (not in the log): {', '.join(found.locked)}")
+    if found.twin_source:
+        say(f"  twin effort: {found.twin_source}")
+    s = found.sampling
+    if s is not None:
+        say(
+            f"  samples: {s.samples} over {s.duration_s:.3f} s at {_number(s.rate_hz)} Hz, "
+            f"jitter {s.jitter_ms:.3g} ms, {s.gaps} gap(s)"
+            + (f" (largest {s.largest_gap_s:.3g} s)" if s.gaps else "")
+        )
+    labels = (
+        f"{found.label_messages} message(s)"
+        if found.label_messages
+        else "none (fit uses every sample)"
+    )
+    say(f"  labels: {labels}")
+    if found.link_labels:
+        say(f"  contact links: {', '.join(found.link_labels)}")
+    if found.joints:
+        say(_joint_table(found))
+    for line in found.warnings:
+        say(f"  warning: {line}", soft_wrap=True, markup=False)
+    verdict = "usable" if found.usable else f"NOT usable: {found.problem}"
+    say(f"  → {verdict}", soft_wrap=True, markup=False)
+
+
+@command
+def inspect(
+    logs: Logs,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            "--calibration", "-c", help="Also check the logs against this calibration's joints."
+        ),
+    ] = None,
+    json_: Json = False,
+    robot: Robot = None,
+    topic: Topic = None,
+    label_topic: LabelTopic = None,
+    sim_topic: SimTopic = None,
+    joint_map: JointMap = None,
+    strict: Strict = False,
+    quiet: Quiet = False,
+    debug: Debug = False,
+) -> None:
+    """Say what logs hold and what twincd will make of them, without running the twin.
+
+    Topics, joint sets per publisher, joints matched to the robot model (ignored, locked),
+    rate, jitter, gaps, ranges against the model's limits, labels, where the twin effort comes
+    from, and every warning detect would give. The first thing to run on a new robot's logs.
+
+    Exit code 0 when every log is usable, 2 when one is not (one line why).
+
+    Example: twincd inspect run.mcap --robot panda
+    """
+    from twincd.calibration import Calibration
+    from twincd.inspect import inspect_log
+    from twincd.io.logs import expand_logs
+
+    cal = Calibration.load(calibration) if calibration is not None else None
+    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map, strict=strict)
+    found = [
+        inspect_log(path, setup.options, setup.robot, cal, strict) for path in expand_logs(logs)
+    ]
+    if json_:
+        warnings = [*WARNINGS, *(w for f in found for w in f.warnings)]
+        doc = {"logs": [f.to_dict() for f in found], "warnings": warnings}
+        stdout.out(json.dumps(doc, allow_nan=False), highlight=False)
+    else:
+        for f in found:
+            render(f)
+    bad = [f for f in found if not f.usable]
+    for f in bad:
+        typer.echo(f"twincd: error: {f.problem}", err=True)
+    if bad:
+        raise typer.Exit(2)

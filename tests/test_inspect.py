@@ -1,0 +1,96 @@
+"""``twincd inspect``: what a log holds and what twincd will make of it, without the twin."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from builders import XARM, Message, joint_recording, joint_state, write
+from clitools import run
+
+from twincd.inspect import inspect_log
+
+SAMPLE = Path(__file__).parents[1] / "sample_logs"
+PANDA = (
+    *tuple(f"panda_joint{i}" for i in range(1, 8)),
+    "panda_finger_joint1",
+    "panda_finger_joint2",
+)
+
+
+def test_sample_log_is_usable_and_described():
+    found = inspect_log(SAMPLE / "test" / "test_000.mcap")
+    assert found.usable and found.joint_topic == "/joint_states"
+    assert found.matched == XARM and not found.ignored and not found.locked
+    assert [s.joints for s in found.joint_sets] == [XARM]
+    assert found.sampling is not None and found.sampling.rate_hz == pytest.approx(100.0)
+    assert found.sampling.gaps == 0 and found.label_messages > 0
+    assert "link4" in found.link_labels
+    # every joint within its limits, with a non-trivial effort
+    for j in found.joints:
+        if j.lower_limit is not None and j.upper_limit is not None:
+            assert j.lower_limit <= j.position_min <= j.position_max <= j.upper_limit
+        assert j.effort_std is not None and j.effort_std > 0
+
+
+@pytest.mark.parametrize("form", ["mcap", "ros1"])
+def test_panda_shaped_log_names_the_ignored_finger_joints(tmp_path, form):
+    n = 300
+    effort = np.random.default_rng(0).normal(0, 1, (n, len(PANDA)))
+    msgs = joint_recording(n=n, names=PANDA, effort=effort)
+    log = write(tmp_path / f"panda{'.bag' if form == 'ros1' else '.mcap'}", form, msgs)
+    result = run("inspect", log, "--robot", "panda", "--json")
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)["logs"][0]
+    assert doc["usable"] and doc["matched"] == list(PANDA[:7])
+    assert doc["ignored"] == ["panda_finger_joint1", "panda_finger_joint2"]
+    assert doc["sampling"]["samples"] == n
+    assert doc["sampling"]["rate_hz"] == pytest.approx(100.0)
+
+
+def test_gaps_and_two_joint_sets_are_counted(tmp_path):
+    msgs = joint_recording(n=400, effort=np.ones((400, 7)))
+    del msgs[200:260]  # a 0.6 s gap
+    gripper = [
+        Message(
+            "/joint_states",
+            m.msgtype,
+            m.log_time + 1,
+            joint_state(m.log_time + 1, ["drive_joint"], [0.1]),
+        )
+        for m in msgs[::10]
+    ]
+    log = write(tmp_path / "cell.mcap", "mcap", sorted(msgs + gripper, key=lambda m: m.log_time))
+    found = inspect_log(log)
+    assert {s.joints: s.messages for s in found.joint_sets} == {XARM: 340, ("drive_joint",): 34}
+    assert found.sampling is not None and found.sampling.gaps == 1
+    assert found.sampling.largest_gap_s == pytest.approx(0.61)
+    assert found.ignored == ("drive_joint",)
+
+
+def test_calibration_joints_missing_is_unusable_exit_2(tmp_path):
+    names = XARM[:6]
+    log = write(
+        tmp_path / "six.mcap", "mcap", joint_recording(names=names, effort=np.ones((400, 6)))
+    )
+    result = run("inspect", log, "-c", SAMPLE / "calibration.json")
+    assert result.exit_code == 2
+    assert "joint7" in result.stderr and result.stderr.count("twincd: error:") == 1
+    assert "NOT usable" in result.stdout
+
+
+def test_unreadable_file_is_one_line_exit_2(tmp_path):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not a log")
+    result = run("inspect", bad)
+    assert result.exit_code == 2 and result.stderr.startswith("twincd: error:")
+    assert "Traceback" not in result.output
+
+
+def test_text_report_names_what_a_user_needs(tmp_path):
+    result = run("inspect", SAMPLE / "test" / "test_000.mcap")
+    assert result.exit_code == 0
+    for words in ("/joint_states", "matched: joint1", "100 Hz", "labels: ", "→ usable"):
+        assert words in result.stdout

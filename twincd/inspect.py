@@ -1,0 +1,372 @@
+"""Look before running: what a log holds and what twincd will make of it, without the twin.
+
+``inspect_log(path, ...)`` reads a log twice, as ``detect`` would (the same readers, the same
+topic and joint rules), and returns an ``Inspection``: the topics and their types, the joint
+sets the JointState topic carries (one per publisher layout), which log joints match the robot
+model and which are ignored or locked, the sampling (rate, jitter, gaps, duration), per-joint
+position and effort ranges against the model's limits, the labels, where the twin's effort
+will come from, and every warning the reading and the signal checks give. Nothing is fitted,
+simulated or written.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_ROBOT
+from twincd.errors import TwincdError
+from twincd.io.options import LogOptions
+
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration
+    from twincd.io.batches import TopicReader
+    from twincd.twin.robot import RobotModel
+
+log = logging.getLogger("twincd")
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    name: str
+    type: str
+
+
+@dataclass(frozen=True)
+class JointSet:
+    """The JointState messages of one layout (one publisher's name list)."""
+
+    joints: tuple[str, ...]
+    messages: int
+    with_velocity: int
+    with_effort: int
+    zero_stamps: int  # header stamp left empty: the log time stands in
+
+
+@dataclass(frozen=True)
+class JointRange:
+    """One joint's recorded range (NaN where nothing was read) against the model's limits."""
+
+    name: str
+    position_min: float
+    position_max: float
+    lower_limit: float | None
+    upper_limit: float | None
+    effort_min: float | None
+    effort_max: float | None
+    effort_std: float | None
+
+
+@dataclass(frozen=True)
+class Sampling:
+    samples: int
+    duration_s: float
+    rate_hz: float
+    jitter_ms: float  # standard deviation of the sampling interval
+    gaps: int  # intervals longer than the gap rule's (segments restart after each)
+    largest_gap_s: float
+
+
+@dataclass
+class Inspection:
+    """What ``inspect_log`` found; ``problem`` is why the log is unusable (None: usable)."""
+
+    path: str
+    topics: list[TopicInfo] = field(default_factory=list)
+    joint_topic: str | None = None
+    joint_sets: list[JointSet] = field(default_factory=list)
+    robot: str | None = None
+    matched: tuple[str, ...] = ()
+    ignored: tuple[str, ...] = ()
+    locked: tuple[str, ...] = ()
+    sampling: Sampling | None = None
+    joints: list[JointRange] = field(default_factory=list)
+    label_messages: int = 0
+    labelled_fraction: float | None = None
+    link_labels: tuple[str, ...] = ()
+    twin_source: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    problem: str | None = None
+
+    @property
+    def usable(self) -> bool:
+        return self.problem is None
+
+    def to_dict(self) -> dict[str, Any]:
+        doc = asdict(self)
+        doc["usable"] = self.usable
+        finite: dict[str, Any] = _finite(doc)
+        return finite
+
+
+def _finite(value: Any) -> Any:
+    """JSON has no NaN: None in its place."""
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+@contextmanager
+def _captured_warnings() -> Iterator[list[str]]:
+    """Collect the ``twincd`` logger's warnings instead of emitting them: an inspection returns
+    its warnings as data (the caller shows them with the log they belong to)."""
+    lines: list[str] = []
+
+    class _Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if record.levelno >= logging.WARNING:
+                lines.append(" ".join(record.getMessage().splitlines()))
+
+    saved, propagate, level = log.handlers[:], log.propagate, log.level
+    log.handlers[:] = [_Keep()]
+    log.propagate = False
+    log.setLevel(logging.WARNING)
+    try:
+        yield lines
+    finally:
+        log.handlers[:] = saved
+        log.propagate, log.level = propagate, level
+
+
+def inspect_log(
+    path: str | Path,
+    options: LogOptions | None = None,
+    robot: str | None = None,
+    calibration: Calibration | None = None,
+    strict: bool = False,
+) -> Inspection:
+    """What ``path`` holds and what twincd will make of it (see the module's docstring).
+
+    ``robot`` None: the calibration's robot, else the default one, unless the log carries its
+    own twin effort (then no model is needed and none is loaded). Errors that make the log
+    unusable are recorded in ``problem``; only an unreadable file raises."""
+    options = options or (calibration.options if calibration is not None else LogOptions())
+    found = Inspection(path=str(path))
+    with _captured_warnings() as warnings:
+        try:
+            _inspect(Path(path), options, robot, calibration, strict, found)
+        except TwincdError as exc:
+            if not found.topics:  # nothing could be read at all
+                raise
+            found.problem = exc.message
+        found.warnings = list(dict.fromkeys(warnings))
+    return found
+
+
+def _inspect(
+    path: Path,
+    options: LogOptions,
+    robot: str | None,
+    calibration: Calibration | None,
+    strict: bool,
+    found: Inspection,
+) -> None:
+    from twincd.io.batches import TopicReader
+    from twincd.io.blocks import choose_topic
+
+    with TopicReader(path, strict=strict) as reader:
+        found.topics = [TopicInfo(n, t) for n, t in sorted(reader.topics.items())]
+        found.joint_topic = choose_topic(reader.topics, options.topic, str(path))
+        has_sim = options.sim_topic in reader.topics
+        _read_topics(reader, found, options)
+    rename = dict(options.joint_map or {})
+    in_log = tuple(dict.fromkeys(rename.get(n, n) for s in found.joint_sets for n in s.joints))
+    model_name = robot or (calibration.robot if calibration is not None else None)
+    if model_name is None and not has_sim:
+        model_name = DEFAULT_ROBOT
+    found.twin_source = (
+        f"the log's own {options.sim_topic}"
+        if has_sim
+        else f"inverse dynamics of {model_name} (simulated)"
+    )
+    model = _match_robot(model_name, in_log, calibration, found) if model_name else None
+    joints = calibration.joint_names if calibration is not None else (found.matched or in_log)
+    missing = [j for j in joints if j not in in_log]
+    if missing:
+        from twincd.errors import JointMismatchError
+
+        raise JointMismatchError(
+            f"the log lacks joint(s) {', '.join(missing)}",
+            str(path),
+            "use a calibration or robot model made for this robot, or a joint map",
+        )
+    _read_samples(path, options, tuple(joints), strict, model, found)
+
+
+def _read_topics(reader: TopicReader, found: Inspection, options: LogOptions) -> None:
+    """Joint sets of the JointState topic, and the labels, in one pass."""
+    from twincd.io.batches import BoolBatch, JointStateBatch, StringBatch
+
+    sets: dict[tuple[str, ...], list[int]] = {}
+    labels = positive = 0
+    links: dict[str, None] = {}
+    wanted = [found.joint_topic or options.topic, options.label_topic, DEFAULT_LINK_TOPIC]
+    for topic, batch in reader.batches(wanted):
+        if topic == found.joint_topic and isinstance(batch, JointStateBatch):
+            counts = sets.setdefault(batch.names, [0, 0, 0, 0])
+            counts[0] += len(batch)
+            counts[1] += len(batch) if batch.velocity.shape[1] else 0
+            counts[2] += len(batch) if batch.effort.shape[1] else 0
+            counts[3] += int(np.count_nonzero(batch.stamp_ns == 0))
+        elif topic == options.label_topic and isinstance(batch, BoolBatch):
+            labels += len(batch)
+            positive += int(np.count_nonzero(batch.value))
+        elif topic == DEFAULT_LINK_TOPIC and isinstance(batch, StringBatch):
+            links.update(dict.fromkeys(v for v in batch.values if v))
+    found.joint_sets = [
+        JointSet(names, *counts) for names, counts in sorted(sets.items(), key=lambda kv: -kv[1][0])
+    ]
+    found.label_messages = labels
+    found.link_labels = tuple(links)
+
+
+def _match_robot(
+    name: str, in_log: tuple[str, ...], calibration: Calibration | None, found: Inspection
+) -> RobotModel:
+    """The model's joints against the log's: matched, ignored (log only), locked (model only)."""
+    from twincd.twin.robot import load_robot
+
+    full = load_robot(name)
+    found.robot = full.name
+    found.matched = tuple(j for j in full.joint_names if j in in_log)
+    found.ignored = tuple(j for j in in_log if j not in full.joint_names)
+    found.locked = tuple(j for j in full.joint_names if j not in in_log)
+    if (
+        calibration is not None
+        and calibration.urdf_sha256
+        and (calibration.urdf_sha256 != full.urdf_sha256)
+    ):
+        log.warning(
+            "the URDF %s differs from the one the calibration was fitted with", full.urdf_path
+        )
+    return load_robot(name, keep=in_log)  # the model detect will use (its warnings too)
+
+
+class _Ranges:
+    """Streaming per-joint ranges and sampling intervals (flat memory at any length)."""
+
+    def __init__(self, width: int) -> None:
+        from twincd.signal import DEFAULT_GAP_FACTOR
+
+        self.gap_factor = DEFAULT_GAP_FACTOR
+        self.samples = 0
+        self.first: int | None = None
+        self.last: int | None = None
+        self.period_ns = 0.0  # nominal, from the first block (as the pipeline does)
+        self.steps = np.zeros(3)  # count, sum, sum of squares of the intervals (ns)
+        self.gaps = 0
+        self.largest_gap_ns = 0
+        self.pos = np.full((2, width), np.nan)
+        self.eff = np.full((2, width), np.nan)
+        self.eff_n = 0
+        self.eff_mean = np.zeros(width)
+        self.eff_m2 = np.zeros(width)  # sum of squared deviations (Chan et al.'s merge)
+
+    def add(self, stamp: IntArray, position: FloatArray, effort: FloatArray | None) -> None:
+        from twincd.signal import nominal_period
+
+        if not len(stamp):
+            return
+        if self.first is None:
+            self.first = int(stamp[0])
+            self.period_ns = nominal_period(stamp) * 1e9
+        steps = np.diff(stamp if self.last is None else np.concatenate([[self.last], stamp]))
+        steps = steps.astype(np.float64)
+        self.steps += (len(steps), steps.sum(), (steps**2).sum())
+        gaps = steps[steps > self.gap_factor * self.period_ns] if self.period_ns else steps[:0]
+        self.gaps += len(gaps)
+        self.largest_gap_ns = max(self.largest_gap_ns, int(gaps.max()) if len(gaps) else 0)
+        self.last = int(stamp[-1])
+        self.samples += len(stamp)
+        self.pos[0] = np.fmin(self.pos[0], position.min(axis=0))
+        self.pos[1] = np.fmax(self.pos[1], position.max(axis=0))
+        if effort is not None:
+            effort = effort[np.isfinite(effort).all(axis=1)]
+            if len(effort):
+                self._add_effort(effort)
+
+    def _add_effort(self, effort: FloatArray) -> None:
+        self.eff[0] = np.fmin(self.eff[0], effort.min(axis=0))
+        self.eff[1] = np.fmax(self.eff[1], effort.max(axis=0))
+        k, mean = len(effort), effort.mean(axis=0)
+        total = self.eff_n + k
+        delta = mean - self.eff_mean
+        self.eff_m2 += ((effort - mean) ** 2).sum(axis=0) + delta**2 * self.eff_n * k / total
+        self.eff_mean += delta * k / total
+        self.eff_n = total
+
+    def sampling(self) -> Sampling:
+        assert self.first is not None and self.last is not None
+        count, total, squares = self.steps
+        mean = total / count if count else 0.0
+        jitter = np.sqrt(max(squares / count - mean**2, 0.0)) if count else 0.0
+        return Sampling(
+            samples=self.samples,
+            duration_s=(self.last - self.first) * 1e-9,
+            rate_hz=1e9 / self.period_ns if self.period_ns > 0 else float("nan"),
+            jitter_ms=float(jitter) * 1e-6,
+            gaps=self.gaps,
+            largest_gap_s=self.largest_gap_ns * 1e-9,
+        )
+
+
+def _read_samples(
+    path: Path,
+    options: LogOptions,
+    joints: tuple[str, ...],
+    strict: bool,
+    model: RobotModel | None,
+    found: Inspection,
+) -> None:
+    from twincd.io.blocks import iter_blocks
+
+    acc = _Ranges(len(joints))
+    with iter_blocks(path, options, joints=joints, strict=strict) as stream:
+        for block in stream:
+            acc.add(block.stamp_ns, block.position, block.effort)
+    if acc.first is None:
+        return
+    found.sampling = acc.sampling()
+    limits = _limits(model, joints)
+    std = np.sqrt(acc.eff_m2 / max(acc.eff_n, 1))
+    has_effort = acc.eff_n > 0
+    found.joints = [
+        JointRange(
+            name=name,
+            position_min=float(acc.pos[0, i]),
+            position_max=float(acc.pos[1, i]),
+            lower_limit=limits.get(name, (None, None))[0],
+            upper_limit=limits.get(name, (None, None))[1],
+            effort_min=float(acc.eff[0, i]) if has_effort else None,
+            effort_max=float(acc.eff[1, i]) if has_effort else None,
+            effort_std=float(std[i]) if has_effort else None,
+        )
+        for i, name in enumerate(joints)
+    ]
+
+
+def _limits(model: RobotModel | None, joints: tuple[str, ...]) -> dict[str, tuple[float, float]]:
+    """Finite position limits of the model's joints by name."""
+    if model is None:
+        return {}
+    out = {}
+    lower, upper = model.model.lowerPositionLimit, model.model.upperPositionLimit
+    for spec in model.joints:
+        lo, hi = float(lower[spec.idx_q]), float(upper[spec.idx_q])
+        if spec.name in joints and not spec.unbounded and np.isfinite([lo, hi]).all() and lo < hi:
+            out[spec.name] = (lo, hi)
+    return out
