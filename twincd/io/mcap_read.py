@@ -5,7 +5,8 @@ reader finds the summary (channels, schemas, chunk indexes) and parses the rare 
 (Channel, Schema); chunks are read and decompressed whole, the MessageIndex records give the
 offsets of the wanted channels' messages, and their log times and payloads are gathered with
 numpy. Files without a summary or chunk index (a recorder killed before the end) are scanned
-record by record once to rebuild the chunk list, up to the first damage.
+record by record once to rebuild the chunk list, up to the first damage; a chunk that the end
+of the file cuts short gives the whole records its bytes hold (``records_before_cut``).
 """
 
 from __future__ import annotations
