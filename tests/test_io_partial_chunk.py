@@ -259,3 +259,12 @@ def test_the_copy_of_a_cut_chunk_has_the_messages_read(logs, form, fraction, tmp
     with pytest.raises(LogReadError, match="cannot copy"):
         AugmentedMcap(cut, tmp_path / "strict.mcap").__enter__()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([cut.name, "out.mcap"])
+
+
+def test_a_cut_sqlite3_bag_is_refused_in_one_line(tmp_path):
+    bag = write(tmp_path / "bag", "rosbag2-sqlite3", joint_recording(n=400))
+    db = next(bag.glob("*.db3"))
+    data = db.read_bytes()
+    db.write_bytes(data[: len(data) * 6 // 10])
+    assert_one_line_error(run("simulate", bag, "-o", tmp_path / "out.mcap"), "malformed")
+    assert not (tmp_path / "out.mcap").exists()
