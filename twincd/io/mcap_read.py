@@ -1,6 +1,6 @@
 """MCAP reading below mcap's per-message iterator: whole chunks, message payloads as arrays.
 
-Hand-written hot path (PITFALLS: per-message Python objects are the cost to avoid). mcap's own
+Hand-written hot path (per-message Python objects are the cost to avoid on long logs). mcap's own
 reader finds the summary (channels, schemas, chunk indexes) and parses the rare records
 (Channel, Schema); chunks are read and decompressed whole, the MessageIndex records give the
 offsets of the wanted channels' messages, and their log times and payloads are gathered with
