@@ -68,8 +68,10 @@ def test_truncated_mcap(tmp_path):
     good.unlink()
     src = tmp_path / "cut.mcap"
     src.write_bytes(data[: len(data) // 2])
-    result = run("simulate", src)
-    assert_one_line_error(result)
+    assert_one_line_error(run("simulate", src, "--strict"), "damaged")
+    assert files(tmp_path) == {"cut.mcap"}
+    src.write_bytes(data[:60])  # inside the one chunk's header: nothing is readable
+    assert_one_line_error(run("simulate", src))
     assert files(tmp_path) == {"cut.mcap"}
 
 

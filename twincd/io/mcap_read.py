@@ -1,11 +1,12 @@
 """MCAP reading below mcap's per-message iterator: whole chunks, message payloads as arrays.
 
-Hand-written hot path (PITFALLS: per-message Python objects are the cost to avoid). mcap's own
+Hand-written hot path (per-message Python objects are the cost to avoid on long logs). mcap's own
 reader finds the summary (channels, schemas, chunk indexes) and parses the rare records
 (Channel, Schema); chunks are read and decompressed whole, the MessageIndex records give the
 offsets of the wanted channels' messages, and their log times and payloads are gathered with
 numpy. Files without a summary or chunk index (a recorder killed before the end) are scanned
-record by record once to rebuild the chunk list, up to the first damage.
+record by record once to rebuild the chunk list, up to the first damage; a chunk that the end
+of the file cuts short gives the whole records its bytes hold (``records_before_cut``).
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ class ChunkRef:
     index_length: int
     channels: frozenset[int] | None  # channels with a MessageIndex; None: walk the records
     raw: bool = False
+    cut: bool = False  # a chunk cut short by the end of the file: its whole records are read
 
 
 @dataclass(frozen=True)
@@ -101,7 +103,6 @@ class McapFile:
         self.damage: McapDamage | None = None  # found while scanning an unindexed file
         self.indexed = False
         self._schemas: dict[int, Any] = {}
-        self._zstd: Any = None
         try:
             if self._f.read(len(MAGIC)) != MAGIC:
                 raise McapDamage("not an MCAP file (bad magic)", 0)
@@ -195,6 +196,11 @@ class McapFile:
                 opcode, length = struct.unpack("<BQ", self._read_at(pos, 9))
                 end = pos + 9 + length
                 if end > self.size:
+                    if opcode == _CHUNK:
+                        close_chunk(trust_index=True)
+                        close_raw(pos)
+                        self._cut_chunk(pos)
+                        raise McapDamage("the file ends inside the chunk", pos)
                     raise McapDamage(f"a record (opcode 0x{opcode:02x}) runs past the end", pos)
                 if opcode != _MESSAGE_INDEX:
                     close_chunk(trust_index=True)
@@ -206,7 +212,7 @@ class McapFile:
                     body = self._read_at(pos + 9, length)
                     start_time = struct.unpack_from("<Q", body)[0]
                     chunk = ChunkRef(start_time, pos, 9 + length, 0, 0, None)
-                    chunk_buf = self._decompress(body, pos)
+                    chunk_buf = chunk_records(body, pos)
                     indexed = set()
                     index_end = end
                 elif opcode == _MESSAGE_INDEX and chunk is not None:
@@ -232,6 +238,19 @@ class McapFile:
             with contextlib.suppress(McapDamage, struct.error, ValueError):
                 close_chunk(trust_index=False)
             close_raw(pos)
+
+    def _cut_chunk(self, pos: int) -> None:
+        """Keep the whole records of a chunk that the end of the file cuts short, if any."""
+        body = self._read_at(pos + 9, self.size - pos - 9)
+        buf = records_before_cut(body)
+        if not buf:
+            return
+        with contextlib.suppress(McapDamage):  # a corrupt definition: the damage says enough
+            self._walk(buf, pos)
+            start_time = struct.unpack_from("<Q", body)[0]  # the header is whole: buf is not empty
+            self.chunks.append(
+                ChunkRef(start_time, pos, self.size - pos, self.size, 0, None, cut=True)
+            )
 
     def _note(self, opcode: int, body: bytes, where: int) -> None:
         from mcap.exceptions import McapError
@@ -286,44 +305,6 @@ class McapFile:
 
     # ------------------------------------------------------------ reading
 
-    def _decompress(self, body: bytes | memoryview, where: int) -> bytes:
-        """The records of a Chunk record's body, decompressed and checked."""
-        view = memoryview(body)
-        usize = struct.unpack_from("<Q", view, 16)[0]
-        crc, clen = struct.unpack_from("<II", view, 24)
-        compression = bytes(view[32 : 32 + clen]).decode()
-        p = 32 + clen
-        dlen = struct.unpack_from("<Q", view, p)[0]
-        data = view[p + 8 : p + 8 + dlen]
-        if len(data) != dlen:
-            raise McapDamage("a chunk is cut short", where)
-        if usize > _MAX_CHUNK:
-            raise McapDamage(f"a chunk claims {usize:,} bytes uncompressed", where)
-        try:
-            if compression == "zstd":
-                if self._zstd is None:
-                    import zstandard
-
-                    self._zstd = zstandard.ZstdDecompressor()
-                out = self._zstd.decompress(data, max_output_size=usize)
-            elif compression == "lz4":
-                import lz4.frame  # type: ignore[import-untyped]
-
-                out = lz4.frame.decompress(data)
-            elif compression == "":
-                out = bytes(data)
-            else:
-                raise McapDamage(f"unsupported chunk compression {compression!r}", where)
-        except McapDamage:
-            raise
-        except Exception as exc:  # the decompressors' own error types
-            raise McapDamage(f"a chunk does not decompress ({exc})", where) from exc
-        if len(out) != usize:
-            raise McapDamage("a chunk decompresses to the wrong size", where)
-        if crc and zlib.crc32(out) != crc:
-            raise McapDamage("a chunk fails its CRC check", where)
-        return bytes(out)
-
     def _read_at(self, offset: int, length: int) -> bytes:
         if offset < 0 or length < 0 or offset + length > self.size:
             raise McapDamage("a record or index points past the end of the file", offset)
@@ -361,7 +342,7 @@ class McapFile:
             record = self._read_at(ref.offset, ref.length)
             if record[0] != _CHUNK:
                 raise McapDamage("the chunk index points at no chunk", ref.offset)
-            buf = self._decompress(memoryview(record)[9:], ref.offset)
+            buf = chunk_records(memoryview(record)[9:], ref.offset, ref.cut)
         if ref.channels is not None:
             index = self._read_index(ref.index_offset, ref.index_length)
             offsets = {c: index[c][1] for c in wanted if c in index}
@@ -372,6 +353,78 @@ class McapFile:
         for channel, offs in offsets.items():
             out.extend(_gather(arr, channel, offs, ref.offset))
         return out
+
+
+def chunk_records(body: bytes | memoryview, where: int, cut: bool = False) -> bytes:
+    """The records of a Chunk record's body, decompressed and checked.
+
+    ``cut``: the body may end early (a chunk that a killed recorder never closed, at the end of
+    a truncated file); its data is then decompressed as a stream up to the cut and the whole
+    records it holds are returned (no size or CRC can be checked on a part).
+    """
+    view = memoryview(body)
+    usize = struct.unpack_from("<Q", view, 16)[0]
+    crc, clen = struct.unpack_from("<II", view, 24)
+    compression = bytes(view[32 : 32 + clen]).decode()
+    p = 32 + clen
+    dlen = struct.unpack_from("<Q", view, p)[0]
+    data = view[p + 8 : p + 8 + dlen]
+    if usize > _MAX_CHUNK:
+        raise McapDamage(f"a chunk claims {usize:,} bytes uncompressed", where)
+    if compression not in ("", "zstd", "lz4"):
+        raise McapDamage(f"unsupported chunk compression {compression!r}", where)
+    whole = len(data) == dlen
+    if not whole and not cut:
+        raise McapDamage("a chunk is cut short", where)
+    try:
+        out = _decompress(compression, data, usize, whole)
+    except Exception as exc:  # the decompressors' own error types
+        raise McapDamage(f"a chunk does not decompress ({exc})", where) from exc
+    if not whole:
+        return out[: _whole_records(out)]
+    if len(out) != usize:
+        raise McapDamage("a chunk decompresses to the wrong size", where)
+    if crc and zlib.crc32(out) != crc:
+        raise McapDamage("a chunk fails its CRC check", where)
+    return out
+
+
+def records_before_cut(body: bytes | memoryview) -> bytes:
+    """The whole records that the last chunk of a truncated file still gives (``b""`` when
+    its header is cut or its data is corrupt): what reading keeps of it, and copying too."""
+    try:
+        return chunk_records(body, 0, cut=True)
+    except (McapDamage, struct.error, ValueError):
+        return b""
+
+
+def _decompress(compression: str, data: memoryview, usize: int, whole: bool) -> bytes:
+    """``data`` decompressed; when not ``whole``, as much as its bytes give, as a stream."""
+    if compression == "":
+        return bytes(data[:usize])
+    if compression == "zstd":
+        import zstandard
+
+        if whole:
+            return zstandard.ZstdDecompressor().decompress(data, max_output_size=usize)
+        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data))
+        return reader.read(usize)
+    import lz4.frame  # type: ignore[import-untyped]
+
+    if whole:
+        return bytes(lz4.frame.decompress(data))
+    return bytes(lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=usize))
+
+
+def _whole_records(buf: bytes) -> int:
+    """The length of the run of whole records at the start of ``buf``."""
+    pos, size = 0, len(buf)
+    while pos + 9 <= size:
+        end = pos + 9 + struct.unpack_from("<Q", buf, pos + 1)[0]
+        if end > size:
+            break
+        pos = end
+    return pos
 
 
 def _message_offsets(buf: bytes, wanted: frozenset[int], where: int) -> dict[int, IntArray]:

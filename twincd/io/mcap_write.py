@@ -70,6 +70,7 @@ from twincd import __version__
 from twincd.errors import LogReadError, OutputError, TwincdError
 from twincd.io.atomic import MARKER, atomic_output, check_writable
 from twincd.io.cdr import typestore
+from twincd.io.mcap_read import McapDamage, chunk_records, records_before_cut
 
 __all__ = [
     "DEFAULT_QOS",
@@ -615,37 +616,29 @@ class _Truncated(Exception):
 
 def _records(stream: IO[bytes], size: int, copy: _McapCopy) -> Iterator[tuple[int, bytes]]:
     """(opcode, body) of each top-level record after the header, up to DataEnd; a cut-short
-    file ends the records when ``copy.partial`` (and sets ``copy.truncated``), else raises."""
+    file ends the records when ``copy.partial`` (and sets ``copy.truncated``), else raises.
+    A chunk that the end of the file cuts short comes last with the bytes it has."""
     while True:
         prefix = stream.read(9)
-        length = _PREFIX.unpack(prefix)[1] if len(prefix) == 9 else size
-        body = stream.read(length) if length <= size - stream.tell() else b""
-        if len(prefix) < 9 or len(body) < length:
+        if len(prefix) < 9:
+            opcode, length = -1, size
+        else:
+            opcode, length = _PREFIX.unpack(prefix)
+        left = size - stream.tell()
+        if length > left:
             if not copy.partial:
                 raise _Truncated
             copy.truncated = True
+            if opcode == Opcode.CHUNK:
+                yield opcode, stream.read(left)
             return
-        opcode = prefix[0]
-        yield opcode, body
+        yield opcode, stream.read(length)
         if opcode in (Opcode.DATA_END, Opcode.FOOTER):
             return
 
 
 def _parse(record_type: Any, body: bytes) -> Any:
     return record_type.read(ReadDataStream(io.BytesIO(body)))
-
-
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
-    if compression == "":
-        return data
-    if compression == "zstd":
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        import lz4.frame  # type: ignore[import-untyped]
-
-        out: bytes = lz4.frame.decompress(data)
-        return out
-    raise McapError(f"unsupported chunk compression {compression!r}")
 
 
 _UNKNOWN = -1
@@ -726,7 +719,7 @@ class _McapCopy:
                     indexes.append((channel_id, length // 16, pending[1]))
                     pending = next(records, None)
                 if pending is None and self.truncated:
-                    self.rebuild(body)  # its message indexes may be cut short
+                    self.rebuild(body, cut=True)  # it or its message indexes may be cut short
                 else:
                     self.chunk(body, indexes)
             elif opcode == Opcode.SCHEMA:
@@ -790,15 +783,11 @@ class _McapCopy:
         else:
             self.rebuild(body)
 
-    def rebuild(self, body: bytes) -> None:
-        """Decompress a chunk and write it again without dropped messages, ids mapped."""
-        _start, _end, usize, crc, name_len = struct.unpack_from("<QQQII", body)
-        compression = body[32 : 32 + name_len].decode()
-        (csize,) = struct.unpack_from("<Q", body, 32 + name_len)
-        data_start = 40 + name_len
-        data = _decompress(compression, body[data_start : data_start + csize], usize)
-        if len(data) != usize or (crc and zlib.crc32(data) != crc):
-            raise McapError("chunk data does not match its size or CRC")
+    def rebuild(self, body: bytes, cut: bool = False) -> None:
+        """Decompress a chunk and write it again without dropped messages, ids mapped.
+        ``cut``: a chunk cut short keeps the whole records it holds, as reading does."""
+        data = records_before_cut(body) if cut else chunk_records(body, 0)
+        usize = len(data)
         view = memoryview(data)
         parts: list[bytes | memoryview] = []
         index: dict[int, tuple[list[int], list[int]]] = {}
@@ -880,10 +869,13 @@ def _mcap_storage_files(source: Path) -> list[Path] | None:
     return files or None
 
 
-def _copy_mcap(path: Path, out: _Output, replaced: frozenset[str], partial: bool) -> None:
+def _copy_mcap(path: Path, out: _Output, replaced: frozenset[str], partial: bool) -> bool:
+    """Copy one MCAP file into ``out``; whether it was truncated (copied up to the damage)."""
     try:
         with open(path, "rb") as stream:
-            _McapCopy(out, replaced, partial).run(stream)
+            copy = _McapCopy(out, replaced, partial)
+            copy.run(stream)
+            return copy.truncated
     except TwincdError:
         raise
     except _Truncated as exc:
@@ -894,6 +886,7 @@ def _copy_mcap(path: Path, out: _Output, replaced: frozenset[str], partial: bool
         ) from exc
     except (
         McapError,
+        McapDamage,
         struct.error,
         ValueError,
         KeyError,
@@ -902,7 +895,8 @@ def _copy_mcap(path: Path, out: _Output, replaced: frozenset[str], partial: bool
         OSError,
         zstandard.ZstdError,
     ) as exc:
-        what = str(exc) if isinstance(exc, McapError) else f"{type(exc).__name__}: {exc}"
+        known = isinstance(exc, McapError | McapDamage)
+        what = str(exc) if known else f"{type(exc).__name__}: {exc}"
         raise LogReadError(
             f"cannot copy MCAP: {what}".splitlines()[0],
             str(path),
@@ -1081,8 +1075,9 @@ class AugmentedMcap:
             stack.callback(out.close)
             mcap_files = _mcap_storage_files(self.source)
             if mcap_files is not None:
-                for path in mcap_files:
-                    _copy_mcap(path, out, self.replace_topics, self.partial)
+                for path in mcap_files:  # reading stops at a damaged file: so does the copy
+                    if _copy_mcap(path, out, self.replace_topics, self.partial):
+                        break
             else:
                 _copy_via_rosbags(self.source, out, self.replace_topics)
             self._copied_topics = {c.topic for c in out.channels.values()}
