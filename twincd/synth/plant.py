@@ -25,6 +25,18 @@ little less counting the rests); a path whose
 flange leaves the 200 mm sphere is redrawn. Sampled every 10 ms; 22–35 s per path. The position
 controller tracks perfectly: pushes show up in the effort only.
 
+Long paths (``duration_s[1]`` above ``segment_s``, 35 s): one spline through ever more points
+leaves the sphere somewhere with a probability that grows with its length (seed 0's first
+240 s path was not drawn in 200 tries), and each redraw checks every sample. A long path is therefore drawn
+as its length, cut into the fewest segments of at most ``segment_s`` (equal up to one sample),
+each a short path as above (home → points → home, at rest at both ends, its own presses)
+drawn from (seed, split, index, segment number), laid back to back one sample period apart:
+position, velocity and acceleration are continuous at every join (home, zero, zero), no press
+comes within a second of a join, so label and contact are off there. The switch's initial
+``false`` and the "nothing touches" messages come once, at the path's start. Segments are made
+and written one at a time (``write_path``), so memory does not grow with the length. Paths of
+at most ``segment_s`` are made exactly as before.
+
 Collisions (paper Fig. 4), test paths only: 5–7 presses per path (mean 6), one per equal time
 slot. A hand pushes on link3, link4, link5 or link6 (between joints 3–4, 4–5, 5–6, 6–7) at a
 point of that link (on the segment between its joint and the next, 4.5 cm off the axis), with a
@@ -57,7 +69,8 @@ Topics of a written log (bare MCAP, ros2 profile, or rosbag2 sqlite3):
   contact point p in the link frame (``header.frame_id`` = link).
 
 Every path is a pure function of (config, seed, split, index): ``simulate_path`` is vectorised
-and paths can be generated in parallel; output bytes are deterministic for a seed.
+and paths can be generated in parallel; output bytes are deterministic for a seed. Paths start a
+minute apart (``path_start_ns``): paths longer than that overlap in wall-clock time.
 """
 
 from __future__ import annotations
@@ -860,15 +873,17 @@ def _stream(
     samples = 0
     for segment in segments:
         messages = run_messages(segment)
+        count = len(segment.stamp_ns)
+        del segment  # its arrays go before the writer's buffers grow
         used = {m[0] for m in messages}
         for topic, msgtype in _TOPICS:
             if topic in used and topic not in channels:
                 channels[topic] = add_topic(topic, msgtype)
         for topic, log_time, data in messages:
             write(channels[topic], log_time, data)
-        samples += len(segment.stamp_ns)
+        samples += count
         if progress:
-            progress(len(segment.stamp_ns))
+            progress(count)
     return samples
 
 
