@@ -284,11 +284,13 @@ def progress(items: Sequence[T], description: str, quiet: bool) -> Iterator[T]:
 
 
 @contextlib.contextmanager
-def counter(total: int, description: str, quiet: bool) -> Iterator[Callable[[int, int], None]]:
+def counter(
+    total: int, description: str, quiet: bool, minimum: int = 2
+) -> Iterator[Callable[[int, int], None]]:
     """A progress bar over ``total`` logs (logs done / total, samples/s) that the work advances
     by calling the yielded function with the logs just done and their samples (only when
-    stderr is a terminal)."""
-    if not show_progress(quiet) or total < 2:
+    stderr is a terminal and there are at least ``minimum`` logs)."""
+    if not show_progress(quiet) or total < minimum:
         yield lambda _logs, _samples: None
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn

@@ -9,9 +9,10 @@ from typing import Annotated
 
 import typer
 
+from twincd.defaults import SYNTH_SEGMENT_S
 from twincd.errors import UsageError
 
-from .common import Debug, Quiet, command, stdout
+from .common import Debug, Quiet, command, counter, stdout
 
 
 @command
@@ -22,10 +23,15 @@ def synth(
     val: Annotated[int, typer.Option("--val", help="Collision-free validation paths.")] = 5,
     test: Annotated[int, typer.Option("--test", help="Paths with hand presses.")] = 5,
     min_duration: Annotated[
-        float, typer.Option("--min-duration", help="Shortest path, seconds.")
+        float, typer.Option("--min-duration", help="Shortest path, seconds (3600: an hour).")
     ] = 22.0,
     max_duration: Annotated[
-        float, typer.Option("--max-duration", help="Longest path, seconds.")
+        float,
+        typer.Option(
+            "--max-duration",
+            help=f"Longest path, seconds. Paths over {SYNTH_SEGMENT_S:g} s are joined from "
+            "segments that start and end at rest.",
+        ),
     ] = 35.0,
     rate_hz: Annotated[float, typer.Option("--rate-hz", help="Joint-state rate.")] = 100.0,
     rosbag2_copy: Annotated[
@@ -44,9 +50,13 @@ def synth(
 ) -> None:
     """Generate synthetic xArm 7 logs: a plant the twin does not know, hand presses in test/.
 
-    Output is byte-identical for the same seed and options.
+    Output is byte-identical for the same seed and options. A long path is made and written a
+    segment at a time, in flat memory.
 
     Example: twincd synth data --seed 0 --train 30 --val 5 --test 5
+
+    Example (one hour at 1 kHz): twincd synth long --train 1 --val 0 --test 0 --min-duration
+    3600 --max-duration 3600 --rate-hz 1000 --no-rosbag2-copy
     """
     from twincd.synth.plant import SynthConfig, write_dataset
 
@@ -65,14 +75,16 @@ def synth(
         base,
         motion=replace(base.motion, duration_s=(min_duration, max_duration), rate_hz=rate_hz),
     )
-    written = write_dataset(
-        outdir,
-        config,
-        seed=seed,
-        counts=(train, val, test),
-        rosbag2_copy=rosbag2_copy,
-        jobs=jobs if jobs > 0 else (os.cpu_count() or 1),
-    )
+    with counter(train + val + test, "synth", quiet, minimum=1) as advance:
+        written = write_dataset(
+            outdir,
+            config,
+            seed=seed,
+            counts=(train, val, test),
+            rosbag2_copy=rosbag2_copy,
+            jobs=jobs if jobs > 0 else (os.cpu_count() or 1),
+            progress=advance,
+        )
     for path in written:
         stdout.print(str(path), soft_wrap=True)
     stdout.print(

@@ -273,3 +273,135 @@ def test_shipped_sample_logs_are_reproduced_by_the_readme_command(tmp_path: Path
         assert a.effort is not None and b.effort is not None
         np.testing.assert_allclose(a.effort, b.effort, atol=1e-4)
         np.testing.assert_allclose(a.position, b.position, atol=1e-6)
+
+
+# ---------------------------------------------------------------- long paths
+
+# 300 s: past the length one spline could reach (it left the flange's radius somewhere)
+LONG = replace(
+    synth.SynthConfig(),
+    motion=replace(synth.MotionConfig(), duration_s=(300.0, 300.0), rate_hz=50.0),
+)
+
+
+@pytest.fixture(scope="module")
+def long_run() -> synth.SynthRun:
+    return synth.simulate_path(LONG, 0, "test", 0)
+
+
+def test_a_long_path_is_joined_from_segments_at_rest(long_run: synth.SynthRun) -> None:
+    run, motion = long_run, LONG.motion
+    dt = 1.0 / motion.rate_hz
+    assert len(run.stamp_ns) == 15_001 and np.all(np.diff(run.stamp_ns) == 20_000_000)
+    segments = list(synth.path_segments(LONG, 0, "test", 0))
+    assert len(segments) == 9 and all(len(s.stamp_ns) * dt <= motion.segment_s for s in segments)
+    # the segments lie back to back on the path's grid, each at rest at home at both ends
+    home = np.asarray(motion.home)
+    joins = np.cumsum([len(s.stamp_ns) for s in segments])[:-1]
+    traj = run.trajectory
+    for row in (*joins - 1, *joins):
+        assert np.array_equal(traj.position[row], home)
+        assert not traj.velocity[row].any() and not traj.acceleration[row].any()
+    # continuous everywhere: no step beyond what the velocity and acceleration allow
+    step = np.abs(np.diff(traj.position, axis=0))
+    speed = np.maximum(np.abs(traj.velocity[:-1]), np.abs(traj.velocity[1:]))
+    accel = np.abs(traj.acceleration).max(axis=0)
+    assert np.all(step <= speed * dt + accel * dt**2)
+    assert np.all(np.abs(np.diff(traj.velocity, axis=0)) <= 1.01 * accel * dt)
+    # the paper's motion, along the whole path
+    moving = np.linalg.norm(traj.velocity, axis=1) > 0
+    assert np.rad2deg(np.linalg.norm(traj.velocity[moving], axis=1).mean()) == pytest.approx(
+        motion.mean_speed_deg_s, rel=0.1
+    )
+    robot = synth.make_plant(LONG.plant, 0).nominal
+    flange = synth._flange_positions(robot, traj.position[::5])
+    assert np.linalg.norm(flange - synth._flange_positions(robot, home[None]), axis=1).max() <= 0.2
+    # presses all along it, as dense as on short paths
+    starts = np.array([p.start_s for p in run.presses])
+    assert len(starts) >= 5 * len(segments) and starts.max() > 300.0 - motion.segment_s
+
+
+def test_a_long_path_labels_its_presses_across_joins(
+    long_run: synth.SynthRun, tmp_path: Path
+) -> None:
+    from twincd.io.links import read_links
+
+    run = long_run
+    path = tmp_path / "long.mcap"
+    assert synth.write_path(LONG, 0, "test", 0, path) == len(run.stamp_ns)
+    states = read_log(path)
+    assert np.array_equal(states.stamp_ns, run.stamp_ns)
+    assert np.array_equal(states.effort, run.effort)
+    assert states.labels is not None and np.array_equal(states.labels, run.label)
+    t, period = run.t_s, 1.0 / LONG.motion.rate_hz
+    # the switch: off at the start, one message per change, on exactly over the presses
+    assert run.label_events[0] == (int(run.stamp_ns[0]), False)
+    assert [v for _, v in run.label_events[1:]] == [True, False] * len(run.presses)
+    inner, outer = np.zeros(len(t), dtype=bool), np.zeros(len(t), dtype=bool)
+    for press in run.presses:
+        inner |= (t >= press.label_on_s + period) & (t <= press.label_off_s - period)
+        outer |= (t > press.label_on_s - period) & (t < press.label_off_s + period)
+        if press.touched:
+            rows = np.flatnonzero(synth.press_force(press, t) > 0)
+            assert rows.size and states.labels[rows].all()
+            assert {run.contact_link[r] for r in rows} == {press.link}
+    assert states.labels[inner].all() and not states.labels[~outer].any()
+    # torque only while a hand touches, and never at a join
+    assert np.all(run.tau_ext[~run.contact] == 0.0)
+    links = read_links(path, synth.LINK_TOPIC, states.log_time_ns)
+    assert links is not None
+    for press in run.presses:
+        inside = (t >= press.label_on_s + period) & (t <= press.label_off_s - period)
+        assert {links[i] for i in np.flatnonzero(inside)} == {press.link if press.touched else ""}
+    assert not any(links[i] for i in np.flatnonzero(~outer))
+
+
+def test_long_paths_stream_the_same_bytes_each_time(
+    long_run: synth.SynthRun, tmp_path: Path
+) -> None:
+    a, b, c = (tmp_path / f"{n}.mcap" for n in "abc")
+    synth.write_path(LONG, 0, "test", 0, a)
+    synth.write_path(LONG, 0, "test", 0, b)
+    synth.write_mcap(long_run, c)  # the whole path in memory: the same file
+    assert a.read_bytes() == b.read_bytes() == c.read_bytes()
+    d = tmp_path / "d.mcap"
+    synth.write_path(LONG, 1, "test", 0, d)
+    assert d.read_bytes() != a.read_bytes()
+    # train paths have no press and no contact topic
+    train = tmp_path / "train.mcap"
+    synth.write_path(LONG, 0, "train", 0, train)
+    states = read_log(train)
+    assert len(states.stamp_ns) == 15_001 and states.labels is not None
+    assert not states.labels.any()
+
+
+def _messages(path: Path) -> list[tuple[str, int, int, int, bytes]]:
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        return [
+            (channel.topic, m.log_time, m.publish_time, m.sequence, bytes(m.data))
+            for _, channel, m in make_reader(f).iter_messages(log_time_order=False)
+        ]
+
+
+@pytest.mark.skipif(not (SAMPLE_LOGS / "test").is_dir(), reason="no shipped sample logs")
+@pytest.mark.parametrize("split", ["train", "test"])
+def test_short_paths_keep_their_messages(split: str, tmp_path: Path) -> None:
+    """Every message of a default path, bytes and times, as in the shipped sample logs."""
+    target = tmp_path / f"{split}_001.mcap"
+    synth.write_path(synth.SynthConfig(), 0, split, 1, target)
+    assert _messages(target) == _messages(SAMPLE_LOGS / split / f"{split}_001.mcap")
+
+
+def test_cli_makes_a_long_path(tmp_path: Path) -> None:
+    from clitools import run
+
+    result = run(
+        "synth", str(tmp_path / "out"), "--train", "0", "--val", "1", "--test", "0",
+        "--min-duration", "80", "--max-duration", "80", "--rate-hz", "20",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert not result.stderr  # no progress line when stderr is not a terminal
+    states = read_log(tmp_path / "out/val/val_000.mcap")
+    assert len(states.stamp_ns) == 1601

@@ -16,3 +16,8 @@ DEFAULT_CAUSAL_CUTOFF_HZ = 3.0
 DEFAULT_K_SIGMA = 4.0  # the paper's μ + 4σ
 DEFAULT_REPEATS = 5  # the paper's Table II: deep methods as mean ± std over five runs
 DEFAULT_LINK_TOPIC = "/collision_link"
+
+# `twincd synth`: a path longer than this is joined from segments of at most this length, each
+# home → teaching points → home at rest at both ends (a path over a few minutes never stays
+# within the flange's radius as one spline)
+SYNTH_SEGMENT_S = 35.0

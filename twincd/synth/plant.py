@@ -25,6 +25,18 @@ little less counting the rests); a path whose
 flange leaves the 200 mm sphere is redrawn. Sampled every 10 ms; 22–35 s per path. The position
 controller tracks perfectly: pushes show up in the effort only.
 
+Long paths (``duration_s[1]`` above ``segment_s``, 35 s): one spline through ever more points
+leaves the sphere somewhere with a probability that grows with its length (seed 0's first
+240 s path was not drawn in 200 tries), and each redraw checks every sample. A long path is therefore drawn
+as its length, cut into the fewest segments of at most ``segment_s`` (equal up to one sample),
+each a short path as above (home → points → home, at rest at both ends, its own presses)
+drawn from (seed, split, index, segment number), laid back to back one sample period apart:
+position, velocity and acceleration are continuous at every join (home, zero, zero), no press
+comes within a second of a join, so label and contact are off there. The switch's initial
+``false`` and the "nothing touches" messages come once, at the path's start. Segments are made
+and written one at a time (``write_path``), so memory does not grow with the length. Paths of
+at most ``segment_s`` are made exactly as before.
+
 Collisions (paper Fig. 4), test paths only: 5–7 presses per path (mean 6), one per equal time
 slot. A hand pushes on link3, link4, link5 or link6 (between joints 3–4, 4–5, 5–6, 6–7) at a
 point of that link (on the segment between its joint and the next, 4.5 cm off the axis), with a
@@ -57,16 +69,17 @@ Topics of a written log (bare MCAP, ros2 profile, or rosbag2 sqlite3):
   contact point p in the link frame (``header.frame_id`` = link).
 
 Every path is a pure function of (config, seed, split, index): ``simulate_path`` is vectorised
-and paths can be generated in parallel; output bytes are deterministic for a seed.
+and paths can be generated in parallel; output bytes are deterministic for a seed. Paths start a
+minute apart (``path_start_ns``): paths longer than that overlap in wall-clock time.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import Any
 
@@ -75,8 +88,9 @@ import pinocchio as pin
 from numpy.typing import NDArray
 from scipy.interpolate import make_interp_spline
 
+from twincd.defaults import SYNTH_SEGMENT_S
 from twincd.errors import DataError, OutputError, UsageError
-from twincd.executors import Executor
+from twincd.executors import Executor, Progress
 from twincd.io.cdr import TYPESTORE, bool_cdr, header, joint_state_cdr, serialize
 from twincd.twin.dynamics import inverse_dynamics
 from twincd.twin.robot import RobotModel, load_robot
@@ -144,6 +158,8 @@ class MotionConfig:
     home: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0)
     spread_rad: tuple[float, ...] = (0.25, 0.2, 0.3, 0.25, 0.5, 0.35, 0.8)
     rest_s: float = 0.5
+    # a longer path is joined from segments of at most this, each home → points → home
+    segment_s: float = SYNTH_SEGMENT_S
     latency_ms: tuple[float, float] = (0.2, 1.0)
 
 
@@ -313,8 +329,7 @@ def _teaching_points(
     raise DataError("cannot draw teaching points", "twincd.synth", "widen MotionConfig.spread_rad")
 
 
-def make_trajectory(robot: RobotModel, cfg: MotionConfig, rng: np.random.Generator) -> Trajectory:
-    """A smooth path home → teaching points → home at ≈ the configured mean speed."""
+def _check_durations(cfg: MotionConfig) -> None:
     if not 2 * cfg.rest_s + 1.0 <= cfg.duration_s[0] <= cfg.duration_s[1]:
         raise UsageError(
             f"bad path duration range {cfg.duration_s[0]}–{cfg.duration_s[1]} s",
@@ -322,6 +337,17 @@ def make_trajectory(robot: RobotModel, cfg: MotionConfig, rng: np.random.Generat
             f"give {2 * cfg.rest_s + 1.0:g} s ≤ min ≤ max",
             option="min_duration,max_duration",
         )
+    if not cfg.segment_s >= 2 * (2 * cfg.rest_s + 1.0):
+        raise UsageError(
+            f"segment length {cfg.segment_s} s too short",
+            "MotionConfig.segment_s",
+            f"give {2 * (2 * cfg.rest_s + 1.0):g} s or more",
+        )
+
+
+def make_trajectory(robot: RobotModel, cfg: MotionConfig, rng: np.random.Generator) -> Trajectory:
+    """A smooth path home → teaching points → home at ≈ the configured mean speed."""
+    _check_durations(cfg)
     speed = np.deg2rad(cfg.mean_speed_deg_s)
     home_xyz = _flange_positions(robot, np.asarray(cfg.home)[None])[0]
     lo, hi = cfg.duration_s
@@ -532,6 +558,8 @@ class SynthRun:
     link_events: tuple[tuple[int, str], ...]  # (log_time_ns, link touched or ""), beside them
     presses: tuple[Press, ...]
     trajectory: Trajectory
+    # it opens its path with "nothing touches" on the contact topics (a path with presses)
+    contact_start: bool = False
 
     @property
     def t_s(self) -> FloatArray:
@@ -555,18 +583,81 @@ def path_start_ns(seed: int, split: str, index: int) -> int:
 def simulate_path(
     config: SynthConfig, seed: int, split: str, index: int, collisions: bool | None = None
 ) -> SynthRun:
-    """One path of a run set: a pure function of its arguments.
+    """One path of a run set, whole in memory: a pure function of its arguments.
 
-    ``collisions`` defaults to ``split == "test"``.
+    ``collisions`` defaults to ``split == "test"``. A long path is its segments joined
+    (``path_segments``); to write one without holding it, use ``write_path``.
+    """
+    return join_segments(list(path_segments(config, seed, split, index, collisions)))
+
+
+def segment_sizes(motion: MotionConfig, rng: np.random.Generator) -> list[int]:
+    """Samples per segment of a long path: its duration drawn from ``motion.duration_s``,
+    split into the fewest segments of at most ``motion.segment_s``, as equal as the sample grid
+    allows. The segments lie back to back on one grid, one sample period apart."""
+    total = int(np.floor(rng.uniform(*motion.duration_s) * motion.rate_hz + 1e-9)) + 1
+    count = int(np.ceil((total - 1) / (motion.segment_s * motion.rate_hz)))
+    return [total // count + (j < total % count) for j in range(count)]
+
+
+def path_segments(
+    config: SynthConfig, seed: int, split: str, index: int, collisions: bool | None = None
+) -> Iterator[SynthRun]:
+    """A path as segments that start and end at rest at home, made one at a time.
+
+    A path whose longest duration (``duration_s[1]``) is at most ``segment_s`` is one segment,
+    exactly the path ``twincd synth`` has always made. A longer path is made of segments, each
+    a short path home → teaching points → home with its own presses, drawn from
+    (seed, split, index, segment number): stamps continue on the path's sample grid, the switch
+    and the contact topics announce "nothing" once at the path's start, and, since no press
+    reaches the last second of a segment, label and contact are off at every join.
     """
     _check_seed(seed)
     if index < 0:
         raise UsageError(f"path index must be ≥ 0, got {index}", "twincd.synth", "pass 0 or more")
     split_no = SPLITS.index(split) if split in SPLITS else len(SPLITS)
     collisions = split == "test" if collisions is None else collisions
+    motion = config.motion
+    start_ns = path_start_ns(seed, split, index)
+    rng = _rng(seed, 1 + split_no, index)
+    if motion.duration_s[1] <= motion.segment_s:
+        yield _simulate(config, seed, split, index, rng, collisions, start_ns, first=True)
+        return
+    _check_durations(motion)
+    period_ns = round(1e9 / motion.rate_hz)
+    for number, samples in enumerate(segment_sizes(motion, rng)):
+        span = (samples - 1) / motion.rate_hz
+        segment = replace(config, motion=replace(motion, duration_s=(span, span)))
+        yield _simulate(
+            segment,
+            seed,
+            split,
+            index,
+            _rng(seed, 1 + split_no, index, number),
+            collisions,
+            start_ns,
+            first=number == 0,
+            announce=collisions,
+        )
+        start_ns += samples * period_ns
+
+
+def _simulate(
+    config: SynthConfig,
+    seed: int,
+    split: str,
+    index: int,
+    rng: np.random.Generator,
+    collisions: bool,
+    start_ns: int,
+    first: bool,
+    announce: bool | None = None,
+) -> SynthRun:
+    """One segment from ``start_ns``; ``first``: it opens the path (the switch's initial
+    ``false``); ``announce``: it opens the path with "nothing touches" on the link and contact
+    topics (``None``: when it has presses, as a one-segment path does)."""
     plant = make_plant(config.plant, seed)
     robot = plant.nominal
-    rng = _rng(seed, 1 + split_no, index)
     traj = make_trajectory(robot, config.motion, rng)
     n, dof = traj.position.shape
     t = traj.t_s
@@ -601,23 +692,20 @@ def simulate_path(
         )
 
     lat_lo, lat_hi = config.motion.latency_ms
-    start_ns = path_start_ns(seed, split, index)
     period_ns = round(1e9 / config.motion.rate_hz)
     stamp = start_ns + np.arange(n, dtype=np.int64) * period_ns
     log_time = stamp + np.round(rng.uniform(lat_lo, lat_hi, n) * 1e6).astype(np.int64)
 
-    events: list[tuple[int, bool]] = [(int(stamp[0]), False)]
-    link_events: list[tuple[int, str]] = [(int(stamp[0]), "")] if presses else []
+    announce = bool(presses) if announce is None else announce and first
+    events: list[tuple[int, bool]] = [(int(stamp[0]), False)] if first else []
+    link_events: list[tuple[int, str]] = [(int(stamp[0]), "")] if announce else []
     for press in presses:
         for when, value in ((press.label_on_s, True), (press.label_off_s, False)):
             latency = round(rng.uniform(lat_lo, lat_hi) * 1e6)
             events.append((start_ns + round(when * 1e9) + latency, value))
             touched = press.link if value and press.touched else ""
             link_events.append((events[-1][0], touched))
-    ev_t = np.array([e[0] for e in events], dtype=np.int64)
-    ev_v = np.array([e[1] for e in events], dtype=bool)
-    held = np.searchsorted(ev_t, log_time, side="right") - 1
-    label = np.where(held >= 0, ev_v[np.maximum(held, 0)], False)
+    label = _held(events, log_time)
 
     return SynthRun(
         split=split,
@@ -642,6 +730,73 @@ def simulate_path(
         link_events=tuple(link_events),
         presses=tuple(presses),
         trajectory=traj,
+        contact_start=announce,
+    )
+
+
+def _held(events: Sequence[tuple[int, bool]], log_time: IntArray) -> BoolArray:
+    """The switch held from each event onto the log times (``False`` before the first)."""
+    if not events:
+        return np.zeros(len(log_time), dtype=bool)
+    ev_t = np.array([e[0] for e in events], dtype=np.int64)
+    ev_v = np.array([e[1] for e in events], dtype=bool)
+    held = np.searchsorted(ev_t, log_time, side="right") - 1
+    return np.where(held >= 0, ev_v[np.maximum(held, 0)], False)
+
+
+def join_segments(segments: Sequence[SynthRun]) -> SynthRun:
+    """Segments of one path (``path_segments``) as one run: times from the path's start."""
+    if len(segments) == 1:
+        return segments[0]
+    first = segments[0]
+    offsets = [(s.stamp_ns[0] - first.stamp_ns[0]) * 1e-9 for s in segments]
+
+    def stack(name: str) -> Any:
+        return np.concatenate([getattr(s, name) for s in segments])
+
+    def chain(name: str) -> tuple[Any, ...]:
+        return tuple(item for s in segments for item in getattr(s, name))
+
+    presses = tuple(
+        replace(
+            p,
+            start_s=p.start_s + dt,
+            label_on_s=p.label_on_s + dt,
+            label_off_s=p.label_off_s + dt,
+        )
+        for s, dt in zip(segments, offsets, strict=True)
+        for p in s.presses
+    )
+
+    def shifted(name: str) -> FloatArray:
+        return np.concatenate(
+            [getattr(s.trajectory, name) + dt for s, dt in zip(segments, offsets, strict=True)]
+        )
+
+    def joined(name: str) -> FloatArray:
+        return np.concatenate([getattr(s.trajectory, name) for s in segments])
+
+    trajectory = Trajectory(
+        shifted("t_s"),
+        joined("position"),
+        joined("velocity"),
+        joined("acceleration"),
+        joined("teaching_points"),
+        shifted("knots_s"),
+    )
+    arrays = [
+        *("stamp_ns", "log_time_ns", "position", "velocity", "effort", "true_velocity"),
+        *("acceleration", "rigid", "friction", "tau_ext", "contact_wrench", "contact_point"),
+        "label",
+    ]
+    return replace(
+        first,
+        **{name: stack(name) for name in arrays},
+        contact_link=chain("contact_link"),
+        label_events=chain("label_events"),
+        link_events=chain("link_events"),
+        presses=presses,
+        trajectory=trajectory,
     )
 
 
@@ -667,7 +822,8 @@ def _contact_cdr(
 
 
 def run_messages(run: SynthRun) -> list[tuple[str, int, bytes]]:
-    """Every message of a run as (topic, log_time_ns, cdr), sorted by log time (stable)."""
+    """Every message of a run (or segment) as (topic, log_time_ns, cdr), sorted by log time
+    (stable)."""
     out: list[tuple[str, int, bytes]] = []
     states = joint_state_cdr(run.stamp_ns, run.joint_names, run.position, run.velocity, run.effort)
     for i, data in enumerate(states):
@@ -676,8 +832,9 @@ def run_messages(run: SynthRun) -> list[tuple[str, int, bytes]]:
         out.append((LABEL_TOPIC, when, bool_cdr(value)))
     for when, link in run.link_events:
         out.append((LINK_TOPIC, when, serialize(_String(data=link), STRING)))
-    if run.presses:
-        previous = None
+    if run.presses or run.contact_start:
+        # "nothing touches" at the path's first sample and at the first sample after a contact
+        previous: str | None = None if run.contact_start else ""
         for i, link in enumerate(run.contact_link):
             if link or (previous is None or previous):
                 wrench, point = _contact_cdr(
@@ -698,46 +855,94 @@ _TOPICS = (
     (CONTACT_POINT_TOPIC, POINT),
 )
 
+# samples written so far (for a progress display); called after each segment
+SampleProgress = Callable[[int], None]
 
-def write_mcap(run: SynthRun, path: Path) -> Path:
-    """The run as a bare ros2 MCAP file (atomic)."""
+
+def _stream(
+    segments: Iterable[SynthRun],
+    add_topic: Callable[[str, str], Any],
+    write: Callable[[Any, int, bytes], None],
+    progress: SampleProgress | None = None,
+) -> int:
+    """Every message of ``segments`` to a writer, a segment at a time; returns the samples.
+
+    A topic is registered when first used, in the order of ``_TOPICS`` within a segment.
+    """
+    channels: dict[str, Any] = {}
+    samples = 0
+    for segment in segments:
+        messages = run_messages(segment)
+        count = len(segment.stamp_ns)
+        del segment  # its arrays go before the writer's buffers grow
+        used = {m[0] for m in messages}
+        for topic, msgtype in _TOPICS:
+            if topic in used and topic not in channels:
+                channels[topic] = add_topic(topic, msgtype)
+        for topic, log_time, data in messages:
+            write(channels[topic], log_time, data)
+        samples += count
+        if progress:
+            progress(count)
+    return samples
+
+
+def _mcap_messages(
+    segments: Iterable[SynthRun], path: Path, progress: SampleProgress | None = None
+) -> int:
     from twincd.io.mcap_write import McapLogWriter
 
-    messages = run_messages(run)
-    used = {m[0] for m in messages}
     with McapLogWriter(Path(path)) as out:
-        channels = {t: out.add_topic(t, typ) for t, typ in _TOPICS if t in used}
-        for topic, log_time, data in messages:
-            out.write(channels[topic], log_time, data)
+        return _stream(segments, out.add_topic, out.write, progress)
+
+
+def write_mcap(run: SynthRun, path: Path) -> Path:
+    """A run held in memory as a bare ros2 MCAP file (atomic)."""
+    _mcap_messages([run], path)
     return Path(path)
 
 
-def write_rosbag2(run: SynthRun, path: Path) -> Path:
-    """The run as a rosbag2 sqlite3 folder (written beside, renamed into place)."""
+def write_path(
+    config: SynthConfig,
+    seed: int,
+    split: str,
+    index: int,
+    path: Path,
+    progress: SampleProgress | None = None,
+) -> int:
+    """A path of a run set as a bare ros2 MCAP file (atomic), made and written a segment at a
+    time: memory does not grow with its length. Returns its samples. Same bytes as
+    ``write_mcap(simulate_path(...))`` whenever log times do not interleave across a join
+    (latency below one sample period)."""
+    return _mcap_messages(path_segments(config, seed, split, index), path, progress)
+
+
+def write_rosbag2(run: SynthRun | Iterable[SynthRun], path: Path) -> Path:
+    """A run, or the segments of a path, as a rosbag2 sqlite3 folder (written beside, renamed
+    into place)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.metadata import parse_qos
 
     from twincd.io.mcap_write import DEFAULT_QOS
 
     qos = parse_qos(DEFAULT_QOS)
+    segments = [run] if isinstance(run, SynthRun) else run
 
     path = Path(path)
     tmp_parent = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     shutil.rmtree(tmp_parent, ignore_errors=True)
     try:
         tmp_parent.mkdir(parents=True)
-        messages = run_messages(run)
-        used = {m[0] for m in messages}
         writer = Writer(tmp_parent / path.name, version=8, storage_plugin=StoragePlugin.SQLITE3)
         writer.open()
         try:
-            conns = {
-                t: writer.add_connection(t, typ, typestore=TYPESTORE, offered_qos_profiles=qos)
-                for t, typ in _TOPICS
-                if t in used
-            }
-            for topic, log_time, data in messages:
-                writer.write(conns[topic], log_time, data)
+            _stream(
+                segments,
+                lambda topic, msgtype: writer.add_connection(
+                    topic, msgtype, typestore=TYPESTORE, offered_qos_profiles=qos
+                ),
+                writer.write,
+            )
         finally:
             writer.close()
         if path.exists():
@@ -759,9 +964,22 @@ def log_name(split: str, index: int) -> str:
     return f"{split}_{index:03d}"
 
 
-def _make_one(args: tuple[SynthConfig, int, str, int, Path]) -> Path:
+@dataclass(frozen=True)
+class _Written:
+    path: Path
+    samples: int  # those not yet reported to a progress display
+
+
+def _make_one(
+    args: tuple[SynthConfig, int, str, int, Path], progress: Progress | None = None
+) -> _Written:
+    """One path written; with ``progress`` (in this process), its samples reported as its
+    segments are written."""
     config, seed, split, index, target = args
-    return write_mcap(simulate_path(config, seed, split, index), target)
+    if progress is None:
+        return _Written(target, write_path(config, seed, split, index, target))
+    write_path(config, seed, split, index, target, lambda samples: progress(0, samples))
+    return _Written(target, 0)
 
 
 def write_dataset(
@@ -771,13 +989,15 @@ def write_dataset(
     counts: Sequence[int] = (30, 5, 5),
     rosbag2_copy: bool = True,
     jobs: int = 1,
+    progress: Progress | None = None,
 ) -> list[Path]:
     """The paper's protocol: ``outdir/{train,val,test}/<split>_NNN.mcap``.
 
     Train and val paths are collision-free, test paths have presses. With ``rosbag2_copy``, the
     first test path is also written as a rosbag2 sqlite3 folder ``outdir/rosbag2/test_000``
     (outside ``test/``, so a folder argument does not read the same log twice).
-    Returns the paths written, in order.
+    ``progress(paths, samples)`` is told of the paths and samples written as they are (of each
+    segment with ``jobs`` 1, of each path otherwise). Returns the paths written, in order.
     """
     config = config or SynthConfig()
     _check_seed(seed)
@@ -807,9 +1027,11 @@ def write_dataset(
         raise OutputError(
             f"cannot create folder: {exc.strerror}", str(outdir), "pick a writable OUTDIR"
         ) from exc
-    written = Executor(jobs).map(_make_one, tasks)
+    executor = Executor(jobs)
+    make = partial(_make_one, progress=progress) if executor.workers == 1 else _make_one
+    written = [w.path for w in executor.map(make, tasks, progress)]
     if rosbag2_copy and counts[2] > 0:
-        run = simulate_path(config, seed, "test", 0)
         (outdir / "rosbag2").mkdir(exist_ok=True)
-        written.append(write_rosbag2(run, outdir / "rosbag2" / log_name("test", 0)))
+        target = outdir / "rosbag2" / log_name("test", 0)
+        written.append(write_rosbag2(path_segments(config, seed, "test", 0), target))
     return written
