@@ -23,6 +23,7 @@ from twincd.defaults import (
 from twincd.errors import UsageError
 
 from .common import (
+    AllowUrdfChange,
     Debug,
     Force,
     Jobs,
@@ -104,6 +105,7 @@ def resolve_setup(
     causal: bool | None = None,
     strict: bool = False,
     filter_kind: str | None = None,
+    allow_urdf_change: bool = False,
 ) -> Setup:
     """Settings for reading logs: explicit options over the calibration's, never against them
     (``filter_kind`` None: Butterworth without a calibration)."""
@@ -151,7 +153,7 @@ def resolve_setup(
             _contradiction(option, f"{given_f:g}", f"{was_f:g}", cal)
     if filter_kind is not None and filter_kind != lp.kind:
         _contradiction("--filter-kind", filter_kind, lp.kind, cal)
-    setup = replace(Setup.from_calibration(cal), strict=strict)
+    setup = replace(Setup.from_calibration(cal), strict=strict, allow_urdf_change=allow_urdf_change)
     if robot is not None and cal.robot is None:
         setup = replace(setup, robot=robot)
     return setup
@@ -299,6 +301,7 @@ def threshold(
     scheduler: Scheduler = None,
     strict: Strict = False,
     keep_going: KeepGoing = False,
+    allow_urdf_change: AllowUrdfChange = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -333,7 +336,16 @@ def threshold(
     target = output or calibration
     paths = expand_logs(logs)
     check_target(target, "calibration", force=force, inputs=paths)
-    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map, strict=strict)
+    setup = resolve_setup(
+        cal,
+        robot,
+        topic,
+        label_topic,
+        sim_topic,
+        joint_map,
+        strict=strict,
+        allow_urdf_change=allow_urdf_change,
+    )
     work = Bound(score_log, setup, cal)
     done = run_per_log(
         work, paths, paths, jobs, "scoring", quiet, keep_going=keep_going, scheduler=scheduler

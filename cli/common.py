@@ -107,6 +107,15 @@ KeepGoing = Annotated[
         metavar="",
     ),
 ]
+AllowUrdfChange = Annotated[
+    bool,
+    typer.Option(
+        "--allow-urdf-change",
+        help="Use a robot URDF that changed since the calibration was fitted (its sha256 "
+        "differs) when the change does not affect dynamics; refused otherwise.",
+        metavar="",
+    ),
+]
 Force = Annotated[
     bool,
     typer.Option(
@@ -203,6 +212,7 @@ FLAGS: dict[str, str] = {
     "force": "--force",
     "strict": "--strict",
     "keep_going": "--keep-going",
+    "allow_urdf_change": "--allow-urdf-change",
 }
 
 

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 from .calibrate import CalibrationIn, Causal, resolve_setup
 from .common import (
     WARNINGS,
+    AllowUrdfChange,
     Debug,
     Force,
     Jobs,
@@ -134,6 +135,7 @@ def detect(
     scheduler: Scheduler = None,
     strict: Strict = False,
     keep_going: KeepGoing = False,
+    allow_urdf_change: AllowUrdfChange = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -158,7 +160,15 @@ def detect(
     cal.require_threshold()
     paths = expand_logs(logs)
     setup = resolve_setup(
-        cal, robot, topic, label_topic, sim_topic, joint_map, causal=causal, strict=strict
+        cal,
+        robot,
+        topic,
+        label_topic,
+        sim_topic,
+        joint_map,
+        causal=causal,
+        strict=strict,
+        allow_urdf_change=allow_urdf_change,
     )
     targets = _targets(paths, output)
     # one log at a time: only the small summaries are kept, so memory stays flat
@@ -186,6 +196,8 @@ def detect(
             continue
         if result.events:
             stdout.print(events_table(result))
+        elif result.too_short:
+            stdout.print(f"{result.source}: too short to judge ({result.samples} samples)")
         else:
             stdout.print(f"{result.source}: no collision ({result.samples} samples)")
     found = any(s["events"] for s in summaries)

@@ -17,6 +17,7 @@ from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 from .calibrate import Causal, Cutoff, FilterKind, FilterOrder, resolve_setup
 from .common import (
     WARNINGS,
+    AllowUrdfChange,
     Debug,
     Force,
     Jobs,
@@ -149,6 +150,7 @@ def evaluate(
     ] = DEFAULT_LINK_TOPIC,
     strict: Strict = False,
     keep_going: KeepGoing = False,
+    allow_urdf_change: AllowUrdfChange = False,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -187,7 +189,7 @@ def evaluate(
     check_reports(report, junit, force=force, inputs=[*test_paths, *train_paths, *val_paths])
     setup = resolve_setup(
         cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal,
-        strict, filter_kind,
+        strict, filter_kind, allow_urdf_change,
     )  # fmt: skip
 
     def bar(items: Sequence[Any], desc: str) -> Iterable[Any]:

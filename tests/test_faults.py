@@ -277,10 +277,13 @@ def test_short_logs_are_refused(world, tmp_path):
 
 
 def test_a_log_mostly_at_the_filter_edges_is_warned_about(world, tmp_path):
-    log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=0.8)
+    # 1.5 s at 1 Hz: 1 s of edge spans, 0.5 s judged (all of it within them: too short to
+    # judge, tests/test_real_signals.py)
+    log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5)
     result = run("detect", log, "-c", world["cal"], "--json")
     assert result.exit_code == 0 and "within the filter's edge spans" in result.stderr
     assert any("edge spans" in w for w in json.loads(result.stdout)["warnings"])
+    assert json.loads(result.stdout)["logs"][0]["too_short"] is False
 
 
 def test_a_clock_jumping_back_is_reported_not_merged(world, tmp_path):

@@ -27,9 +27,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.defaults import DEFAULT_ROBOT
-from twincd.errors import DataError, JointMismatchError
+from twincd.errors import CalibrationError, DataError, JointMismatchError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage, prefetched
 from twincd.io.logs import JointStates, LogOptions
+from twincd.signal.checks import SignalChecks
 from twincd.signal.filters import LowPass
 
 if TYPE_CHECKING:
@@ -99,9 +100,16 @@ class PreparedLog:
         return len(self.states)
 
 
-@lru_cache(maxsize=32)
 def robot_for(robot: str, joints: tuple[str, ...]) -> RobotModel:
-    """The robot model reduced to ``joints`` (cached: loading a URDF costs milliseconds)."""
+    """The robot model reduced to ``joints`` (cached: loading a URDF costs milliseconds; a
+    URDF edited since is loaded again)."""
+    from twincd.twin.robot import file_version, resolve_urdf
+
+    return _robot_for(robot, joints, file_version(resolve_urdf(robot)))
+
+
+@lru_cache(maxsize=32)
+def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) -> RobotModel:
     from twincd.twin.robot import load_robot
 
     return load_robot(robot, keep=joints)
@@ -117,7 +125,11 @@ def pick_columns(columns: IntArray) -> Mapped:
         return frame.with_columns(**{k: frame[k][:, columns] for k in _JOINT_COLUMNS if k in frame})
 
     if np.array_equal(columns, np.arange(len(columns))):
-        return Mapped(lambda frame: frame)  # already in order: no copy
+        # already in order: no copy, unless joints follow that are not picked (a Panda's
+        # fingers after its arm)
+        return Mapped(
+            lambda frame: frame if frame["position"].shape[1] == len(columns) else pick(frame)
+        )
     return Mapped(pick)
 
 
@@ -277,6 +289,8 @@ class PreparedStream:
         self.velocity_from_position = False
         self.coulomb_eps = setup.coulomb_eps if filtered else ()
         self.regressor = setup.regressor and filtered  # identified models: Y(q, q̇, q̈) filtered
+        self.checks: SignalChecks | None = None
+        self.at_edges = 0  # samples within the zero-phase filter's edge spans
         self._log: LogStream | None = None
 
     @property
@@ -347,6 +361,8 @@ class PreparedStream:
             robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
             twin_names = model.joint_names
         self.robot = robot
+        if robot is not None and (model is not None or self.regressor):
+            check_urdf(robot, setup.urdf_sha256, setup.allow_urdf_change, self.source)
         regressor = None
         usable = robot is not None and robot.joint_names == twin_names
         if self.regressor and not usable and setup.regressor_optional:
@@ -393,6 +409,9 @@ class PreparedStream:
         to_twin = np.array([names.index(n) for n in twin_names], dtype=np.intp)
         to_final = np.array([twin_names.index(n) for n in final], dtype=np.intp)
         fill = not bool(np.isfinite(first["velocity"][:, to_twin]).all())
+        if fill:
+            warn_velocity_from_position(self.source, first["velocity"][:, to_twin], twin_names)
+        self.checks = SignalChecks(twin_names, robot.position_limits if robot else {})
         causal = setup.lowpass.causal
         stages: list[Stage] = [
             pick_columns(to_twin),
@@ -428,19 +447,27 @@ class PreparedStream:
             for block in blocks:
                 yield _frame(block)
 
+        checks = self.checks
+        assert checks is not None
+
         def clean(frames_in: Iterable[Frame]) -> Iterator[Frame]:
             for frame in frames_in:
                 ok = _finite_rows(frame, needed, used)
                 if not ok.all():
                     self.dropped_bad += int((~ok).sum())
                     frame = Frame({k: v[ok] for k, v in frame.items()})
+                effort = frame.get("effort") if self.need_effort else None
+                checks.push(frame["position"][:, used], None if effort is None else effort[:, used])
                 yield frame
 
-        at_edges = 0
+        first_ns = last_ns = None
         for out in chain.run(clean(frames())):
+            if out.n:
+                first_ns = int(out["stamp_ns"][0]) if first_ns is None else first_ns
+                last_ns = int(out["stamp_ns"][-1])
             self.samples += out.n
             if "edge" in out:
-                at_edges += int(np.count_nonzero(out["edge"]))
+                self.at_edges += int(np.count_nonzero(out["edge"]))
             yield out
         if self.dropped_bad:
             log.warning(
@@ -449,14 +476,56 @@ class PreparedStream:
                 self.dropped_bad,
             )
         require_enough_samples(self.samples, self.source)
-        if 2 * at_edges > self.samples:
-            log.warning(
-                "%s is short: %d of its %d samples lie within the filter's edge spans, where "
-                "no collision is flagged",
-                self.source,
-                at_edges,
-                self.samples,
-            )
+        checks.warn(self.source)
+        if self.filtered:
+            seconds = 0.0 if first_ns is None or last_ns is None else (last_ns - first_ns) * 1e-9
+            warn_short(self.source, self.samples, self.at_edges, seconds, self.setup.lowpass,
+                       self.period_s)  # fmt: skip
+
+
+def min_judged_s(lowpass: LowPass, period_s: float) -> float:
+    """The shortest stretch without a gap in which a sample lies outside the zero-phase
+    filter's edge spans (0 for a causal filter: every sample is judged)."""
+    from twincd.signal.filters import edge_span
+
+    return 2 * edge_span(lowpass, period_s) * period_s
+
+
+def warn_short(
+    source: str, samples: int, at_edges: int, seconds: float, lowpass: LowPass, period_s: float
+) -> None:
+    """A log whose samples all lie within the filter's edge spans cannot be judged: say so
+    (never a silent "no collision"); one mostly within them is said to be short."""
+    if samples and at_edges >= samples:
+        log.warning(
+            "%s is too short to judge: %.3g s, at least %.3g s without a gap needed for this "
+            "filter (%g Hz); no sample was judged",
+            source,
+            seconds,
+            min_judged_s(lowpass, period_s),
+            lowpass.cutoff_hz,
+        )
+    elif 2 * at_edges > samples:
+        log.warning(
+            "%s is short: %d of its %d samples lie within the filter's edge spans, where "
+            "no collision is flagged",
+            source,
+            at_edges,
+            samples,
+        )
+
+
+def warn_velocity_from_position(
+    source: str, velocity: FloatArray, joint_names: Sequence[str]
+) -> None:
+    """The log lacks (finite) velocities: they are differentiated from position."""
+    finite = np.asarray(np.isfinite(velocity).all(axis=0), dtype=bool)
+    lacking = [n for i, n in enumerate(joint_names) if not finite[i]]
+    log.warning(
+        "%s: velocity missing on %s; differentiated from position where missing",
+        source,
+        ", ".join(lacking) if lacking else "some samples",
+    )
 
 
 def require_enough_samples(samples: int, source: str) -> None:
@@ -521,7 +590,8 @@ class Setup:
     robot: str | None = None
     lowpass: LowPass = field(default_factory=LowPass)
     joint_names: tuple[str, ...] | None = None
-    urdf_sha256: str | None = None  # the calibration's: a changed URDF gets a warning
+    urdf_sha256: str | None = None  # the calibration's: a changed URDF is refused
+    allow_urdf_change: bool = False  # a changed URDF gets a warning instead
     period_s: float | None = None  # the calibration's sampling period
     block_size: int = DEFAULT_BLOCK
     # False: a truncated log is read up to the damage, with one warning (DESIGN §1)
@@ -553,7 +623,6 @@ class Setup:
         """One whole log in memory (for sample-sized logs: evaluate, baselines, studies)."""
         with self.open(path) as stream:
             whole = Frame.concat(list(stream))
-            _warn_changed_urdf(stream.robot, stream.simulated, self.urdf_sha256)
             return prepared_log(stream, whole, self.lowpass)
 
     def prepare_all(self, paths: Iterable[str | Path]) -> Iterator[PreparedLog]:
@@ -609,23 +678,26 @@ def same_joints(logs: Iterable[HasJoints]) -> tuple[str, ...]:
     return orders[0] if orders else ()
 
 
-_WARNED_URDF: set[str] = set()
-
-
-def _warn_changed_urdf(robot: RobotModel | None, simulated: bool, expected: str | None) -> None:
-    if (
-        simulated
-        and robot is not None
-        and expected
-        and robot.urdf_sha256 != expected
-        and robot.urdf_sha256 not in _WARNED_URDF
-    ):
-        _WARNED_URDF.add(robot.urdf_sha256)
-        log.warning(
-            "the URDF %s differs from the one the calibration was fitted with; "
-            "re-fit the calibration if the model changed",
-            robot.urdf_path,
-        )
+def check_urdf(robot: RobotModel, expected: str | None, allow: bool, source: str) -> None:
+    """The URDF a calibration was fitted with (its sha256, ``expected``) must be the one its
+    twin runs on: a changed file is refused, or with ``allow`` said once for the log.
+    Calibrations that record no sha256 (older files, or fitted on a log's own twin effort
+    without a model) are not checked."""
+    if not expected or robot.urdf_sha256 == expected:
+        return
+    what = (
+        f"the URDF {robot.urdf_path} changed since the calibration was fitted "
+        f"(sha256 {robot.urdf_sha256[:12]}…, the calibration's {expected[:12]}…)"
+    )
+    if allow:
+        log.warning("%s: %s; using it as allowed", source, what)
+        return
+    raise CalibrationError(
+        what,
+        source,
+        "re-fit the calibration, or allow the change if it does not affect dynamics",
+        option="allow_urdf_change",
+    )
 
 
 def prepared_log(stream: PreparedStream, whole: Frame, lowpass: LowPass) -> PreparedLog:

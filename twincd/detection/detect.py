@@ -3,6 +3,7 @@ whole log in memory, or on a log streamed block by block at flat memory."""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -18,8 +19,47 @@ if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.pipeline import PreparedLog
 
+log = logging.getLogger("twincd")
+
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+
+# more flagged than this share of a log's judged collision-free samples: the calibration does
+# not fit the log (a collision is brief; a log flagged throughout is a misfit, not a finding)
+MOSTLY_FLAGGED = 0.5
+
+
+@dataclass
+class FlagCount:
+    """Judged and flagged samples of one log, counted block by block: samples at a zero-phase
+    filter's edge are not judged, and samples labelled as collisions (when the log has labels)
+    are left out of both counts, so a labelled collision never makes a log "mostly flagged"."""
+
+    judged: int = 0  # judged samples, labelled ones included
+    clean: int = 0  # judged samples not labelled as collisions
+    clean_flagged: int = 0
+
+    def add(self, flags: BoolArray, judged: BoolArray, labels: BoolArray | None = None) -> None:
+        judged = np.asarray(judged, dtype=bool)
+        self.judged += int(np.count_nonzero(judged))
+        clean = judged if labels is None else judged & ~np.asarray(labels, dtype=bool)
+        self.clean += int(np.count_nonzero(clean))
+        self.clean_flagged += int(np.count_nonzero(np.asarray(flags, dtype=bool) & clean))
+
+    @property
+    def mostly_flagged(self) -> bool:
+        return self.clean > 0 and self.clean_flagged > MOSTLY_FLAGGED * self.clean
+
+    def warn(self, source: str, by: str = "") -> None:
+        """Say when most of the log is flagged (``by``: the method, where there are several)."""
+        if self.mostly_flagged:
+            log.warning(
+                "%s: %.0f %% of its judged samples are flagged%s: the calibration does not fit "
+                "this log: check the effort's sign and scale, the robot model and the payload",
+                source,
+                100 * self.clean_flagged / self.clean,
+                f" by {by}" if by else "",
+            )
 
 
 class ScoringStage:
@@ -42,6 +82,7 @@ class ScoringStage:
             kappa_for(calibration.kind),
         )
         self.events = EventTracker(joint_names or calibration.joint_names, isolator)
+        self.counts = FlagCount()
 
     def push(self, frame: Frame) -> tuple[Frame, list[Event]]:
         """``frame`` (with ``effort_f``, ``sim_effort_f``, ``stamp_ns``, and ``velocity_f`` and
@@ -50,8 +91,11 @@ class ScoringStage:
         r = self.model.residual({**frame, "coulomb_eps": self.coulomb_eps})
         scores = self.model.score(r)
         flags = scores >= self.threshold
+        judged = np.ones(len(flags), dtype=bool)
         if "edge" in frame:  # a filter's edge never flags a collision
-            flags &= frame["edge"] == 0
+            judged = frame["edge"].reshape(len(flags)) == 0
+            flags &= judged
+        self.counts.add(flags, judged, frame.get("labels"))
         closed = self.events.push(flags, scores, r, frame["stamp_ns"])
         return frame.with_columns(residual=r, score=scores, flag=flags), closed
 
@@ -97,10 +141,13 @@ def detect(log: PreparedLog, calibration: Calibration) -> LogDetection:
             "velocity_f": log.velocity_f,
             "coulomb_f": log.coulomb_f,
             "regressor_f": log.regressor_f,
+            "edge": None if log.edge is None else log.edge.astype(np.float64),
+            "labels": log.labels,
         }
     )
     out, events = stage.push(frame)
     events += stage.finish()
+    stage.counts.warn(log.source)
     return LogDetection(log, out["residual"], out["score"], out["flag"], stage.threshold, events)
 
 
@@ -115,6 +162,7 @@ class DetectionSummary:
     threshold: float
     samples: int = 0
     collision_samples: int = 0
+    judged_samples: int = 0  # samples outside the zero-phase filter's edge spans
     events: list[Event] = field(default_factory=list)
     joint_names: tuple[str, ...] = ()
     first_stamp_ns: int = 0
@@ -127,8 +175,15 @@ class DetectionSummary:
             "path": self.source,
             "samples": self.samples,
             "collision_samples": self.collision_samples,
+            "judged_samples": self.judged_samples,
+            "too_short": self.too_short,
             "events": [e.to_dict() for e in self.events],
         }
+
+    @property
+    def too_short(self) -> bool:
+        """No sample could be judged: the log is shorter than the filter's edge spans."""
+        return self.samples > 0 and self.judged_samples == 0
 
     def add(self, frame: Frame, events: list[Event]) -> None:
         self.events.extend(events)
@@ -138,3 +193,5 @@ class DetectionSummary:
             self.first_stamp_ns = int(frame["stamp_ns"][0])
         self.samples += frame.n
         self.collision_samples += int(frame["flag"].sum())
+        edge = frame.get("edge")
+        self.judged_samples += frame.n - (0 if edge is None else int(np.count_nonzero(edge)))

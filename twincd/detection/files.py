@@ -15,7 +15,8 @@ from twincd.detection.events import Event
 from twincd.detection.online import OnlineDetector
 from twincd.errors import DataError
 from twincd.frames import Frame, FrameSink
-from twincd.pipeline import require_enough_samples
+from twincd.pipeline import require_enough_samples, warn_velocity_from_position
+from twincd.signal.checks import SignalChecks
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
@@ -42,6 +43,7 @@ def detect_file(
             _deliver(summary, sinks, out, closed)
         _deliver(summary, sinks, Frame(), stage.finish())
         summary.joint_names = stream.joint_names
+    stage.counts.warn(str(path))
     return summary
 
 
@@ -63,7 +65,9 @@ def detect_file_online(
         strict=setup.strict,
     ) as blocks:
         detector: OnlineDetector | None = None
+        checks = SignalChecks(calibration.joint_names, {})
         for block in blocks:
+            first = detector is None
             if detector is None:
                 if block.effort is None:
                     raise DataError(
@@ -77,7 +81,12 @@ def detect_file_online(
                     period_s=setup.period_s,
                     sim_effort=has_sim,
                     threads=setup.twin_threads or 1,
+                    allow_urdf_change=setup.allow_urdf_change,
+                    source=str(path),
                 )
+                limits = detector.robot.position_limits if detector.robot is not None else {}
+                checks = SignalChecks(calibration.joint_names, limits)
+            checks.push(block.position, block.effort)
             result = detector.push(
                 block.stamp_ns,
                 block.position,
@@ -89,11 +98,15 @@ def detect_file_online(
                 log_time_ns=block.log_time_ns[np.isfinite(result.score)]
             )
             _deliver(summary, sinks, frame, result.events)
+            if first and detector.velocity_from_position:
+                warn_velocity_from_position(str(path), block.velocity, calibration.joint_names)
         if detector is None:
             raise DataError("the log has no joint-state samples", str(path), "record joint states")
         _deliver(summary, sinks, Frame(), detector.close())
         summary.joint_names = calibration.joint_names
         require_enough_samples(summary.samples, str(path))
+        checks.warn(str(path))
+        detector.counts.warn(str(path))
         if detector.skipped:
             summary.warnings.append(
                 f"{path}: skipped {detector.skipped} sample(s) with non-finite values"

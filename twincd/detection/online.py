@@ -22,14 +22,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.defaults import DEFAULT_ROBOT
-from twincd.detection.detect import ScoringStage
+from twincd.detection.detect import FlagCount, ScoringStage
 from twincd.detection.events import Event
 from twincd.errors import CalibrationError, DataError
 from twincd.frames import Chain, Frame, Stage
-from twincd.pipeline import filter_stages, pick_columns, robot_for, twin_stages
+from twincd.pipeline import check_urdf, filter_stages, pick_columns, robot_for, twin_stages
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
+    from twincd.twin.robot import RobotModel
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -58,6 +59,10 @@ class OnlineDetector:
     ``period_s`` overrides the calibration's sampling period (needed for calibration files that
     do not record it). ``sim_effort=True`` expects the twin's effort in every push (a log with
     its own ``/twincd/sim_effort``) instead of computing it with the robot model.
+
+    The robot model's URDF must be the one the calibration was fitted with (its sha256): a
+    changed one is refused unless ``allow_urdf_change`` (then said once). ``source`` names the
+    stream in messages (default: the calibration).
     """
 
     def __init__(
@@ -66,6 +71,8 @@ class OnlineDetector:
         period_s: float | None = None,
         sim_effort: bool | None = None,
         threads: int = 1,
+        allow_urdf_change: bool = False,
+        source: str | None = None,
     ) -> None:
         calibration.require_threshold()
         where = calibration.source or "calibration"
@@ -87,6 +94,11 @@ class OnlineDetector:
         self.period_s = float(period)
         self.joint_names = calibration.joint_names
         self.use_sim = (not calibration.simulated) if sim_effort is None else sim_effort
+        # the twin's effort, or (identified models) the regressor, needs the robot model
+        self.robot: RobotModel | None = None
+        if not self.use_sim or calibration.regressor:
+            self.robot = robot_for(calibration.robot or DEFAULT_ROBOT, tuple(self.joint_names))
+            check_urdf(self.robot, calibration.urdf_sha256, allow_urdf_change, source or where)
         self._threads = threads
         self._chain: Chain | None = None
         self._fill = False
@@ -110,11 +122,10 @@ class OnlineDetector:
         names = self.joint_names
         cal = self.calibration
         stages: list[Stage]
-        if self.use_sim and not cal.regressor:
+        robot = self.robot
+        if robot is None:
             stages = twin_stages(None, self.period_s, True, fill)
         else:
-            # the twin's effort, or (identified models) the regressor, needs the robot model
-            robot = robot_for(cal.robot or DEFAULT_ROBOT, tuple(names))
             to_model = np.array([names.index(n) for n in robot.joint_names], dtype=np.intp)
             back = np.array([robot.joint_names.index(n) for n in names], dtype=np.intp)
             twin = None if self.use_sim else robot
@@ -128,6 +139,7 @@ class OnlineDetector:
         if cal.regressor:
             from twincd.twin.dynamics import regressor_mask
 
+            assert robot is not None  # the identified models always load it
             mask = regressor_mask(robot)[back]  # robot order → the calibration's
         stages += filter_stages(cal.lowpass, self.period_s, cal.coulomb_eps, mask)
         return Chain(stages)
@@ -205,6 +217,17 @@ class OnlineDetector:
         score[rows], flag[rows], resid[rows] = scored["score"], scored["flag"], scored["residual"]
         self.last_frame = scored
         return OnlineResult(score, flag, resid, events)
+
+    @property
+    def velocity_from_position(self) -> bool:
+        """True once a push without (finite) velocities made the detector differentiate
+        position."""
+        return self._fill
+
+    @property
+    def counts(self) -> FlagCount:
+        """Judged and flagged samples so far."""
+        return self._scoring.counts
 
     def close(self) -> list[Event]:
         """End of the stream: the event still open, if any."""

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from twincd.calibration import Calibration
 from twincd.calibration.models import EPSILON_GRID, uses_friction, uses_regressor
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
+from twincd.detection.detect import FlagCount
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
 from twincd.evaluation.metrics import (
@@ -241,10 +242,16 @@ def _events(
     threshold: float,
     links: Links,
 ) -> EventCounts:
-    """Event counts of ``logs`` flagged at ``threshold``, merged over the logs."""
+    """Event counts of ``logs`` flagged at ``threshold``, merged over the logs. A calibration
+    model's log flagged mostly is said (as ``detect`` says it)."""
     total = EventCounts()
     for lg, score in zip(logs, scores, strict=True):
-        flags = (np.asarray(score) >= threshold) & _judged(method, lg, len(score))
+        judged = _judged(method, lg, len(score))
+        flags = (np.asarray(score) >= threshold) & judged
+        if method.calibrated and method.unit == "sample":
+            counts = FlagCount()
+            counts.add(flags, judged, lg.labels)
+            counts.warn(lg.source, by=method.name)
         labels = lg.labels if lg.labels is not None else np.zeros(len(lg), dtype=bool)
         truth = links.get(lg.source)
         named = method.flag_links(lg, flags) if truth is not None else None

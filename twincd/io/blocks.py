@@ -92,6 +92,7 @@ class StreamCounts:
     jumps: int = 0  # backward jumps of the clock
     largest_jump_ns: int = 0
     samples: int = 0  # emitted
+    unstamped: int = 0  # header stamp 0: timed by the log time instead
 
     @property
     def dropped(self) -> int:
@@ -502,6 +503,7 @@ class LogStream:
         if self.has_effort:
             effort = pick(batch.effort) if batch.effort.shape[1] else nan
         stamp = np.where(batch.stamp_ns != 0, batch.stamp_ns, batch.log_time_ns)
+        self.counts.unstamped += int(np.count_nonzero(batch.stamp_ns == 0))
         seq = np.arange(self._seq, self._seq + n, dtype=np.int64)
         self._seq += n
         rows = _Rows(stamp, batch.log_time_ns, seq, position, velocity, effort)
@@ -605,6 +607,12 @@ class LogStream:
                 c.jumps,
                 c.largest_jump_ns * 1e-9,
                 c.clock_back,
+            )
+        if c.unstamped:
+            log.warning(
+                "%s: %d sample(s) carry no header stamp; timed by their log time instead",
+                self.source,
+                c.unstamped,
             )
         if c.duplicates:
             log.warning(

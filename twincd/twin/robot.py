@@ -185,6 +185,18 @@ class RobotModel:
         """Per-joint values (N, dof) from tangent-space arrays (N, nv), e.g. torques."""
         return np.atleast_2d(tangent)[:, [j.idx_v for j in self.joints]]
 
+    @cached_property
+    def position_limits(self) -> dict[str, tuple[float, float]]:
+        """(lower, upper) position limits by joint name; joints without any are left out (a
+        continuous joint, stored as cos/sin, or limits absent: not finite, or lower ≥ upper)."""
+        lo, hi = self.model.lowerPositionLimit, self.model.upperPositionLimit
+        limits = {}
+        for joint in self.joints:
+            a, b = float(lo[joint.idx_q]), float(hi[joint.idx_q])
+            if not joint.unbounded and np.isfinite(a) and np.isfinite(b) and a < b:
+                limits[joint.name] = (a, b)
+        return limits
+
 
 @lru_cache(maxsize=16)
 def _reloaded(name: str, joints: tuple[str, ...]) -> RobotModel:
@@ -224,8 +236,15 @@ def _native_stderr_captured() -> Iterator[list[str]]:
             lines.extend(sink.read().decode("utf-8", "replace").splitlines())
 
 
+def file_version(path: Path) -> tuple[int, int]:
+    """(mtime in ns, size) of a file: part of a cache key, so an edited URDF is loaded again."""
+    stat = path.stat()
+    return stat.st_mtime_ns, stat.st_size
+
+
 @lru_cache(maxsize=16)
-def _full_model(urdf_path: Path) -> pin.Model:
+def _full_model(urdf_path: Path, version: tuple[int, int] = (0, 0)) -> pin.Model:
+    """The whole model of ``urdf_path`` (``version``: ``file_version``, the cache key)."""
     import pinocchio as pin
 
     try:
@@ -263,7 +282,7 @@ def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = N
     import pinocchio as pin
 
     urdf = resolve_urdf(name_or_path)
-    full = _full_model(urdf)
+    full = _full_model(urdf, file_version(urdf))
     specs = _joint_specs(full)
     if not specs:
         raise RobotModelError("the URDF has no movable 1-DoF joints", str(urdf), "use an arm URDF")
