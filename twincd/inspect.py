@@ -148,6 +148,7 @@ def inspect_log(
     robot: str | None = None,
     calibration: Calibration | None = None,
     strict: bool = False,
+    allow_urdf_change: bool = False,
 ) -> Inspection:
     """What ``path`` holds and what twincd will make of it (see the module's docstring).
 
@@ -158,7 +159,7 @@ def inspect_log(
     found = Inspection(path=str(path))
     with _captured_warnings() as warnings:
         try:
-            _inspect(Path(path), options, robot, calibration, strict, found)
+            _inspect(Path(path), options, robot, calibration, strict, allow_urdf_change, found)
         except TwincdError as exc:
             if not found.topics:  # nothing could be read at all
                 raise
@@ -173,6 +174,7 @@ def _inspect(
     robot: str | None,
     calibration: Calibration | None,
     strict: bool,
+    allow_urdf_change: bool,
     found: Inspection,
 ) -> None:
     from twincd.io.batches import TopicReader
@@ -193,7 +195,9 @@ def _inspect(
         if has_sim
         else f"inverse dynamics of {model_name} (simulated)"
     )
-    model = _match_robot(model_name, in_log, calibration, found) if model_name else None
+    model = None
+    if model_name:
+        model = _match_robot(model_name, in_log, calibration, found, has_sim, allow_urdf_change)
     joints = calibration.joint_names if calibration is not None else (found.matched or in_log)
     missing = [j for j in joints if j not in in_log]
     if missing:
@@ -205,6 +209,8 @@ def _inspect(
             "use a calibration or robot model made for this robot, or a joint map",
         )
     _read_samples(path, options, tuple(joints), strict, model, found)
+    if found.sampling is not None:
+        _warn_if_too_short(found.path, found.sampling, calibration)
 
 
 def _read_topics(reader: TopicReader, found: Inspection, options: LogOptions) -> None:
@@ -235,7 +241,12 @@ def _read_topics(reader: TopicReader, found: Inspection, options: LogOptions) ->
 
 
 def _match_robot(
-    name: str, in_log: tuple[str, ...], calibration: Calibration | None, found: Inspection
+    name: str,
+    in_log: tuple[str, ...],
+    calibration: Calibration | None,
+    found: Inspection,
+    has_own_twin: bool,
+    allow_urdf_change: bool,
 ) -> RobotModel:
     """The model's joints against the log's: matched, ignored (log only), locked (model only)."""
     from twincd.twin.robot import load_robot
@@ -245,14 +256,10 @@ def _match_robot(
     found.matched = tuple(j for j in full.joint_names if j in in_log)
     found.ignored = tuple(j for j in in_log if j not in full.joint_names)
     found.locked = tuple(j for j in full.joint_names if j not in in_log)
-    if (
-        calibration is not None
-        and calibration.urdf_sha256
-        and (calibration.urdf_sha256 != full.urdf_sha256)
-    ):
-        log.warning(
-            "the URDF %s differs from the one the calibration was fitted with", full.urdf_path
-        )
+    if calibration is not None and not has_own_twin:
+        from twincd.pipeline import check_urdf
+
+        check_urdf(full, calibration.urdf_sha256, allow_urdf_change, found.path)
     return load_robot(name, keep=in_log)  # the model detect will use (its warnings too)
 
 
@@ -333,15 +340,25 @@ def _read_samples(
     found: Inspection,
 ) -> None:
     from twincd.io.blocks import iter_blocks
+    from twincd.pipeline import warn_velocity_from_position
+    from twincd.signal.checks import SignalChecks
 
     acc = _Ranges(len(joints))
+    limits = model.position_limits if model is not None else {}
+    checks = SignalChecks(joints, limits)
+    has_velocity = np.ones(len(joints), dtype=bool)
     with iter_blocks(path, options, joints=joints, strict=strict) as stream:
         for block in stream:
             acc.add(block.stamp_ns, block.position, block.effort)
+            checks.push(block.position, block.effort)
+            has_velocity &= np.isfinite(block.velocity).all(axis=0)
     if acc.first is None:
         return
     found.sampling = acc.sampling()
-    limits = _limits(model, joints)
+    checks.warn(found.path)
+    if not has_velocity.all():
+        velocity = np.where(has_velocity, 0.0, np.nan)[None]
+        warn_velocity_from_position(found.path, velocity, joints)
     std = np.sqrt(acc.eff_m2 / max(acc.eff_n, 1))
     has_effort = acc.eff_n > 0
     found.joints = [
@@ -359,14 +376,13 @@ def _read_samples(
     ]
 
 
-def _limits(model: RobotModel | None, joints: tuple[str, ...]) -> dict[str, tuple[float, float]]:
-    """Finite position limits of the model's joints by name."""
-    if model is None:
-        return {}
-    out = {}
-    lower, upper = model.model.lowerPositionLimit, model.model.upperPositionLimit
-    for spec in model.joints:
-        lo, hi = float(lower[spec.idx_q]), float(upper[spec.idx_q])
-        if spec.name in joints and not spec.unbounded and np.isfinite([lo, hi]).all() and lo < hi:
-            out[spec.name] = (lo, hi)
-    return out
+def _warn_if_too_short(source: str, sampling: Sampling, calibration: Calibration | None) -> None:
+    """What detect would say of a log no sample of which lies outside the filter's edges."""
+    from twincd.pipeline import min_judged_s, warn_short
+    from twincd.signal.filters import LowPass
+
+    lowpass = calibration.lowpass if calibration is not None else LowPass()
+    period_s = 1.0 / sampling.rate_hz if sampling.rate_hz > 0 else 0.0
+    if period_s and sampling.duration_s < min_judged_s(lowpass, period_s):
+        n = sampling.samples
+        warn_short(source, n, n, sampling.duration_s, lowpass, period_s)
