@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import ScoringStage
 from twincd.detection.events import Event
-from twincd.errors import CalibrationError, DataError
+from twincd.errors import CalibrationError, DataError, JointMismatchError
 from twincd.frames import Chain, Frame, Stage
 from twincd.pipeline import filter_stages, pick_columns, robot_for, twin_stages
 
@@ -115,6 +115,14 @@ class OnlineDetector:
         else:
             # the twin's effort, or (identified models) the regressor, needs the robot model
             robot = robot_for(cal.robot or DEFAULT_ROBOT, tuple(names))
+            undriven = [n for n in names if n not in robot.joint_names]
+            if undriven:
+                raise JointMismatchError(
+                    f"calibrated joint(s) {', '.join(undriven)} are not driven by the robot model",
+                    cal.source or "calibration",
+                    "fit the calibration on the arm's joints only (the robot model's), or "
+                    "detect with the log's own twin effort",
+                )
             to_model = np.array([names.index(n) for n in robot.joint_names], dtype=np.intp)
             back = np.array([robot.joint_names.index(n) for n in names], dtype=np.intp)
             twin = None if self.use_sim else robot
