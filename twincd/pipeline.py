@@ -316,12 +316,15 @@ class PreparedStream:
 
     def _known_joints(self) -> tuple[tuple[str, ...] | None, str]:
         """The joints to read from the log when they are known before reading it: the
-        calibration's, else the robot model's (None: the log decides, see ``LogStream``)."""
+        calibration's (with its robot model's, so that a model joint the calibration lacks is
+        refused, not ignored), else the robot model's (None: the log decides, see
+        ``LogStream``)."""
         setup = self.setup
-        if setup.joint_names is not None:
-            return setup.joint_names, "the calibration"
         robot = setup.robot or (DEFAULT_ROBOT if self.force_simulate else None)
-        return (model_joints(robot) if robot else None), "the robot model"
+        model = model_joints(robot) if robot else None
+        if setup.joint_names is not None:
+            return (*setup.joint_names, *(model or ())), "the calibration"
+        return model, "the robot model"
 
     @property
     def topic(self) -> str:

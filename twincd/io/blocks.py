@@ -329,7 +329,8 @@ class LogStream:
     Opening reads the first messages (up to the reorder window) to fix ``joint_names`` (after
     the joint map): exactly ``joints`` when given (an error when the log lacks one, in that
     order); else the ``known`` joints the log has (a robot model's or a calibration's, named by
-    ``known_from``; model joints the log lacks are the caller's business); else the joints of
+    ``known_from``, and those of the log's own twin effort; model joints the log lacks are the
+    caller's business); else the joints of
     the log's own twin effort (``sim_topic``); else all the joints of the message layout that
     carries the most joints, ties going to the layout with the most messages. Then the layout
     with the most of those joints fixes the columns; other layouts that carry none are another
@@ -408,6 +409,8 @@ class LogStream:
         if known is None:
             known = self._sim_names() or max(layouts, key=lambda k: (len(set(k)), layouts[k]))
             self._known_from = "the log's twin effort" if self._sim_names() else "the topic"
+        elif not exact:  # joints with the log's own twin effort are never ignored
+            known = tuple(dict.fromkeys((*known, *self._sim_names())))
         self.joint_names = self._choose_joints(layouts, tuple(known), exact)
         # a log has effort when most of its first messages carry it (one empty message does
         # not decide); samples without it are dropped as bad samples later
