@@ -45,12 +45,15 @@ def build_twin_log(
     noise: float = 0.05,
     gains: np.ndarray | None = None,
     edit: Callable[[dict[str, np.ndarray]], None] | None = None,
+    state_joints: Sequence[str] | None = None,
 ) -> Path:
     """Write a bare MCAP log with /joint_states, /twincd/sim_effort and /collision_flag.
 
     ``edit`` may change the arrays in place before they are written (faults: NaN, clock jumps):
     ``stamps`` (header stamps) and ``log_times`` (n,) int64, ``q``, ``qd``, ``effort``, ``twin``
-    (n, dof)."""
+    (n, dof). ``state_joints``: the names of /joint_states messages, in their order (default
+    ``joints``): ``joints`` keep their data, any other name is an extra joint (a gripper, a
+    linear axis) with signals of its own; /twincd/sim_effort keeps ``joints``."""
     from twincd.io.cdr import bool_cdr, joint_state_cdr
     from twincd.io.mcap_write import McapLogWriter
 
@@ -85,7 +88,8 @@ def build_twin_log(
     with McapLogWriter(path) as out:
         js = out.add_topic("/joint_states", "sensor_msgs/msg/JointState")
         sim = out.add_topic("/twincd/sim_effort", "sensor_msgs/msg/JointState")
-        msgs = joint_state_cdr(stamps, joints, q, qd, effort)
+        names = list(joints if state_joints is None else state_joints)
+        msgs = joint_state_cdr(stamps, names, *_layout(names, joints, t, q, qd, effort))
         sims = joint_state_cdr(stamps, joints, q, qd, twin)
         for log_time, m, s in zip(log_times, msgs, sims, strict=True):
             out.write(js, int(log_time), m)
@@ -97,6 +101,17 @@ def build_twin_log(
             for i in change:
                 out.write(lab, int(log_times[i]), bool_cdr(bool(flag[i])))
     return path
+
+
+def _layout(
+    names: Sequence[str], joints: Sequence[str], t: np.ndarray, *arrays: np.ndarray
+) -> list[np.ndarray]:
+    """``arrays`` (n, len(joints)) as columns in ``names`` order; extra joints move slowly."""
+    extra = 0.1 * np.sin(0.7 * t) + 0.02
+    return [
+        np.column_stack([a[:, list(joints).index(n)] if n in joints else extra for n in names])
+        for a in arrays
+    ]
 
 
 @pytest.fixture

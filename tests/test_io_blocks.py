@@ -190,13 +190,14 @@ def test_incomplete_samples_and_joint_selection(tmp_path):
     path = write_mcap(tmp_path / "a.mcap", msgs)
     got, stream = collect(path, joints=("joint3", "joint1"))
     assert stream.joint_names == ("joint3", "joint1")
-    assert (stream.counts.samples, stream.counts.incomplete) == (30, 30)
+    # the "grip" messages are another publisher's: ignored and counted, not incomplete
+    assert (stream.counts.samples, stream.counts.foreign, stream.counts.incomplete) == (30, 30, 0)
     ref = [m.msg.position[[2, 0]] for m in joint_recording(n=30)]
     np.testing.assert_array_equal(got["position"], ref)
     assert np.isnan(got["velocity"]).all() and got["effort"] is None
-    # no joints given: every joint the first messages name, in first-seen order
+    # no joints given: those of the layout that names the most, in its order
     with iter_blocks(path, OPTIONS) as stream:
-        assert stream.joint_names == ("grip", *[XARM[k] for k in [6, 0, 5, 1, 4, 2, 3]])
+        assert stream.joint_names == tuple(XARM[k] for k in [6, 0, 5, 1, 4, 2, 3])
     with pytest.raises(JointMismatchError, match="joint9"):
         iter_blocks(path, OPTIONS, joints=("joint1", "joint9"))
 

@@ -55,6 +55,10 @@ class JointMismatchError(TwincdError):
     """Joints of a log, a robot model and a calibration that do not fit together."""
 
 
+class SplitJointsError(JointMismatchError):
+    """An arm whose joints arrive split over several messages (publishers) per sample."""
+
+
 class RobotModelError(TwincdError):
     """An unknown robot name or a URDF that cannot be loaded."""
 

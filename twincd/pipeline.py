@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import CalibrationError, DataError, JointMismatchError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage, prefetched
+from twincd.io.blocks import warn_ignored_joints
 from twincd.io.logs import JointStates, LogOptions
 from twincd.signal.checks import SignalChecks
 from twincd.signal.filters import LowPass
@@ -100,6 +101,14 @@ class PreparedLog:
         return len(self.states)
 
 
+@lru_cache(maxsize=32)
+def model_joints(robot: str) -> tuple[str, ...]:
+    """The joints a robot model drives (a gripper's are not the twin's)."""
+    from twincd.twin.robot import load_robot
+
+    return load_robot(robot).joint_names
+
+
 def robot_for(robot: str, joints: tuple[str, ...]) -> RobotModel:
     """The robot model reduced to ``joints`` (cached: loading a URDF costs milliseconds; a
     URDF edited since is loaded again)."""
@@ -119,17 +128,15 @@ def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) ->
 
 
 def pick_columns(columns: IntArray) -> Mapped:
-    """Reorder/select the joint columns of every per-joint array."""
+    """Select and reorder the joint columns of every per-joint array: the output has exactly
+    ``len(columns)`` joints, whatever the frames carry beyond them."""
+    n = len(columns)
+    keep: IntArray | slice = slice(0, n) if np.array_equal(columns, np.arange(n)) else columns
 
     def pick(frame: Frame) -> Frame:
-        return frame.with_columns(**{k: frame[k][:, columns] for k in _JOINT_COLUMNS if k in frame})
+        # a leading run of columns is a view (no copy); any other selection a copy
+        return frame.with_columns(**{k: frame[k][:, keep] for k in _JOINT_COLUMNS if k in frame})
 
-    if np.array_equal(columns, np.arange(len(columns))):
-        # already in order: no copy, unless joints follow that are not picked (a Panda's
-        # fingers after its arm)
-        return Mapped(
-            lambda frame: frame if frame["position"].shape[1] == len(columns) else pick(frame)
-        )
     return Mapped(pick)
 
 
@@ -300,11 +307,14 @@ class PreparedStream:
     def __enter__(self) -> PreparedStream:
         from twincd.io.blocks import iter_blocks
 
+        known, known_from = self._known_joints()
         self._log = iter_blocks(
             self.path,
             self.setup.options,
             block_size=self.setup.block_size,
             strict=self.setup.strict,
+            known=known,
+            known_from=known_from,
         )
         self._log.__enter__()
         return self
@@ -313,6 +323,18 @@ class PreparedStream:
         if self._log is not None:
             self._log.__exit__(*exc)
             self._log = None
+
+    def _known_joints(self) -> tuple[tuple[str, ...] | None, str]:
+        """The joints to read from the log when they are known before reading it: the
+        calibration's (with its robot model's, so that a model joint the calibration lacks is
+        refused, not ignored), else the robot model's (None: the log decides, see
+        ``LogStream``)."""
+        setup = self.setup
+        robot = setup.robot or (DEFAULT_ROBOT if self.force_simulate else None)
+        model = model_joints(robot) if robot else None
+        if setup.joint_names is not None:
+            return (*setup.joint_names, *(model or ())), "the calibration"
+        return model, "the robot model"
 
     @property
     def topic(self) -> str:
@@ -357,9 +379,11 @@ class PreparedStream:
             robot = robot_for(setup.robot, twin_names) if setup.robot else None
             model = None
             twin_names = joint_order(twin_names, robot)
+            warn_ignored_joints(self.source, names, twin_names, "the log's twin effort")
         else:
             robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
             twin_names = model.joint_names
+            warn_ignored_joints(self.source, names, twin_names, "the robot model")
         self.robot = robot
         if robot is not None and (model is not None or self.regressor):
             check_urdf(robot, setup.urdf_sha256, setup.allow_urdf_change, self.source)

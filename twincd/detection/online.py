@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
 from twincd.detection.events import Event
-from twincd.errors import CalibrationError, DataError
+from twincd.errors import CalibrationError, DataError, JointMismatchError
 from twincd.frames import Chain, Frame, Stage
 from twincd.pipeline import check_urdf, filter_stages, pick_columns, robot_for, twin_stages
 
@@ -99,6 +99,14 @@ class OnlineDetector:
         if not self.use_sim or calibration.regressor:
             self.robot = robot_for(calibration.robot or DEFAULT_ROBOT, tuple(self.joint_names))
             check_urdf(self.robot, calibration.urdf_sha256, allow_urdf_change, source or where)
+            undriven = [n for n in self.joint_names if n not in self.robot.joint_names]
+            if undriven:
+                raise JointMismatchError(
+                    f"calibrated joint(s) {', '.join(undriven)} are not driven by the robot model",
+                    where,
+                    "fit the calibration on the arm's joints only (the robot model's), or "
+                    "detect with the log's own twin effort",
+                )
         self._threads = threads
         self._chain: Chain | None = None
         self._fill = False

@@ -5,6 +5,13 @@
 emits the older ones in blocks. Rules (DESIGN §1):
 
 - time is ``header.stamp``, the log time where the stamp is 0;
+- the stream's joints are the ``known`` ones (a robot model's or a calibration's), else those of
+  the log's own twin effort, else those of the message layout (name list) that carries the most
+  joints (ties: the most messages); see ``LogStream``. Messages that carry none of them (another
+  publisher on the topic, e.g. a gripper node) are ignored and counted; a message's joints
+  beyond them are ignored with one warning that names them; a joint named twice in a message
+  keeps its first value (counted). An arm whose joints arrive split over several layouts is
+  refused (``SplitJointsError``);
 - samples missing a stream joint (or with a non-finite position) are dropped first, then exact
   duplicate stamps (the first read — earliest log time — is kept);
 - a sample older than one already emitted is *late*: dropped and counted. A log that fits in
@@ -22,6 +29,7 @@ emits the older ones in blocks. Rules (DESIGN §1):
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +38,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.errors import JointMismatchError, LogReadError, TopicError
+from twincd.errors import JointMismatchError, LogReadError, SplitJointsError, TopicError
 from twincd.io.batches import (
     DEFAULT_BATCH,
     Batch,
@@ -93,10 +101,27 @@ class StreamCounts:
     largest_jump_ns: int = 0
     samples: int = 0  # emitted
     unstamped: int = 0  # header stamp 0: timed by the log time instead
+    foreign: int = 0  # ignored: messages that carry none of the stream's joints
+    foreign_names: tuple[str, ...] = ()  # the joints those messages name
+    named_twice: int = 0  # messages naming a joint twice (its first value kept)
+    twice_names: tuple[str, ...] = ()
 
     @property
     def dropped(self) -> int:
         return self.incomplete + self.duplicates + self.late + self.ragged + self.clock_back
+
+
+def warn_ignored_joints(source: str, names: Sequence[str], used: Sequence[str], what: str) -> None:
+    """One warning naming the log joints (``names``) that are not ``used``."""
+    ignored = [n for n in names if n not in used]
+    if ignored:
+        log.warning(
+            "%s: ignoring %d log joint(s) not in %s: %s",
+            source,
+            len(ignored),
+            what,
+            ", ".join(ignored),
+        )
 
 
 def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
@@ -302,9 +327,16 @@ class _Clock:
 class LogStream:
     """One log's joint states as ``SampleBlock``s (a context manager and an iterable).
 
-    Opening reads the first messages (up to the reorder window) to fix ``joint_names``: the
-    given ``joints``, else every joint those messages name, in first-seen order, after the
-    joint map. Iterate once.
+    Opening reads the first messages (up to the reorder window) to fix ``joint_names`` (after
+    the joint map): exactly ``joints`` when given (an error when the log lacks one, in that
+    order); else the ``known`` joints the log has (a robot model's or a calibration's, named by
+    ``known_from``, and those of the log's own twin effort; model joints the log lacks are the
+    caller's business); else the joints of
+    the log's own twin effort (``sim_topic``); else all the joints of the message layout that
+    carries the most joints, ties going to the layout with the most messages. Then the layout
+    with the most of those joints fixes the columns; other layouts that carry none are another
+    publisher's (ignored, counted in one warning), and one that carries a joint it lacks means
+    the arm is split over publishers (refused). Iterate once.
     """
 
     def __init__(
@@ -316,6 +348,8 @@ class LogStream:
         strict: bool = True,
         reorder: int = DEFAULT_REORDER,
         batch_size: int = DEFAULT_BATCH,
+        known: Sequence[str] | None = None,
+        known_from: str = "the robot model",
     ) -> None:
         if block_size < 1 or reorder < 0:
             raise ValueError("block_size must be ≥ 1 and reorder ≥ 0")
@@ -326,13 +360,14 @@ class LogStream:
         self.counts = StreamCounts()
         self._joint_map = dict(options.joint_map or {})
         self._reader = TopicReader(self.path, strict=strict, batch_size=batch_size)
+        self._known_from = "the calibration" if joints is not None else known_from
         try:
-            self._open(options, joints)
+            self._open(options, joints if joints is not None else known, joints is not None)
         except BaseException:
             self._reader.close()
             raise
 
-    def _open(self, options: LogOptions, joints: Sequence[str] | None) -> None:
+    def _open(self, options: LogOptions, known: Sequence[str] | None, exact: bool) -> None:
         topics = self._reader.topics
         self.topic = choose_topic(topics, options.topic, self.source)
         self.label_topic = options.label_topic
@@ -368,18 +403,16 @@ class LogStream:
             raise LogReadError(
                 f"topic {self.topic} has no messages", self.source, "record joint states"
             )
-        named = list(dict.fromkeys(self._joint_map.get(n, n) for b in first for n in b.names))
-        if joints is None:
-            self.joint_names = tuple(named)
-        else:
-            self.joint_names = tuple(joints)
-            missing = [j for j in self.joint_names if j not in named]
-            if missing:
-                raise JointMismatchError(
-                    f"joints {', '.join(missing)} are not in the log",
-                    f"{self.source}, {self.topic}",
-                    "check the robot model, the topic and the joint map",
-                )
+        layouts: dict[tuple[str, ...], int] = {}
+        for b in first:
+            key = self._mapped(b.names)
+            layouts[key] = layouts.get(key, 0) + len(b)
+        if known is None:
+            known = self._sim_names() or max(layouts, key=lambda k: (len(set(k)), layouts[k]))
+            self._known_from = "the log's twin effort" if self._sim_names() else "the topic"
+        elif not exact:  # joints with the log's own twin effort are never ignored
+            known = tuple(dict.fromkeys((*known, *self._sim_names())))
+        self.joint_names = self._choose_joints(layouts, tuple(known), exact)
         # a log has effort when most of its first messages carry it (one empty message does
         # not decide); samples without it are dropped as bad samples later
         with_effort = sum(len(b) for b in first if b.effort.shape[1] > 0)
@@ -398,6 +431,62 @@ class LogStream:
         self._labels_out: list[BoolArray] = []
         self._sim_out: list[FloatArray] = []
         self._used = False
+
+    def _mapped(self, names: Sequence[str]) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(self._joint_map.get(n, n) for n in names))
+
+    def _sim_names(self) -> tuple[str, ...]:
+        """The joints of the log's own twin effort in the messages read ahead."""
+        return self._mapped(
+            [
+                n
+                for topic, batch, _ in self._head
+                if topic == self.sim_topic and self.has_sim and isinstance(batch, JointStateBatch)
+                for n in batch.names
+            ]
+        )
+
+    def _choose_joints(
+        self, layouts: dict[tuple[str, ...], int], known: tuple[str, ...], exact: bool
+    ) -> tuple[str, ...]:
+        """The stream's joints from the layouts read ahead (see the class docstring)."""
+        where = f"{self.source}, {self.topic}"
+        wanted = set(known)
+        relevant = {k: c for k, c in layouts.items() if wanted & set(k)}
+        if not relevant:
+            calibrated = self._known_from == "the calibration"
+            raise JointMismatchError(
+                f"the log lacks calibrated joint(s) {', '.join(known)}"
+                if calibrated
+                else f"no joint of the log is in {self._known_from}",
+                f"{where}: log joints {', '.join(sorted({n for k in layouts for n in k})[:8])}; "
+                f"wanted {', '.join(known[:8])}",
+                "check the robot model, the topic and the joint map",
+                option="robot,topic,joint_map",
+            )
+        best = max(relevant, key=lambda k: (len(wanted & set(k)), relevant[k]))
+        covered = wanted & set(best)
+        split = [k for k in relevant if (wanted & set(k)) - covered]
+        if split:
+            parts = " | ".join(", ".join(n for n in k if n in wanted) for k in (best, *split))
+            raise SplitJointsError(
+                "the arm's joints arrive split over several messages per sample "
+                f"({parts}); twincd does not join them",
+                where,
+                "record the arm's joints in one JointState message (one publisher), or pick a "
+                "topic that carries them all with the topic option",
+            )
+        warn_ignored_joints(self.source, best, tuple(wanted), self._known_from)
+        if exact:
+            missing = [j for j in known if j not in covered]
+            if missing:
+                raise JointMismatchError(
+                    f"joints {', '.join(missing)} are not in the log",
+                    where,
+                    "check the robot model, the topic and the joint map",
+                )
+            return known
+        return tuple(n for n in best if n in wanted)
 
     # ------------------------------------------------------------ protocol
 
@@ -453,13 +542,14 @@ class LogStream:
         yield from self._emit(mark, final=False)
 
     def _cols(self, names: tuple[str, ...]) -> NDArray[np.intp]:
-        """Per stream joint, its column in messages named ``names`` (-1: absent)."""
+        """Per stream joint, its column in messages named ``names`` (-1: absent; a name given
+        twice: its first column)."""
         cols = self._columns.get(names)
         if cols is None:
             where: dict[str, int] = {}
             for i, n in enumerate(names):
                 mapped = self._joint_map.get(n, n)
-                if mapped in where and self._joint_map:
+                if mapped in where and names[where[mapped]] != n:
                     clash = names[where[mapped]]
                     raise JointMismatchError(
                         f"after the joint map, log joints {clash} and {n} are both {mapped}",
@@ -471,6 +561,19 @@ class LogStream:
             cols = np.array([where.get(j, -1) for j in self.joint_names], dtype=np.intp)
             self._columns[names] = cols
         return cols
+
+    def _note_layout(self, batch: JointStateBatch, cols: NDArray[np.intp]) -> bool:
+        """Count what a batch's layout brings that the stream does not use; False when the
+        batch carries none of the stream's joints (another publisher's: ignored)."""
+        twice = [n for n, c in Counter(batch.names).items() if c > 1]
+        if twice:
+            self.counts.named_twice += len(batch)
+            self.counts.twice_names = tuple(dict.fromkeys((*self.counts.twice_names, *twice)))
+        if (cols >= 0).any():
+            return True
+        self.counts.foreign += len(batch)
+        self.counts.foreign_names = tuple(dict.fromkeys((*self.counts.foreign_names, *batch.names)))
+        return False
 
     def _ragged(self, batch: JointStateBatch) -> bool:
         """Filled arrays must match ``name``: a batch (one layout) that does not is dropped."""
@@ -487,6 +590,8 @@ class LogStream:
         if self._ragged(batch):
             return
         cols = self._cols(batch.names)
+        if not self._note_layout(batch, cols):
+            return
         if (cols < 0).any():
             self.counts.incomplete += n
             return
@@ -620,6 +725,22 @@ class LogStream:
                 self.source,
                 c.duplicates,
             )
+        if c.foreign:
+            log.warning(
+                "%s: ignoring %d message(s) on %s that carry none of its joints (another "
+                "publisher's: %s)",
+                self.source,
+                c.foreign,
+                self.topic,
+                ", ".join(c.foreign_names[:8]),
+            )
+        if c.named_twice:
+            log.warning(
+                "%s: %d message(s) name joint(s) %s twice; keeping the first value of each",
+                self.source,
+                c.named_twice,
+                ", ".join(c.twice_names),
+            )
         if c.incomplete:
             log.warning(
                 "%s: dropping %d sample(s) that do not carry every joint", self.source, c.incomplete
@@ -661,6 +782,10 @@ def iter_blocks(
     block_size: int = DEFAULT_BLOCK,
     strict: bool = True,
     reorder: int = DEFAULT_REORDER,
+    known: Sequence[str] | None = None,
+    known_from: str = "the robot model",
 ) -> LogStream:
     """Open a log for streaming; iterate the result for ``SampleBlock``s (see ``LogStream``)."""
-    return LogStream(path, options, joints, block_size, strict, reorder)
+    return LogStream(
+        path, options, joints, block_size, strict, reorder, known=known, known_from=known_from
+    )

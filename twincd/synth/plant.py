@@ -26,16 +26,16 @@ flange leaves the 200 mm sphere is redrawn. Sampled every 10 ms; 22–35 s per p
 controller tracks perfectly: pushes show up in the effort only.
 
 Long paths (``duration_s[1]`` above ``segment_s``, 35 s): one spline through ever more points
-leaves the sphere somewhere with a probability that grows with its length (seed 0's first
-240 s path was not drawn in 200 tries), and each redraw checks every sample. A long path is therefore drawn
-as its length, cut into the fewest segments of at most ``segment_s`` (equal up to one sample),
-each a short path as above (home → points → home, at rest at both ends, its own presses)
-drawn from (seed, split, index, segment number), laid back to back one sample period apart:
-position, velocity and acceleration are continuous at every join (home, zero, zero), no press
-comes within a second of a join, so label and contact are off there. The switch's initial
+leaves the sphere somewhere with a probability that grows with its length (seed 0's first 240 s
+path was not drawn in 200 tries), and each redraw checks every sample. A long path is therefore
+drawn as its length, cut into the fewest segments of at most ``segment_s`` (equal up to one
+sample), each a short path as above (home → points → home, at rest at both ends, its own
+presses) drawn from (seed, split, index, segment number), laid back to back one sample period
+apart: position, velocity and acceleration are continuous at every join (home, zero, zero), no
+press comes within a second of a join, so label and contact are off there. The switch's initial
 ``false`` and the "nothing touches" messages come once, at the path's start. Segments are made
-and written one at a time (``write_path``), so memory does not grow with the length. Paths of
-at most ``segment_s`` are made exactly as before.
+and written one at a time (``write_path``), so memory does not grow with the length. Paths of at
+most ``segment_s`` are made exactly as before.
 
 Collisions (paper Fig. 4), test paths only: 5–7 presses per path (mean 6), one per equal time
 slot. A hand pushes on link3, link4, link5 or link6 (between joints 3–4, 4–5, 5–6, 6–7) at a
