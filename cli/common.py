@@ -104,7 +104,8 @@ KeepGoing = Annotated[
     bool,
     typer.Option(
         "--keep-going",
-        help="Process every log even if some fail; report each failure, exit 2 at the end.",
+        help="Process every log even if some fail; report each failure, exit 2 at the end (3 "
+        "when a failure was a defect in twincd).",
         metavar="",
     ),
 ]
@@ -112,7 +113,8 @@ Force = Annotated[
     bool,
     typer.Option(
         "--force",
-        help="Overwrite an output even if it is not twincd's own output of its kind.",
+        help="Overwrite an output even if it is not twincd's own output of its kind (never an "
+        "input of the run, nor a read-only file).",
         metavar="",
     ),
 ]

@@ -120,7 +120,7 @@ def detect(
 
     Prints the collision events (contiguous flagged runs) of each log.
 
-    Exit code 1 when any collision is found, 0 when none, 2 on errors.
+    Exit code 1 when any collision is found, 0 when none, 2 on errors, 3 on a defect in twincd.
 
     With GITHUB_STEP_SUMMARY set, a Markdown summary is appended to it (off: --no-summary).
 
