@@ -108,6 +108,7 @@ REACHED = {
 }
 FAULT_TYPES: dict[str, Callable[[], BaseException]] = {
     "ENOSPC": lambda: OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)),
+    "EIO": lambda: OSError(errno.EIO, os.strerror(errno.EIO)),
     "RuntimeError": lambda: RuntimeError("injected\nover two lines"),
     "ValueError": lambda: ValueError("injected"),
     "MemoryError": MemoryError,
@@ -116,8 +117,18 @@ FAULT_TYPES: dict[str, Callable[[], BaseException]] = {
 }
 
 
+# a file write raises only these (an MCAP copy reads and writes in one loop, and tells a
+# damaged input by the KeyError, ValueError... its reader raises: not drawn at the writer)
+WRITE_FAULTS = ("EIO", "ENOSPC", "MemoryError", "TwincdError")
+
+
+def faults_at(point: str) -> list[str]:
+    return list(WRITE_FAULTS) if point == "writer" else sorted(FAULT_TYPES)
+
+
 def expected_code(point: str, fault: str) -> int:
-    if fault == "TwincdError" or (fault == "ENOSPC" and point in ("reader", "writer")):
+    os_error = fault in ("ENOSPC", "EIO")
+    if fault == "TwincdError" or (os_error and point in ("reader", "writer")):
         return 2
     return 3
 
@@ -150,15 +161,14 @@ CASES = [(command, point) for command, points in REACHED.items() for point in po
 
 @FAULTS
 @given(
-    case=st.sampled_from(CASES),
-    fault=st.sampled_from(sorted(FAULT_TYPES)),
+    case=st.sampled_from(CASES).flatmap(
+        lambda c: st.tuples(st.just(c[0]), st.just(c[1]), st.sampled_from(faults_at(c[1])))
+    ),
     after=st.integers(0, 3),
     debug=st.booleans(),
 )
-def test_a_fault_anywhere_is_exit_2_or_3_never_1(
-    world, tmp_path_factory, case, fault, after, debug
-):
-    command, point = case
+def test_a_fault_anywhere_is_exit_2_or_3_never_1(world, tmp_path_factory, case, after, debug):
+    command, point, fault = case
     out = tmp_path_factory.mktemp("fault")
     args, inputs = commands(world, out)[command]
     before = digests(inputs)
