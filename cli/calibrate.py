@@ -38,6 +38,7 @@ from .common import (
     SimTopic,
     Strict,
     Topic,
+    all_or_nothing,
     check_reports,
     command,
     log_options,
@@ -257,13 +258,16 @@ def fit(
     )
     parts = [part for part, _ in done.results] if figure else done.results
     cal = merge_fits(parts, setup, model)
-    cal.save(output)
+    with all_or_nothing() as written:  # the report, then the calibration: both or neither
+        if report is not None:
+            from twincd.reports import ThinnedPairs, fit_report
+
+            pairs = ThinnedPairs.merge([p for _, p in done.results]) if figure else None
+            written.append(report)
+            fit_report(report, replace(cal, source=str(output)), pairs)
+        cal.save(output)
     stdout.print(fit_table(cal))
     if report is not None:
-        from twincd.reports import ThinnedPairs, fit_report
-
-        pairs = ThinnedPairs.merge([p for _, p in done.results]) if figure else None
-        fit_report(report, replace(cal, source=str(output)), pairs)
         log.info("wrote %s", report)
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
     done.exit_if_failed()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import logging
 import os
@@ -14,13 +15,13 @@ import traceback
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 
 import typer
 from rich.console import Console
 
 from twincd.defaults import DEFAULT_LABEL_TOPIC, DEFAULT_ROBOT, DEFAULT_SIM_TOPIC, DEFAULT_TOPIC
-from twincd.errors import Terminated, TwincdError, raise_terminated
+from twincd.errors import InternalError, OutputError, Terminated, TwincdError, raise_terminated
 
 if TYPE_CHECKING:
     from twincd.executors import MapExecutor
@@ -76,7 +77,7 @@ Report = Annotated[
     typer.Option(
         "--report",
         help="Also write a report here: .md, or .html (one self-contained page with figures; "
-        "figures need the plot extra).",
+        "figures need the plot extra: without it, .html is refused before any work).",
     ),
 ]
 Junit = Annotated[
@@ -103,7 +104,8 @@ KeepGoing = Annotated[
     bool,
     typer.Option(
         "--keep-going",
-        help="Process every log even if some fail; report each failure, exit 2 at the end.",
+        help="Process every log even if some fail; report each failure, exit 2 at the end (3 "
+        "when a failure was a defect in twincd).",
         metavar="",
     ),
 ]
@@ -120,7 +122,8 @@ Force = Annotated[
     bool,
     typer.Option(
         "--force",
-        help="Overwrite an output even if it is not twincd's own output of its kind.",
+        help="Overwrite an output even if it is not twincd's own output of its kind (never an "
+        "input of the run, nor a read-only file).",
         metavar="",
     ),
 ]
@@ -235,23 +238,40 @@ def error_line(exc: TwincdError) -> str:
     return " ".join(text.splitlines())  # one line, whatever the parts hold
 
 
-def fail(exc: TwincdError, debug: bool) -> None:
-    """Print the one-line error and leave with its exit code."""
+def report_error(exc: TwincdError) -> None:
+    """The error's one line on stderr: ``twincd: error: …``, or ``twincd: internal error: …``
+    for a defect (exit 3)."""
+    kind = "internal error" if isinstance(exc, InternalError) else "error"
+    sys.stderr.write(f"twincd: {kind}: {error_line(exc)}\n")
+
+
+def fail(exc: TwincdError, debug: bool) -> NoReturn:
+    """Print the one-line error (with ``debug``, its traceback first) and leave with its exit
+    code: 2 for an error of use, input or output, 3 for a defect."""
     if debug:
-        traceback.print_exception(exc)
-    sys.stderr.write(f"twincd: error: {error_line(exc)}\n")
+        if isinstance(exc, InternalError) and exc.details:
+            sys.stderr.write(exc.details)
+        else:
+            traceback.print_exception(exc)
+    report_error(exc)
     raise typer.Exit(exc.exit_code)
 
 
+# exceptions typer turns into exit codes itself (its exits, aborts and usage errors)
+TYPER_EXITS = (typer.Exit, typer.Abort, typer.TyperException)
+
+
 def command(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Wrap a subcommand: logging set-up, and TwincdError → one line on stderr, its exit code."""
+    """Wrap a subcommand: logging set-up; TwincdError → one line on stderr and its exit code;
+    any other exception (a defect) → one ``internal error`` line and exit 3, never 1 (which
+    CI reads as "collision found"); a closed stdout ends quietly."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         debug = bool(kwargs.get("debug", False))
         setup_logging(bool(kwargs.get("quiet", False)), debug)
         try:
-            with terminate_like_interrupt():
+            with terminate_like_interrupt(), closed_stdout_ends_quietly():
                 return func(*args, **kwargs)
         except TwincdError as exc:
             fail(exc, debug)
@@ -261,8 +281,79 @@ def command(func: Callable[..., Any]) -> Callable[..., Any]:
         except KeyboardInterrupt:
             sys.stderr.write("twincd: interrupted\n")
             raise typer.Exit(130) from None
+        except TYPER_EXITS:
+            raise
+        except Exception as exc:
+            fail(InternalError.from_exception(exc), debug)
 
     return wrapper
+
+
+class _QuietStdout:
+    """Standard output that a reader may close (``twincd detect … | head -1``): the first
+    write that finds the pipe closed points file descriptor 1 at /dev/null, the way Unix tools
+    end, so neither the next write nor Python's flush at exit fails; the run goes on to its own
+    exit code (1 for a finding, never because of the pipe). Another failure to write stdout
+    (``> /dev/full``) is an ``OutputError``."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.gone = False
+
+    def write(self, text: str) -> int:
+        if not self.gone:
+            self._guarded(self.inner.write, text)
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.gone:
+            self._guarded(self.inner.flush)
+
+    def _guarded(self, call: Callable[..., Any], *args: Any) -> None:
+        try:
+            call(*args)
+        except OSError as exc:
+            self.gone = True
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, self.inner.fileno())
+                os.close(devnull)
+            if exc.errno != errno.EPIPE:
+                raise OutputError(
+                    f"cannot write standard output: {exc.strerror}",
+                    "stdout",
+                    "redirect it to a file on a disk with space",
+                ) from exc
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+@contextlib.contextmanager
+def closed_stdout_ends_quietly() -> Iterator[None]:
+    """``sys.stdout`` guarded by ``_QuietStdout`` while the block runs (once, if nested); what
+    is still buffered is flushed through the guard at the end."""
+    if isinstance(sys.stdout, _QuietStdout):
+        yield
+        return
+    guard = _QuietStdout(sys.stdout)
+    sys.stdout = guard  # type: ignore[assignment]
+    try:
+        yield
+        guard.flush()
+    finally:
+        sys.stdout = guard.inner
+        if not guard.gone:
+            with contextlib.suppress(OSError, ValueError):
+                guard.flush()
+
+
+def internal_error_exit(exc: Exception, debug: bool) -> NoReturn:
+    """A defect outside any subcommand (typer itself, a callback): one line, exit 3."""
+    try:
+        fail(InternalError.from_exception(exc), debug)
+    except typer.Exit as done:
+        raise SystemExit(done.exit_code) from None
 
 
 @contextlib.contextmanager
@@ -339,10 +430,15 @@ class LogRun:
         """``"errors": [{"path", "error"}]`` of ``--json`` (DESIGN §5)."""
         return [{"path": str(path), "error": error_line(exc)} for path, exc in self.errors]
 
+    @property
+    def exit_code(self) -> int:
+        """0 when every log worked; else 3 if any failure was a defect, 2 otherwise."""
+        return max((exc.exit_code for _, exc in self.errors), default=0)
+
     def exit_if_failed(self) -> None:
-        """``--keep-going`` ends with exit 2 when any log failed."""
+        """``--keep-going`` ends with exit 2 when any log failed (3 when a defect did)."""
         if self.errors:
-            raise typer.Exit(2)
+            raise typer.Exit(self.exit_code)
 
 
 def run_per_log(
@@ -365,7 +461,7 @@ def run_per_log(
     with open_executor(jobs, scheduler, paths) as executor:
         run = run_on(executor, func, items, paths, description, quiet, keep_going)
     if not run.results and run.errors:
-        raise typer.Exit(2)  # nothing to go on with
+        raise typer.Exit(run.exit_code)  # nothing to go on with
     return run
 
 
@@ -389,7 +485,7 @@ def run_on(
         for line in outcome.warnings:
             log.warning("%s", line)
         if outcome.error is not None:
-            sys.stderr.write(f"twincd: error: {error_line(outcome.error)}\n")
+            report_error(outcome.error)
             run.errors.append((path, outcome.error))
         else:
             run.results.append(outcome.value)

@@ -10,8 +10,6 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
-from twincd.errors import UsageError
-
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.detection import DetectionSummary
@@ -45,26 +43,6 @@ from .common import (
 )
 
 log = logging.getLogger("twincd")
-
-
-def _targets(paths: list[Path], output: Path | None) -> list[Path | None]:
-    """Where each log's per-sample output goes: -o itself, or a file per log in folder -o."""
-    from twincd.outputs import OUTPUT_SUFFIXES
-
-    if output is None:
-        return [None] * len(paths)
-    if len(paths) == 1 and output.suffix:
-        if output.suffix.lower() not in OUTPUT_SUFFIXES:
-            raise UsageError(
-                f"unknown output type {output.suffix!r}",
-                str(output),
-                "end -o with .mcap, .csv or .jsonl",
-            )
-        return [output]
-    if output.suffix:
-        raise UsageError("several logs need an output folder", str(output), "give -o a folder name")
-    output.mkdir(parents=True, exist_ok=True)
-    return [output / f"{p.stem if p.is_file() else p.name}.detect.mcap" for p in paths]
 
 
 def events_table(result: DetectionSummary) -> Table:
@@ -144,7 +122,7 @@ def detect(
 
     Prints the collision events (contiguous flagged runs) of each log.
 
-    Exit code 1 when any collision is found, 0 when none, 2 on errors.
+    Exit code 1 when any collision is found, 0 when none, 2 on errors, 3 on a defect in twincd.
 
     With GITHUB_STEP_SUMMARY set, a Markdown summary is appended to it (off: --no-summary).
 
@@ -154,7 +132,7 @@ def detect(
     from twincd.executors import Bound
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.outputs import detect_and_write
+    from twincd.outputs import detect_and_write, detect_targets
 
     cal = Calibration.load(calibration)
     cal.require_threshold()
@@ -170,13 +148,14 @@ def detect(
         strict=strict,
         allow_urdf_change=allow_urdf_change,
     )
-    targets = _targets(paths, output)
+    targets = detect_targets(paths, output)
+    inputs = [*paths, calibration]
     # one log at a time: only the small summaries are kept, so memory stays flat
     for target in targets:
         if target is not None:
             kind = "detect" if target.suffix.lower() == ".mcap" else "table"
-            check_target(target, kind, force=force, inputs=paths)
-    check_reports(report, junit, force=force, inputs=paths)
+            check_target(target, kind, force=force, inputs=inputs)
+    check_reports(report, junit, force=force, inputs=inputs)
     trace = report is not None and report.suffix.lower() == ".html"
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:

@@ -36,6 +36,7 @@ from .common import (
     SimTopic,
     Strict,
     Topic,
+    all_or_nothing,
     check_reports,
     command,
     progress,
@@ -186,7 +187,8 @@ def evaluate(
     test_paths = expand_logs(logs)
     train_paths = expand_logs(train) if train else []
     val_paths = expand_logs(val) if val else []
-    check_reports(report, junit, force=force, inputs=[*test_paths, *train_paths, *val_paths])
+    inputs = [*test_paths, *train_paths, *val_paths, *([calibration] if calibration else [])]
+    check_reports(report, junit, force=force, inputs=inputs)
     setup = resolve_setup(
         cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal,
         strict, filter_kind, allow_urdf_change,
@@ -224,7 +226,9 @@ def evaluate(
             setup.options.label_topic,
         )
     missed = result.missed_gates(min_f1, min_auc)
-    _write_reports(result, missed, cal, report, junit, no_summary, (min_f1, min_auc))
+    with all_or_nothing() as written:  # the report and the JUnit file: both or neither
+        written.extend(p for p in (report, junit) if p is not None)
+        _write_reports(result, missed, cal, report, junit, no_summary, (min_f1, min_auc))
     if json_:
         doc = {**result.to_dict(), "errors": failed.error_docs(), "warnings": list(WARNINGS)}
         stdout.out(json.dumps(doc), highlight=False)

@@ -68,7 +68,17 @@ app.command("inspect", cls=_Command)(inspect.inspect)
 
 
 def main() -> None:
-    app()
+    """The ``twincd`` program: exit 3 with one line for a defect anywhere (never 1), and a
+    closed stdout (``| head``) ends quietly, even while typer prints help."""
+    import sys
+
+    from .common import closed_stdout_ends_quietly, internal_error_exit
+
+    with closed_stdout_ends_quietly():
+        try:
+            app()
+        except Exception as exc:
+            internal_error_exit(exc, "--debug" in sys.argv[1:])
 
 
 if __name__ == "__main__":

@@ -70,6 +70,7 @@ def simulate(
     from twincd.executors import Bound
     from twincd.io.atomic import check_target, check_writable
     from twincd.io.logs import expand_logs
+    from twincd.outputs import distinct_targets, make_output_folder
     from twincd.simulate import default_output, simulate_item
     from twincd.twin.robot import list_robots
 
@@ -91,21 +92,21 @@ def simulate(
     if several and output is not None:
         if output.suffix == ".mcap":
             raise UsageError("several logs need an output folder", str(output), "give -o a folder")
-        output.mkdir(parents=True, exist_ok=True)
+        make_output_folder(output)
     options = log_options(topic, label_topic, sim_topic, joint_map)
     targets: list[Path | None] = [None] * len(paths)
-    if output is not None:
-        targets = [output / default_output(p).name if several else output for p in paths]
+    if not in_place:
+        folder = output if several else None
+        planned = distinct_targets(paths, default_output, folder)
+        targets = [output if output is not None and not several else t for t in planned]
     for path, target in zip(paths, targets):
-        if in_place:
-            check_writable(path)  # a read-only log is refused
+        if target is None:
+            check_writable(path)  # --in-place: a read-only log is refused
         else:
-            out = target if target is not None else default_output(path)
-            check_target(out, "simulate", force=force, inputs=paths)
+            check_target(target, "simulate", force=force, inputs=paths)
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
-        if not in_place:
-            written.extend(t if t is not None else default_output(p) for p, t in items)
+        written.extend(t for t in targets if t is not None)
         work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place, strict)
         done = run_per_log(
             work,

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from twincd.errors import ClusterError, LogReadError, UsageError
-from twincd.executors import Executor, MapExecutor, Progress, samples_in
+from twincd.executors import Executor, MapExecutor, Progress, log_path, samples_in
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -211,19 +211,12 @@ class DaskExecutor:
                 index,
                 error=ClusterError(
                     "workers died while processing the log, more often than the scheduler allows",
-                    str(_log_path(items[index]) or f"log #{index}"),
+                    str(log_path(items[index]) or f"log #{index}"),
                     "check the workers' memory and logs; the rest of the run was stopped",
                 ),
             )
         except Exception as exc:
             return Outcome(index, error=exc)
-
-
-def _log_path(item: Any) -> Path | None:
-    """The log an item stands for: the item itself, or the first part of a (log, ...) tuple."""
-    if isinstance(item, tuple) and item:
-        item = item[0]
-    return item if isinstance(item, Path) else None
 
 
 def _on_worker(item: T, work: Callable[[T], R], stop: str) -> R:
@@ -233,7 +226,7 @@ def _on_worker(item: T, work: Callable[[T], R], stop: str) -> R:
         raise Skipped
     # one core's worth of work per task: the twin must not start threads of its own
     os.environ["TWINCD_TWIN_THREADS"] = "1"
-    path = _log_path(item)
+    path = log_path(item)
     if path is not None and not path.exists():
         raise LogReadError(
             "a Dask worker cannot see the log",

@@ -8,6 +8,8 @@ name a command-line flag: an error about a setting names it in ``option`` (``"ro
 
 from __future__ import annotations
 
+from typing import Any
+
 
 class TwincdError(Exception):
     """Root of every error twincd raises on purpose."""
@@ -24,10 +26,11 @@ class TwincdError(Exception):
 
     def __reduce__(
         self,
-    ) -> tuple[type[TwincdError], tuple[str, str, str], dict[str, str | None]]:
+    ) -> tuple[type[TwincdError], tuple[str, str, str], dict[str, Any]]:
         # errors cross process boundaries (a pool worker's failure): rebuild from the parts;
-        # the keyword-only option comes back as state (BaseException.__setstate__)
-        return (type(self), (self.what, self.where, self.hint), {"option": self.option})
+        # the keyword-only option (and any other attribute) comes back as state
+        # (BaseException.__setstate__)
+        return (type(self), (self.what, self.where, self.hint), dict(self.__dict__))
 
     @property
     def message(self) -> str:
@@ -73,6 +76,28 @@ class NotFittedError(CalibrationError):
 
 class OutputError(TwincdError):
     """An output that cannot be written."""
+
+
+class InternalError(TwincdError):
+    """A defect in twincd: an exception no code path expected (exit 3, never 1, which CI reads
+    as "collision found"). Carries the original's type, message and traceback text, so that it
+    can cross a process boundary (a pool worker's failure) and still be shown with --debug."""
+
+    exit_code = 3
+    HINT = "re-run with --debug and report it"
+
+    @classmethod
+    def from_exception(cls, exc: BaseException, where: str = "") -> InternalError:
+        import traceback
+
+        text = " ".join(str(exc).split())
+        error = cls(
+            f"{type(exc).__name__}: {text}" if text else type(exc).__name__, where, cls.HINT
+        )
+        error.details = "".join(traceback.format_exception(exc))
+        return error
+
+    details: str = ""
 
 
 class DataError(TwincdError):

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 if TYPE_CHECKING:
     from concurrent.futures import Future
 
-from twincd.errors import TwincdError
+from twincd.errors import InternalError, TwincdError
 from twincd.twin.dynamics import default_threads
 
 T = TypeVar("T")
@@ -207,7 +207,8 @@ class Outcome(Generic[R]):
 class Captured(Generic[T, R]):
     """``func(item)`` as an ``Outcome`` (picklable, for any executor): twincd's warnings are
     gathered instead of printed; with ``keep_going`` a ``TwincdError`` becomes the outcome's
-    error, otherwise it is raised and stops the run."""
+    error, and any other exception (a defect) an ``InternalError`` naming the log (exit 3);
+    otherwise it is raised and stops the run."""
 
     def __init__(self, func: Callable[[T], R], keep_going: bool = False) -> None:
         self.func = func
@@ -217,11 +218,25 @@ class Captured(Generic[T, R]):
         with captured_warnings() as warnings:
             try:
                 value = self.func(item)
-            except TwincdError as exc:
+            except Exception as exc:
                 if not self.keep_going:
                     raise
-                return Outcome(None, exc, tuple(warnings))
+                error = exc if isinstance(exc, TwincdError) else defect(exc, item)
+                return Outcome(None, error, tuple(warnings))
         return Outcome(value, None, tuple(warnings))
+
+
+def log_path(item: object) -> Path | None:
+    """The log a per-log item stands for: the item itself, or the first part of a tuple."""
+    if isinstance(item, tuple) and item:
+        item = item[0]
+    return item if isinstance(item, Path) else None
+
+
+def defect(exc: BaseException, item: object) -> InternalError:
+    """An unexpected exception of one log's work, as the error that names the log."""
+    path = log_path(item)
+    return InternalError.from_exception(exc, "" if path is None else str(path))
 
 
 class _Gather(logging.Handler):

@@ -9,7 +9,7 @@ import contextlib
 import csv
 import io
 import json
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
@@ -18,7 +18,7 @@ import numpy as np
 from twincd.detection.detect import DetectionSummary, LogDetection
 from twincd.detection.events import Event
 from twincd.detection.files import detect_file
-from twincd.errors import OutputError
+from twincd.errors import OutputError, UsageError
 from twincd.frames import Frame, FrameSink
 
 if TYPE_CHECKING:
@@ -40,6 +40,85 @@ def check_output_kind(target: Path) -> None:
             str(target),
             "name the output .mcap, .csv or .jsonl",
         )
+
+
+DETECT_SUFFIX = ".detect.mcap"
+
+
+def log_stem(path: Path) -> str:
+    """A log's name without its suffix (a rosbag2 folder: its name)."""
+    return path.name if path.is_dir() else path.stem
+
+
+def distinct_targets(
+    paths: Sequence[Path], name: Callable[[Path], Path], folder: Path | None = None
+) -> list[Path]:
+    """Where each log's output goes: ``name(path)`` (a path beside the log), or its file name
+    in ``folder``. Logs whose outputs would be one file each get their parent folders' names
+    in front (``d1/run.mcap``, ``d2/run.mcap`` → ``d1_run…``, ``d2_run…``), as few as make
+    them distinct; the names depend on the set of logs, not their order. Logs that no prefix
+    tells apart are refused, naming both, before any work."""
+    base = [name(p) if folder is None else folder / name(p).name for p in paths]
+    parents = [[part for part in reversed(p.absolute().parent.parts) if part != "/"] for p in paths]
+    depth = [0] * len(paths)
+    while True:
+        targets = [
+            t.with_name("_".join([*reversed(up[:d]), t.name]))
+            for t, up, d in zip(base, parents, depth, strict=True)
+        ]
+        seen: dict[Path, list[int]] = {}
+        for i, target in enumerate(targets):
+            seen.setdefault(target.absolute(), []).append(i)
+        clashes = [group for group in seen.values() if len(group) > 1]
+        if not clashes:
+            return targets
+        grown = False
+        for i in (i for group in clashes for i in group):
+            if depth[i] < len(parents[i]):
+                depth[i] += 1
+                grown = True
+        if not grown:
+            a, b = (paths[i] for i in clashes[0][:2])
+            raise UsageError(
+                "two logs would write one output",
+                f"{a} and {b}: {targets[clashes[0][0]]}",
+                "give each log once, or rename one of them",
+            )
+
+
+def detect_targets(paths: Sequence[Path], output: Path | None) -> list[Path | None]:
+    """Where ``detect`` writes each log's per-sample output: nowhere (None), ``output`` itself
+    (one log, a file name), or one ``<log>.detect.mcap`` per log in folder ``output``."""
+    from twincd.io.atomic import refuse_special
+
+    if output is None:
+        return [None] * len(paths)
+    refuse_special(output)  # /dev/full has no suffix, and is no folder either
+    if len(paths) == 1 and (output.suffix or output.is_file()):
+        check_output_kind(output)
+        return [output]
+    if output.suffix or output.is_file():
+        raise UsageError(
+            "several logs need an output folder", str(output), "give a folder name", option="output"
+        )
+    make_output_folder(output)
+    named = distinct_targets(paths, lambda p: p.with_name(log_stem(p) + DETECT_SUFFIX), output)
+    return list(named)
+
+
+def make_output_folder(folder: Path) -> None:
+    """Create the output folder of a multi-log run (and its parents), or fail in one line."""
+    from twincd.io.atomic import output_error, refuse_special
+
+    refuse_special(folder)
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(
+            "several logs need an output folder", str(folder), "give a folder name", option="output"
+        )
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise output_error(exc, folder) from exc
 
 
 @contextlib.contextmanager
@@ -218,6 +297,7 @@ def write_detection(result: LogDetection, source: Path, target: Path) -> None:
 
 __all__ = [
     "COLLISION_TOPIC",
+    "DETECT_SUFFIX",
     "EVENT_TOPIC",
     "OUTPUT_SUFFIXES",
     "RESIDUAL_TOPIC",
@@ -227,6 +307,10 @@ __all__ = [
     "McapSink",
     "check_output_kind",
     "detect_and_write",
+    "detect_targets",
+    "distinct_targets",
+    "log_stem",
+    "make_output_folder",
     "open_sink",
     "write_detection",
 ]

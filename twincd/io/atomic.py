@@ -12,7 +12,9 @@ at once). ``check_target`` refuses to replace anything but twincd's own output o
 from __future__ import annotations
 
 import contextlib
+import errno
 import glob
+import io
 import json
 import logging
 import os
@@ -20,7 +22,7 @@ import re
 import stat
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from twincd.errors import OutputError
 
@@ -83,11 +85,33 @@ def _live_writer(target: Path) -> int | None:
     return None
 
 
+# errors of a disk that is full (or a file grown past its limit): space is what helps
+_FULL = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+
+
+def output_error(exc: OSError, target: Path) -> OutputError:
+    """An operating-system error while writing ``target`` as one clear error (exit 2)."""
+    reason = exc.strerror or type(exc).__name__
+    hint = "free space on the disk, or write elsewhere" if exc.errno in _FULL else "write elsewhere"
+    return OutputError(f"cannot write output: {reason}", str(target), hint)
+
+
+def refuse_special(target: Path) -> None:
+    """Refuse an output that exists and is neither a file nor a folder (``/dev/full``, a pipe,
+    a socket): it would be replaced by the rename, or never hold a whole output."""
+    target = Path(target)
+    if target.exists() and not target.is_dir() and not target.is_file():
+        raise OutputError(
+            "output is a device, pipe or socket, not a file", str(target), "write to a file"
+        )
+
+
 def check_writable(target: Path) -> None:
     """Fail early, before any work, when ``target`` cannot be written."""
     target = Path(target)
     if target.is_dir():
         raise OutputError("output is a folder", str(target), "give a file name")
+    refuse_special(target)
     folder = target.parent
     if not folder.is_dir():
         raise OutputError(
@@ -176,20 +200,20 @@ def check_target(
     target: Path, kind: str, *, force: bool = False, inputs: Iterable[Path] = ()
 ) -> None:
     """Fail, before any work, unless ``target`` may become an output of ``kind``: writable, and
-    new or twincd's own output of that kind (DESIGN §5); ``force`` lifts the second rule for
-    anything but a read-only file."""
+    new or twincd's own output of that kind; ``force`` lifts the second rule for anything but
+    a read-only file or an input of the run (``inputs``: a log, a folder of one, a calibration),
+    which nothing overwrites."""
     target = Path(target)
     check_writable(target)
     remove_stale_temporaries(target.parent)  # a killed run's leftovers go as this one starts
     if not target.exists():
         return
-    same_as_input = any(_same_file(target, Path(p)) for p in inputs)
+    if is_input(target, inputs):  # --force would not help: no option named
+        raise OutputError(
+            "output would overwrite an input of this run", str(target), "write to another path"
+        )
     if force:
         return
-    if same_as_input:
-        raise OutputError(
-            "output would overwrite an input", str(target), "pick another path", option="force"
-        )
     found = output_kind(target)
     if found != kind:
         raise OutputError(
@@ -200,6 +224,17 @@ def check_target(
         )
 
 
+def is_input(target: Path, inputs: Iterable[Path]) -> bool:
+    """Whether an existing ``target`` is one of ``inputs`` or inside one (a rosbag2 folder)."""
+    target = Path(target)
+    for given in map(Path, inputs):
+        if _same_file(target, given):
+            return True
+        if given.is_dir() and target.resolve().is_relative_to(given.resolve()):
+            return True
+    return False
+
+
 def _same_file(a: Path, b: Path) -> bool:
     try:
         return a.exists() and b.exists() and os.path.samefile(a, b)
@@ -207,13 +242,34 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+class _OutputFile(io.FileIO):
+    """The temporary's raw file; remembers the first error of a write to it, so that an error
+    that a writer (mcap, a text layer) raises because of it is known to be the output's."""
+
+    failure: OSError | None = None
+
+    def write(self, data: Any, /) -> int:
+        try:
+            return self.put(data)
+        except OSError as exc:
+            self.failure = self.failure or exc
+            raise
+
+    def put(self, data: Any) -> int:
+        """The write itself (tests replace it to fail like a full disk)."""
+        return super().write(data)
+
+
 @contextlib.contextmanager
 def atomic_output(target: Path) -> Iterator[IO[bytes]]:
     """A binary stream that becomes ``target`` only if the block finishes without error; a
-    replaced file keeps its mode."""
+    replaced file keeps its mode. A failing write (a full disk, an I/O error) is an
+    ``OutputError`` naming ``target``, whatever layer it passed through; the temporary is
+    removed on any error."""
     target = Path(target)
     if target.is_dir():
         raise OutputError("output is a folder", str(target), "give a file name")
+    refuse_special(target)
     remove_stale_temporaries(target.parent)
     other = _live_writer(target)
     if other is not None:
@@ -224,18 +280,24 @@ def atomic_output(target: Path) -> Iterator[IO[bytes]]:
         )
     tmp = temporary_path(target)
     try:
-        stream = open(tmp, "wb")  # noqa: SIM115 - closed below, before the rename
+        raw = _OutputFile(tmp, "w")
     except OSError as exc:
-        raise OutputError(
-            f"cannot write output: {exc.strerror}", str(target), "pick a writable output path"
-        ) from exc
+        raise output_error(exc, target) from exc
     try:
-        with stream:
+        with io.BufferedWriter(raw) as stream:
             yield stream
-        with contextlib.suppress(FileNotFoundError):
-            os.chmod(tmp, stat.S_IMODE(target.stat().st_mode))  # --in-place keeps the mode
-        os.replace(tmp, target)
-    except BaseException:
+        try:
+            with contextlib.suppress(FileNotFoundError):
+                os.chmod(tmp, stat.S_IMODE(target.stat().st_mode))  # --in-place keeps the mode
+            os.replace(tmp, target)
+        except OSError as exc:
+            raise output_error(exc, target) from exc
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            raw.close()
         with contextlib.suppress(OSError):
             tmp.unlink()
+        failed = raw.failure  # the write error behind whatever a layer above made of it
+        if failed is not None and isinstance(exc, Exception) and not isinstance(exc, OutputError):
+            raise output_error(failed, target) from exc
         raise

@@ -68,7 +68,7 @@ from numpy.typing import NDArray
 
 from twincd import __version__
 from twincd.errors import LogReadError, OutputError, TwincdError
-from twincd.io.atomic import MARKER, atomic_output, check_writable
+from twincd.io.atomic import MARKER, atomic_output, check_writable, output_error
 from twincd.io.cdr import typestore
 from twincd.io.mcap_read import McapDamage, chunk_records, records_before_cut
 
@@ -229,11 +229,7 @@ class _Output:
         try:
             self._stream.write(data)
         except OSError as exc:
-            raise OutputError(
-                f"cannot write output: {exc.strerror}",
-                self._where,
-                "free space or pick another path",
-            ) from exc
+            raise output_error(exc, Path(self._where)) from exc
         self._crc = zlib.crc32(data, self._crc)
         self.offset += len(data)
 

@@ -34,19 +34,25 @@ EVENT_METRICS = (
 
 
 def pyplot() -> Any:
-    """matplotlib's pyplot on the file-only Agg backend, or a clear error when not installed."""
+    """matplotlib's pyplot on the file-only Agg backend, or a clear error when not installed
+    or not importable (pyplot too: a check before the work must import what the work uses)."""
     try:
         import matplotlib
-    except ImportError:
+
+        matplotlib.use("Agg", force=True)
+        import matplotlib.backends.backend_svg
+        import matplotlib.patches
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        missing = exc.name or "a part"
         raise UsageError(
-            "figures need matplotlib, which is not installed",
+            "figures need matplotlib, which is not installed"
+            if missing == "matplotlib"
+            else f"figures need matplotlib, whose {missing} cannot be imported",
             "report",
             "install twincd's plot extra: pip install 'twincd[plot]'",
             option="report",
         ) from None
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
     return plt
 
 
