@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 from clitools import assert_one_line_error, run
-from conftest import build_twin_log
+from conftest import TWIN_JOINTS, build_twin_log
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -239,12 +239,63 @@ def test_non_monotonic_and_jumping_clocks(world, tmp_path_factory, jumps, shuffl
         assert any("clock jumps back" in w for w in json.loads(result.stdout)["warnings"])
 
 
+# ------------------------------------------------------------------ real drivers' shapes
+
+EXTRA_JOINTS = ("drive_joint", "rail", "panda_finger_joint1")
+
+
+@FAULTS
+@given(
+    extra=st.lists(
+        st.tuples(st.sampled_from(EXTRA_JOINTS), st.integers(0, 3)),
+        max_size=3,
+        unique_by=lambda x: x[0],
+    ),
+    order=st.permutations(TWIN_JOINTS),
+    effort=st.sampled_from(["as is", "zero", "flipped", "degrees"]),
+    cut=st.one_of(st.none(), st.floats(0.3, 1.0, exclude_max=True)),
+)
+def test_real_shapes_with_damage(world, tmp_path_factory, extra, order, effort, cut):
+    """Joint sets as real drivers publish them (extra joints anywhere, any order), signals that
+    cannot be right, and a cut file: an answer or one line, never a crash; with the arm's data
+    untouched and the file whole, the answer of the clean log, with the extra joints named."""
+    folder = tmp_path_factory.mktemp("shape")
+    names = list(order)
+    for name, at in extra:
+        names.insert(min(at, len(names)), name)
+
+    def change(arrays: dict[str, np.ndarray]) -> None:
+        if effort == "zero":
+            arrays["effort"][:] = 0.0
+        elif effort == "flipped":
+            arrays["effort"] *= -1.0
+        elif effort == "degrees":
+            arrays["q"] *= 180.0 / np.pi
+
+    log = build_twin_log(
+        folder / "shape.mcap", seed=300, seconds=4.0, state_joints=names, edit=change
+    )
+    if cut is not None:
+        data = log.read_bytes()
+        log.write_bytes(data[: int(cut * len(data))])
+    result = check_run(folder, log, world["cal"])
+    if cut is None and effort == "as is":
+        clean = json.loads(run("detect", world["clean"], "-c", world["cal"], "--json").stdout)
+        doc = json.loads(result.stdout)
+        assert doc["collision"] == clean["collision"]
+        assert doc["logs"][0]["samples"] == clean["logs"][0]["samples"]
+        assert doc["logs"][0]["events"] == clean["logs"][0]["events"]
+        if extra:
+            assert any(all(n in w for n, _ in extra) for w in doc["warnings"]), doc["warnings"]
+
+
 PROPERTIES = (
     "test_truncation_at_random_offsets",
     "test_flipped_bytes",
     "test_random_cdr_payloads",
     "test_nan_and_inf_at_random_places_drop_samples_not_the_log",
     "test_non_monotonic_and_jumping_clocks",
+    "test_real_shapes_with_damage",
 )
 
 
