@@ -73,7 +73,8 @@ def render(found: Inspection) -> None:
                 parts.append(f"{s.zero_stamps} unstamped (log time used)")
             say(f"    [{', '.join(s.joints)}]: {'; '.join(parts)}", soft_wrap=True, markup=False)
     if found.robot:
-        say(f"  robot model: {found.robot}")
+        default = " (the default; pass --robot for another arm)"
+        say(f"  robot model: {found.robot}{default if found.robot_is_default else ''}")
         say(f"    matched: {', '.join(found.matched) or 'none'}", soft_wrap=True)
         if found.ignored:
             say(f"    ignored (not in the model): {', '.join(found.ignored)}", soft_wrap=True)

@@ -94,3 +94,40 @@ def test_text_report_names_what_a_user_needs(tmp_path):
     assert result.exit_code == 0
     for words in ("/joint_states", "matched: joint1", "100 Hz", "labels: ", "→ usable"):
         assert words in result.stdout
+
+
+def test_warnings_detect_would_give_are_listed_with_the_log(tmp_path):
+    """Degrees, a gripper node's messages and a missing velocity: each said once, in the
+    inspection, not only on stderr."""
+    n = 400
+    msgs = joint_recording(n=n, effort=np.ones((n, 7)) + np.arange(n)[:, None] * 1e-3)
+    for m in msgs:
+        m.msg.position = m.msg.position * 180 / np.pi  # logged in degrees
+        m.msg.velocity = np.zeros(0)
+    gripper = [
+        Message(m.topic, m.msgtype, m.log_time + 1, joint_state(m.log_time + 1, ["g1"], [0.0]))
+        for m in msgs[::4]
+    ]
+    log = write(tmp_path / "odd.mcap", "mcap", sorted(msgs + gripper, key=lambda m: m.log_time))
+    found = inspect_log(log)
+    text = "\n".join(found.warnings)
+    assert found.usable and found.robot_is_default
+    assert "look like degrees" in text and "velocity missing" in text
+    assert "ignoring 100 message(s)" in text, text
+    result = run("inspect", log, "--json")
+    assert result.exit_code == 0 and result.stderr == ""
+    assert json.loads(result.stdout)["warnings"] == found.warnings
+
+
+def test_a_changed_urdf_makes_the_log_unusable(tmp_path):
+    from twincd.twin.robot import resolve_urdf
+
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(resolve_urdf("xarm7").read_text())
+    log = write(tmp_path / "run.mcap", "mcap", joint_recording(effort=np.ones((400, 7))))
+    cal = tmp_path / "cal.json"
+    assert run("fit", log, "--robot", urdf, "-o", cal, "-q").exit_code == 0
+    assert inspect_log(log, robot=str(urdf)).usable
+    urdf.write_text(urdf.read_text() + "\n<!-- edited -->\n")
+    result = run("inspect", log, "-c", cal)
+    assert result.exit_code == 2 and "changed since the calibration" in result.stderr

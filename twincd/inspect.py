@@ -86,6 +86,7 @@ class Inspection:
     joint_topic: str | None = None
     joint_sets: list[JointSet] = field(default_factory=list)
     robot: str | None = None
+    robot_is_default: bool = False  # no robot given (nor a calibration's): the default assumed
     matched: tuple[str, ...] = ()
     ignored: tuple[str, ...] = ()
     locked: tuple[str, ...] = ()
@@ -190,6 +191,7 @@ def _inspect(
     model_name = robot or (calibration.robot if calibration is not None else None)
     if model_name is None and not has_sim:
         model_name = DEFAULT_ROBOT
+        found.robot_is_default = True
     found.twin_source = (
         f"the log's own {options.sim_topic}"
         if has_sim
