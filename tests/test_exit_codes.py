@@ -75,6 +75,7 @@ def commands(world: dict[str, Path], out: Path) -> dict[str, tuple[list[Any], li
             ],
             [data, cal],
         ),
+        "inspect": (["inspect", test, "-c", cal, "--json"], [test, cal]),
         "synth": (
             [
                 *("synth", out / "s", "--train", "1", "--val", "0", "--test", "0"),
@@ -104,6 +105,7 @@ REACHED = {
     "threshold": ("reader", "filter", "writer"),
     "detect": ("reader", "filter", "writer", "report"),
     "evaluate": ("reader", "filter", "writer", "evaluation"),
+    "inspect": ("reader",),
     "synth": ("synth twin", "writer"),
 }
 FAULT_TYPES: dict[str, Callable[[], BaseException]] = {
