@@ -137,7 +137,8 @@ def twin_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def twin_calibration(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A calibration (fit on twin_dataset/train, threshold on val) shared by the report tests."""
+    """A calibration (fit on twin_dataset/train, threshold on val) shared by many tests
+    (read-only: copy it before changing it)."""
     from clitools import run
 
     path = tmp_path_factory.mktemp("twin_calibration") / "cal.json"

@@ -35,12 +35,10 @@ PROGRAM = [sys.executable, "-c", "from twincd_cli.main import main; main()"]
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory, twin_dataset) -> dict[str, Path]:
+def world(tmp_path_factory, twin_dataset, twin_calibration) -> dict[str, Path]:
     """Read-only inputs of every command: twin logs, a calibration, an xArm 7 recording."""
     root = tmp_path_factory.mktemp("exits")
-    cal = root / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", cal, "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", cal, "-q").exit_code == 0
+    cal = twin_calibration
     xarm = write(root / "xarm.mcap", "mcap", joint_recording(n=60))
     return {"data": twin_dataset, "cal": cal, "xarm": xarm}
 

@@ -39,12 +39,10 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory, twin_dataset) -> dict[str, Any]:
+def world(tmp_path_factory, twin_calibration) -> dict[str, Any]:
     """A calibration with threshold, and a clean 4 s log (with labels, its own twin effort)."""
     root = tmp_path_factory.mktemp("faults")
-    cal = root / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", cal, "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", cal, "-q").exit_code == 0
+    cal = twin_calibration
     clean = build_twin_log(root / "clean.mcap", seed=300, seconds=4.0)
     return {"cal": cal, "clean": clean}
 

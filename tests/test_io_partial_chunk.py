@@ -186,15 +186,13 @@ def test_strict_refuses_a_cut_chunk(logs, form, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def one_chunk_twin(tmp_path_factory, twin_dataset) -> dict[str, Path]:
+def one_chunk_twin(tmp_path_factory, twin_calibration) -> dict[str, Path]:
     """A calibration, and a twin log (joint states, twin effort, labels) rewritten by rosbags'
     writer: every message in one uncompressed chunk."""
     from rosbags.highlevel import AnyReader
 
     root = tmp_path_factory.mktemp("one_chunk_twin")
-    cal = root / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", cal, "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", cal, "-q").exit_code == 0
+    cal = twin_calibration
     source = build_twin_log(root / "twin.mcap", seed=310, seconds=6.0)
     with AnyReader([source]) as reader:
         msgs = [
