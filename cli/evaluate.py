@@ -93,9 +93,14 @@ def evaluate(
         ),
     ] = None,
     methods: Annotated[
-        str,
-        typer.Option("--methods", "-m", help="Comma-separated method names, or all."),
-    ] = "proposed",
+        str | None,
+        typer.Option(
+            "--methods",
+            "-m",
+            help="Comma-separated method names, or all [default: the calibration's own model; "
+            "proposed without one]",
+        ),
+    ] = None,
     train: Annotated[
         list[Path] | None,
         typer.Option("--train", help="Collision-free logs methods fit on (repeatable)."),
@@ -177,13 +182,13 @@ def evaluate(
         event_rows,
     )
     from twincd.evaluation.runner import evaluate as run_evaluation
-    from twincd.evaluation.runner import parse_methods
+    from twincd.evaluation.runner import method_for, parse_methods
     from twincd.executors import Bound
     from twincd.io.logs import expand_logs
     from twincd.pipeline import prepare_log
 
     cal = Calibration.load(calibration) if calibration is not None else None
-    names = parse_methods(methods)
+    names = parse_methods(methods, method_for(cal.kind) if cal is not None else "proposed")
     test_paths = expand_logs(logs)
     train_paths = expand_logs(train) if train else []
     val_paths = expand_logs(val) if val else []

@@ -93,9 +93,7 @@ def rotate(i: int, work: Path, args: argparse.Namespace) -> Rotation:
     twin = ["--robot", URDF] if not args.no_urdf else ["--sim-topic", "/controller/model_effort"]
     must(twincd("fit", *train, *twin, "-o", cal, "-q", *shlex.split(args.fit_args)))
     must(twincd("threshold", val, "-c", cal, "-q", *shlex.split(args.threshold_args)))
-    kind = json.loads(cal.read_text())["model"]["kind"]
-    method = "proposed" if kind == "affine" else kind  # evaluate's name for the seed's model
-    doc = json.loads(must(twincd("evaluate", test, "-c", cal, "-m", method, "--json", "-q")))
+    doc = json.loads(must(twincd("evaluate", test, "-c", cal, "--json", "-q")))
     found = json.loads(must(twincd("detect", test, "-c", cal, "--json", "-q"), ok=(0, 1)))
     spans, clean_s = pushes(test)
     on, touched = events_on_pushes(found["logs"][0]["events"], spans)

@@ -139,3 +139,12 @@ def test_event_metrics_and_isolation_on_synth_logs_with_contact_links():
     assert friction["isolation_accuracy"] is not None
     assert rows["proposed"]["isolation_accuracy"] is None  # the seed's method names no link
     assert friction["delay_ms_median"] is not None and friction["val_false_alarms"] >= 0
+
+
+def test_without_methods_a_calibration_is_evaluated_with_its_own_model():
+    """A friction calibration needs no -m: evaluate runs the model the file holds."""
+    cal = SAMPLE / "calibration.friction.json"
+    result = run("evaluate", SAMPLE / "test" / "test_000.mcap", "-c", cal, "--json", "-q")
+    assert result.exit_code == 0, result.output
+    names = [m["name"] for m in json.loads(result.stdout)["methods"]]
+    assert names == [json.loads(cal.read_text())["model"]["kind"]]

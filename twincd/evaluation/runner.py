@@ -79,9 +79,16 @@ def _no_progress(items: Sequence[Any], _desc: str) -> Iterable[Any]:
     return items
 
 
-def parse_methods(text: str | None) -> list[str]:
-    """``--methods``: comma-separated names or ``all``; unknown names are a usage error."""
-    names = [n.strip() for n in (text or "proposed").split(",") if n.strip()]
+def method_for(kind: str) -> str:
+    """The ``evaluate`` method that scores with a calibration model of this kind (the seed
+    paper's affine model is ``proposed``)."""
+    return "proposed" if kind == "affine" else kind
+
+
+def parse_methods(text: str | None, default: str = "proposed") -> list[str]:
+    """``--methods``: comma-separated names or ``all`` (none given: ``default``, e.g. the
+    calibration's own model, ``method_for(kind)``); unknown names are a usage error."""
+    names = [n.strip() for n in (text or default).split(",") if n.strip()]
     known = available()
     if "all" in names:
         return known
