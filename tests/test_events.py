@@ -104,3 +104,14 @@ def test_events_are_the_same_in_any_block_split(levels, cuts, release, merge, se
     assert not (flags & ~inside).any()
     if rules == RUNS:
         assert [(e.first, e.last) for e in whole] == runs(flags)
+
+
+def test_an_unsure_link_is_null_with_its_candidates_in_json_and_text():
+    from twincd.detection.events import Event
+
+    unsure = Event(0, 4, 0, 40, 3.0, 20, "joint3", None, ("link3", "link4"))
+    d = unsure.to_dict()
+    assert d["link"] is None and d["link_candidates"] == ["link3", "link4"]
+    assert unsure.link_text == "link3 or link4?"
+    sure = Event(0, 4, 0, 40, 3.0, 20, "joint3", "link3", ("link3",))
+    assert sure.link_text == "link3" and sure.to_dict()["link_candidates"] == ["link3"]

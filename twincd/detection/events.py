@@ -38,6 +38,13 @@ class Event:
         return self.last - self.first + 1
 
     @property
+    def link_text(self) -> str:
+        """The link as people read it: the named one, or its candidates ("link3 or link2?")."""
+        if self.link or not self.link_candidates:
+            return self.link or ""
+        return " or ".join(self.link_candidates) + "?"
+
+    @property
     def duration_s(self) -> float:
         return (self.end_ns - self.start_ns) / 1e9  # integer ns first: no float noise
 
