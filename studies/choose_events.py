@@ -10,8 +10,8 @@ the event opened, and only events lasting ``D`` counted.
 Run sets, as a user runs twincd at its defaults (``twincd fit``, ``twincd threshold``):
 
 - the real arm's six rotations (fit on four logs, threshold on the next, test on one), read
-  from ``../shared/data/doosan_m0609/`` when present (said when absent; nothing derived from it
-  is written);
+  from the real recordings beside the repository when present (said when absent; nothing
+  derived from them is written);
 - synth development seeds (never 0 or 1, whose test paths are held out), at 100 Hz and 1 kHz:
 
       twincd synth /tmp/ev_s2 --seed 2 --train 10 --val 10 --test 20 --no-rosbag2-copy
