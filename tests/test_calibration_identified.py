@@ -206,7 +206,10 @@ def test_fit_threshold_detect_end_to_end(identified_cal: Path, xarm_dataset: Pat
     hit = run("detect", xarm_dataset / "test" / "test_000.mcap", "-c", identified_cal, "--json")
     assert hit.exit_code == 1, hit.output
     events = json.loads(hit.stdout)["logs"][0]["events"]
-    assert events and all(e["link"] for e in events)
+    # each event names its link, or says it cannot and lists the candidates (named first)
+    assert events and all(e["link_candidates"] for e in events)
+    assert all(e["link"] in (None, e["link_candidates"][0]) for e in events)
+    assert any(e["link"] for e in events)
     clean = run("detect", xarm_dataset / "val" / "val_000.mcap", "-c", identified_cal)
     assert clean.exit_code == 0, clean.output
 

@@ -121,11 +121,13 @@ SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs"
 
 
 @pytest.mark.skipif(not (SAMPLE / "test").exists(), reason="no shipped sample logs")
-def test_detect_names_the_link_of_each_event(tmp_path):
+def test_detect_names_the_link_of_each_event_or_its_candidates(tmp_path):
     cal = SAMPLE / "calibration.friction.json"
     result = run("detect", SAMPLE / "test" / "test_001.mcap", "-c", cal, "--json")
     assert result.exit_code == 1, result.output
     events = json.loads(result.stdout)["logs"][0]["events"]
-    assert events and all(e["link"] in {f"link{i}" for i in range(1, 8)} for e in events)
+    links = {f"link{i}" for i in range(1, 8)}
+    assert events and all(set(e["link_candidates"]) <= links for e in events)
+    assert all(e["link"] in (None, e["link_candidates"][0]) for e in events)
     table = run("detect", SAMPLE / "test" / "test_001.mcap", "-c", cal)
-    assert "link" in table.stdout and events[0]["link"] in table.stdout
+    assert "link" in table.stdout and events[0]["link_candidates"][0] in table.stdout

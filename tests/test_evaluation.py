@@ -65,6 +65,9 @@ class Windowed(ScoringMethod):
         y = super().unit_labels(log)
         return y[: len(y) // 16 * 16].reshape(-1, 16).any(1)
 
+    def unit_stamps(self, log: PreparedLog) -> np.ndarray:
+        return log.states.stamp_ns[15 : len(log) // 16 * 16 : 16]  # each window's last sample
+
 
 register("test-seeded", "test_evaluation:SeededNoise")
 register("test-skipped", "test_evaluation:AlwaysSkipped")

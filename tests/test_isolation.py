@@ -16,17 +16,35 @@ SCALE = np.array([1.0, 1.0, 0.5, 0.5, 0.1, 0.1, 0.01])
 
 
 def test_the_deepest_significant_joint_names_the_link():
-    iso = LinkIsolator(LINKS, DEPTHS, SCALE, kappa=3.0)
+    iso = LinkIsolator(LINKS, DEPTHS, SCALE, kappa=3.0, margin=1.0)  # always names one
     # a push on link 4: large on joints 1-4, noise-sized beyond
     assert iso.link(np.array([20.0, 9.0, 3.0, 1.6, 0.2, 0.1, 0.02])) == "link4"
     # the same magnitude is significant on a quiet joint and not on a noisy one
     assert iso.link(np.array([20.0, 9.0, 3.0, 1.6, 0.4, 0.1, 0.02])) == "link5"
-    assert iso.link(np.array([2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])) == "link1"  # none: largest z
+    assert iso.link(np.array([2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])) is None  # nothing significant
     # depth decides, not the joint order of the calibration
-    shuffled = LinkIsolator(LINKS[::-1], DEPTHS[::-1], SCALE[::-1], kappa=3.0)
+    shuffled = LinkIsolator(LINKS[::-1], DEPTHS[::-1], SCALE[::-1], kappa=3.0, margin=1.0)
     assert shuffled.link(np.array([0.02, 0.1, 0.2, 1.6, 3.0, 9.0, 20.0])) == "link4"
     assert isolator_for(None, DEPTHS, SCALE) is None
     assert isolator_for(LINKS, DEPTHS, None) is None
+
+
+def test_a_link_is_named_only_when_the_evidence_singles_it_out():
+    iso = LinkIsolator(LINKS, DEPTHS, np.ones(7), kappa=3.0, margin=1.5)
+    # joint 3 clearly loaded (8 ≥ 4.5), joint 4 clearly quiet (1 < 2): link 3
+    assert iso.isolate(np.array([20.0, 9.0, 8.0, 1.0, 0.5, 0.1, 0.0])) == ("link3", ("link3",))
+    # joints 3 and 4 equally significant, both just above κ: which is the deepest real one
+    # cannot be told; the rule's answer first, then the shallower link it names at κ × ρ
+    link, candidates = iso.isolate(np.array([20.0, 9.0, 3.3, 3.3, 0.5, 0.1, 0.0]))
+    assert link is None and candidates == ("link4", "link2")
+    # joint 4 just below κ: a deeper link is likely (a push that reads one link short)
+    link, candidates = iso.isolate(np.array([20.0, 9.0, 8.0, 2.8, 0.5, 0.1, 0.0]))
+    assert link is None and candidates == ("link3", "link4")
+    # nothing significant: no link, the most significant joint's child first
+    assert iso.isolate(np.array([2.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]))[0] is None
+    # the same evidence at ρ = 1 is always named
+    sure = LinkIsolator(LINKS, DEPTHS, np.ones(7), kappa=3.0, margin=1.0)
+    assert sure.link(np.array([20.0, 9.0, 3.3, 3.3, 0.5, 0.1, 0.0])) == "link4"
 
 
 def test_child_links_follow_the_kinematic_tree():
@@ -47,7 +65,7 @@ def test_events_name_the_link_across_blocks(split: int | None) -> None:
     residual[80:90, :6] = 1.0  # link 6: joint 6 is 10 σ off
     scores = (residual**2).sum(axis=1)
     flags = scores > 0
-    iso = LinkIsolator(LINKS, DEPTHS, SCALE)
+    iso = LinkIsolator(LINKS, DEPTHS, SCALE, margin=1.0)
     names = tuple(f"joint{i}" for i in range(1, 8))
     if split is None:
         events = find_events(flags, scores, residual, stamps, names, iso)

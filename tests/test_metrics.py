@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.metrics import f1_score, precision_score, recall_score, roc_auc_score
 
-from twincd.detection.events import runs
+from twincd.detection.events import Event, EventRules, find_events, runs
 from twincd.evaluation.metrics import (
     SWEEP_K,
     EventCounts,
@@ -90,6 +92,9 @@ def test_events_found_delays_and_false_alarms_by_hand():
     assert "isolation_accuracy" not in d  # no link labels given
 
 
+_MERGE = EventRules(release=1.0, merge_ms=100.0)
+
+
 def test_flag_at_window_end_times_and_isolation():
     n = 200
     stamps = _stamps(n)
@@ -103,14 +108,38 @@ def test_flag_at_window_end_times_and_isolation():
     unit_stamps = stamps[15::16]
     unit_flags = np.zeros(len(unit_stamps), dtype=bool)
     unit_flags[[1, 2, 8]] = True  # windows ending at samples 31, 47 and 143
-    named = [None] * len(unit_stamps)
-    named[1], named[2] = "link4", "link3"
-    counts = event_counts(stamps, labels, unit_stamps, unit_flags, links, named)
+    # detect's events: the first holds the first flag and names link 4; the second names none
+    first = Event(1, 2, int(unit_stamps[1]), int(unit_stamps[2]), 5.0, 0, "j", "link4")
+    second = Event(8, 8, int(unit_stamps[8]), int(unit_stamps[8]), 5.0, 0, "j", None)
+    events = [first, second]
+    counts = event_counts(stamps, labels, unit_stamps, unit_flags, links, events, isolation=True)
     assert counts.events_detected == 2 and counts.delays_ms == (110.0, 230.0)
     assert (counts.force_total, counts.force_detected) == (1, 1)
-    assert (counts.isolation_total, counts.isolation_right) == (1, 1)  # the first flag's link
+    assert (counts.isolation_total, counts.isolation_named, counts.isolation_right) == (1, 1, 1)
     d = counts.to_dict()
     assert d["isolation_accuracy"] == 1.0 and d["force_events_detected"] == 1
+    assert d["isolation_named"] == 1.0 and d["events_per_detected"] == 1.0
+    # the same press with no link named: isolation says it does not know
+    unsure = [replace(first, link=None, link_candidates=("link4", "link5")), second]
+    d = event_counts(stamps, labels, unit_stamps, unit_flags, links, unsure, True).to_dict()
+    assert d["isolation_named"] == 0.0 and d["isolation_accuracy"] is None
+
+
+def test_false_alarms_are_counted_as_detect_events():
+    n = 300
+    stamps = _stamps(n)
+    labels = np.zeros(n, dtype=bool)
+    labels[200:220] = True
+    flags = np.zeros(n, dtype=bool)
+    flags[[20, 22, 24, 26]] = True  # one blip that flickers: four runs of flags
+    flags[[203, 206, 209]] = True  # a push flagged three times
+    runs_only = event_counts(stamps, labels, stamps, flags)
+    assert runs_only.false_alarms == 4
+    assert runs_only.to_dict()["events_per_detected"] == 3.0
+    merged = find_events(flags, flags * 1.0, np.zeros((n, 1)), stamps, ["j"], None, _MERGE)
+    counts = event_counts(stamps, labels, stamps, flags, None, merged)
+    assert (counts.false_alarms, counts.events_on_labels, counts.events_detected) == (1, 1, 1)
+    assert counts.to_dict()["events_per_detected"] == 1.0
 
 
 def test_event_counts_add_up_over_logs():
@@ -146,7 +175,7 @@ def test_event_count_invariants(labels: list[bool], flags: list[bool], extra: in
     assert none.events_detected == 0 and none.false_alarms == 0
     counts = event_counts(stamps, lab, stamps, flag)
     assert 0 <= counts.events_detected <= counts.events_total
-    assert counts.false_alarms <= len(runs(flag))
+    assert counts.false_alarms + counts.events_on_labels == len(runs(flag))
     more = flag.copy()
     more[extra % n] = True  # one more flag never loses an event
     assert event_counts(stamps, lab, stamps, more).events_detected >= counts.events_detected

@@ -119,7 +119,9 @@ def test_markdown_summary_lists_events_and_links(sample_detection):
     from dataclasses import replace
 
     cal, summary = sample_detection
-    unnamed = replace(summary, events=[replace(e, link=None) for e in summary.events])
+    unnamed = replace(
+        summary, events=[replace(e, link=None, link_candidates=()) for e in summary.events]
+    )
     text = detection_markdown([unnamed], calibration_settings(cal))
     assert f"{len(summary.events)} event(s)" in text and "| link |" not in text
     linked = replace(summary, events=[replace(e, link="link5") for e in summary.events])

@@ -21,3 +21,14 @@ DEFAULT_LINK_TOPIC = "/collision_link"
 # home → teaching points → home at rest at both ends (a path over a few minutes never stays
 # within the flange's radius as one spline)
 SYNTH_SEGMENT_S = 35.0
+
+# Events (twincd.detection.events.EventRules): one push, one event. An open event ends when the
+# score falls below μ + release × (threshold − μ); an event opening within the merge gap of the
+# previous one's end continues it. Chosen in studies/choose_events.py on the real arm's six
+# rotations and synth seeds 2 (100 Hz) and 3 (1 kHz), identified-whitened: found pushes and delay
+# do not depend on them (flags do); false alarms 2 / 4 / 14 against 2 / 6 / 15 as runs of flags,
+# events per found push 0.97 / 0.98 / 0.93; a merge gap of 500 ms+ starts joining separate
+# presses at 1 kHz. Persistence (50 ms) cut false alarms at 1 kHz only (15 → 9) and added 50 ms
+# of delay on the real arm (70 → 120 ms median): not used.
+DEFAULT_EVENT_RELEASE = 0.5
+DEFAULT_EVENT_MERGE_MS = 300.0

@@ -7,7 +7,7 @@ from twincd.detection.detect import (
     ScoringStage,
     detect,
 )
-from twincd.detection.events import Event, EventTracker, find_events, runs
+from twincd.detection.events import Event, EventRules, EventTracker, find_events, runs
 from twincd.detection.files import detect_file
 from twincd.detection.online import OnlineDetector, OnlineResult
 from twincd.detection.score import affine_score, residual
@@ -16,6 +16,7 @@ from twincd.frames import FrameSink
 __all__ = [
     "DetectionSummary",
     "Event",
+    "EventRules",
     "EventTracker",
     "FrameSink",
     "LogDetection",

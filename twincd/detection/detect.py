@@ -1,5 +1,6 @@
-"""Detection: score every sample, flag where score ≥ μ + kσ, group flags into events — on a
-whole log in memory, or on a log streamed block by block at flat memory."""
+"""Detection: score every sample, flag where score ≥ the threshold, group flags into events (one
+push, one event: ``twincd.detection.events.EventRules``) — on a whole log in memory, or on a log
+streamed block by block at flat memory."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.detection.events import Event, EventTracker
+from twincd.detection.events import Event, EventRules, EventTracker
 from twincd.detection.isolation import isolator_for, kappa_for
 from twincd.frames import Frame, FrameSink
 
@@ -70,9 +71,14 @@ class ScoringStage:
         calibration: Calibration,
         joint_names: Sequence[str] | None = None,
         coulomb_eps: Sequence[float] | None = None,
+        rules: EventRules | None = None,
     ):
-        """``coulomb_eps``: the ε of the frames' ``coulomb_f`` (default: the calibration's)."""
-        self.threshold = calibration.require_threshold().value
+        """``coulomb_eps``: the ε of the frames' ``coulomb_f`` (default: the calibration's);
+        ``rules``: how flags become events (default: ``EventRules()``)."""
+        threshold = calibration.require_threshold()
+        self.threshold = threshold.value
+        self.rules = EventRules() if rules is None else rules
+        self.release = self.rules.release_level(threshold.value, threshold.mu)
         self.model = calibration.model
         self.coulomb_eps = tuple(calibration.coulomb_eps if coulomb_eps is None else coulomb_eps)
         isolator = isolator_for(
@@ -81,7 +87,7 @@ class ScoringStage:
             calibration.scale if calibration.scale is not None else calibration.rmse,
             kappa_for(calibration.kind),
         )
-        self.events = EventTracker(joint_names or calibration.joint_names, isolator)
+        self.events = EventTracker(joint_names or calibration.joint_names, isolator, self.rules)
         self.counts = FlagCount()
 
     def push(self, frame: Frame) -> tuple[Frame, list[Event]]:
@@ -91,12 +97,14 @@ class ScoringStage:
         r = self.model.residual({**frame, "coulomb_eps": self.coulomb_eps})
         scores = self.model.score(r)
         flags = scores >= self.threshold
+        hold = scores >= self.release
         judged = np.ones(len(flags), dtype=bool)
-        if "edge" in frame:  # a filter's edge never flags a collision
+        if "edge" in frame:  # a filter's edge never flags a collision, nor holds an event
             judged = frame["edge"].reshape(len(flags)) == 0
             flags &= judged
+            hold &= judged
         self.counts.add(flags, judged, frame.get("labels"))
-        closed = self.events.push(flags, scores, r, frame["stamp_ns"])
+        closed = self.events.push(flags, scores, r, frame["stamp_ns"], hold)
         return frame.with_columns(residual=r, score=scores, flag=flags), closed
 
     def finish(self) -> list[Event]:
@@ -130,9 +138,11 @@ class LogDetection:
         }
 
 
-def detect(log: PreparedLog, calibration: Calibration) -> LogDetection:
+def detect(
+    log: PreparedLog, calibration: Calibration, rules: EventRules | None = None
+) -> LogDetection:
     """Score and flag every sample of ``log`` with a calibration that has a threshold."""
-    stage = ScoringStage(calibration, log.joint_names, log.coulomb_eps)
+    stage = ScoringStage(calibration, log.joint_names, log.coulomb_eps, rules)
     frame = Frame(
         {
             "stamp_ns": log.states.stamp_ns,

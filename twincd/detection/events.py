@@ -1,4 +1,4 @@
-"""Collision events: contiguous runs of flagged samples, for people to read."""
+"""Collision events, for people to read: one push, one event (``EventRules``)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from twincd.defaults import DEFAULT_EVENT_MERGE_MS, DEFAULT_EVENT_RELEASE
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -19,7 +21,7 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Event:
-    """One contiguous run of flagged samples (indices inclusive)."""
+    """One collision event: from its first flag to its last held sample (indices inclusive)."""
 
     first: int
     last: int
@@ -28,11 +30,19 @@ class Event:
     peak_score: float
     peak_ns: int
     joint: str  # the joint with the largest share of the event's Σ residual²
-    link: str | None = None  # the link most likely touched, when it can be told
+    link: str | None = None  # the link touched, when the evidence singles it out
+    link_candidates: tuple[str, ...] = ()  # the links it may be, most likely first
 
     @property
     def samples(self) -> int:
         return self.last - self.first + 1
+
+    @property
+    def link_text(self) -> str:
+        """The link as people read it: the named one, or its candidates ("link3 or link2?")."""
+        if self.link or not self.link_candidates:
+            return self.link or ""
+        return " or ".join(self.link_candidates) + "?"
 
     @property
     def duration_s(self) -> float:
@@ -48,6 +58,7 @@ class Event:
             "peak_ns": self.peak_ns,
             "joint": self.joint,
             "link": self.link,
+            "link_candidates": list(self.link_candidates),
         }
 
 
@@ -60,54 +71,129 @@ def runs(flags: BoolArray) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), ends.tolist(), strict=True))
 
 
-class EventTracker:
-    """Events from flags that arrive block by block: an event still flagged at the end of a
-    block stays open and continues into the next, so block boundaries never split one.
+@dataclass(frozen=True)
+class EventRules:
+    """How flags become the events a person counts (one push, one event).
 
-    State is one open event (a few numbers, a per-joint sum and maximum), whatever the log
-    length.
+    - **hysteresis**: an event opens at the first sample whose score reaches the threshold and
+      stays open while the score stays at or above the release level, ``μ + release × (threshold
+      − μ)`` (μ: the clean score's mean): a score that dips below the threshold mid-push, but not
+      to the release level, does not split the push;
+    - **merging**: an event that opens within ``merge_ms`` of the end of the previous one
+      continues it (a filter's ringing either side of a push, a push in two strokes).
+
+    Both are in time or in score, never in samples, so 100 Hz and 1 kHz logs behave alike.
+    ``release=1, merge_ms=0`` gives the maximal runs of flags. The per-sample flag stays score ≥
+    threshold: an event may hold samples below the threshold (its release tail, a merged gap).
     """
 
-    def __init__(self, joint_names: Sequence[str], isolator: LinkIsolator | None = None) -> None:
+    release: float = DEFAULT_EVENT_RELEASE
+    merge_ms: float = DEFAULT_EVENT_MERGE_MS
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.release <= 1.0 and 0.0 <= self.merge_ms < float("inf")):
+            raise ValueError(f"event rules out of range: {self}")
+
+    @property
+    def merge_ns(self) -> int:
+        return round(self.merge_ms * 1e6)
+
+    def release_level(self, threshold: float, mu: float) -> float:
+        """The score below which an open event ends."""
+        return mu + self.release * (threshold - mu)
+
+    def to_dict(self) -> dict[str, float]:
+        return {"release": self.release, "merge_ms": self.merge_ms}
+
+
+RUNS = EventRules(release=1.0, merge_ms=0.0)  # events = maximal runs of flags
+
+
+class EventTracker:
+    """Events from samples that arrive block by block, by ``EventRules``: an event still open at
+    the end of a block continues into the next, and an event that ended within the merge gap of
+    a block's end waits for the next block, so block boundaries never change an event.
+
+    ``push`` takes the flags (score ≥ threshold) and ``hold`` (score ≥ release level): an event
+    opens at a flag and lasts while ``hold`` (or a flag) does. State is one event (a few
+    numbers, a per-joint sum and maximum), whatever the log length.
+    """
+
+    def __init__(
+        self,
+        joint_names: Sequence[str],
+        isolator: LinkIsolator | None = None,
+        rules: EventRules = RUNS,
+    ) -> None:
         self.joint_names = tuple(joint_names)
         self.isolator = isolator
+        self.rules = rules
         self._offset = 0  # global index of the next sample
-        self._open: dict[str, Any] | None = None
+        self._open: dict[str, Any] | None = None  # the latest event, not yet closed
 
     def push(
-        self, flags: BoolArray, scores: FloatArray, residual_: FloatArray, stamp_ns: IntArray
+        self,
+        flags: BoolArray,
+        scores: FloatArray,
+        residual_: FloatArray,
+        stamp_ns: IntArray,
+        hold: BoolArray | None = None,
     ) -> list[Event]:
-        """The events that closed within this block (an event ending at its last sample closes
-        only when the next sample arrives unflagged, or at ``finish``)."""
+        """The events that closed within this block: an event closes once a sample arrives
+        more than the merge gap after its last held sample without reopening it (or at
+        ``finish``)."""
+        flags = np.asarray(flags, dtype=bool)
+        active = flags if hold is None else flags | np.asarray(hold, dtype=bool)
         n = len(flags)
         closed: list[Event] = []
-        if n and self._open is not None and not flags[0]:
-            closed.append(self._close())
-        for first, last in runs(flags):
-            seg = slice(first, last + 1)
-            peak = first + int(np.argmax(scores[seg]))
-            part = {
-                "first": self._offset + first,
-                "last": self._offset + last,
-                "start_ns": int(stamp_ns[first]),
-                "end_ns": int(stamp_ns[last]),
-                "peak_score": float(scores[peak]),
-                "peak_ns": int(stamp_ns[peak]),
-                "share": (residual_[seg] ** 2).sum(axis=0),
-                "absmax": np.abs(residual_[seg]).max(axis=0),
-            }
-            if first == 0 and self._open is not None:  # the open event goes on
-                self._extend(part)
-            else:
-                self._open = part
-            if last < n - 1:
+        for first, last in runs(active):
+            if first == 0 and self._holding():  # the open event goes on
+                self._extend(self._part(first, last, scores, residual_, stamp_ns))
+                continue
+            flagged = np.flatnonzero(flags[first : last + 1])
+            if not len(flagged):  # held but never reached the threshold: no event
+                continue
+            part = self._part(first + int(flagged[0]), last, scores, residual_, stamp_ns)
+            if self._open is not None and not self._within_gap(part["start_ns"]):
                 closed.append(self._close())
+            if self._open is None:
+                self._open = part
+            else:  # within the merge gap of the previous event: one event
+                self._extend(part)
         self._offset += n
+        waiting = n and self._open is not None and not self._holding()
+        if waiting and not self._within_gap(int(stamp_ns[-1])):  # the gap has passed
+            closed.append(self._close())
         return closed
 
     def finish(self) -> list[Event]:
         """Close the event still open at the end of the log, if any."""
         return [self._close()] if self._open is not None else []
+
+    def _holding(self) -> bool:
+        """The open event held up to the last sample pushed."""
+        return self._open is not None and self._open["last"] == self._offset - 1
+
+    def _within_gap(self, stamp_ns: int) -> bool:
+        assert self._open is not None
+        gap: int = stamp_ns - self._open["end_ns"]
+        return self.rules.merge_ns > 0 and gap <= self.rules.merge_ns
+
+    def _part(
+        self, first: int, last: int, scores: FloatArray, residual_: FloatArray, stamp_ns: IntArray
+    ) -> dict[str, Any]:
+        seg = slice(first, last + 1)
+        peak = first + int(np.argmax(scores[seg]))
+        return {
+            "first": self._offset + first,
+            "last": self._offset + last,
+            "start_ns": int(stamp_ns[first]),
+            "end_ns": int(stamp_ns[last]),
+            "peak_score": float(scores[peak]),
+            "peak_ns": int(stamp_ns[peak]),
+            "share": (residual_[seg] ** 2).sum(axis=0),
+            "absmax": np.abs(residual_[seg]).max(axis=0),
+        }
 
     def _extend(self, part: dict[str, Any]) -> None:
         assert self._open is not None
@@ -121,7 +207,9 @@ class EventTracker:
     def _close(self) -> Event:
         assert self._open is not None
         ev, self._open = self._open, None
-        link = None if self.isolator is None else self.isolator.link(ev["absmax"])
+        link, candidates = (
+            (None, ()) if self.isolator is None else self.isolator.isolate(ev["absmax"])
+        )
         return Event(
             first=ev["first"],
             last=ev["last"],
@@ -131,6 +219,7 @@ class EventTracker:
             peak_ns=ev["peak_ns"],
             joint=self.joint_names[int(np.argmax(ev["share"]))],
             link=link,
+            link_candidates=candidates,
         )
 
 
@@ -141,7 +230,9 @@ def find_events(
     stamp_ns: IntArray,
     joint_names: Sequence[str],
     isolator: LinkIsolator | None = None,
+    rules: EventRules = RUNS,
+    hold: BoolArray | None = None,
 ) -> list[Event]:
-    """Events of a whole flag vector; the joint is the one with the largest share of Σ residual²."""
-    tracker = EventTracker(joint_names, isolator)
-    return tracker.push(flags, scores, residual_, stamp_ns) + tracker.finish()
+    """Events of a whole log; the joint is the one with the largest share of Σ residual²."""
+    tracker = EventTracker(joint_names, isolator, rules)
+    return tracker.push(flags, scores, residual_, stamp_ns, hold) + tracker.finish()

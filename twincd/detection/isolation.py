@@ -12,6 +12,14 @@ on training and validation logs with simulated presses only (``studies/choose_mo
 A push whose line of action passes near a joint's axis (a push straight into a link behind a
 roll joint) makes almost no torque on that joint: it is then named one link short. No rule on
 joint torques alone can tell those apart.
+
+The rule knows when it does not know: a link is named only when the answer does not depend on
+where exactly κ lies, i.e. the same link is named for every significance level in the band
+[κ / ρ, κ × ρ] (``margin`` ρ ≥ 1): the deepest significant joint clears κ × ρ and every deeper
+joint stays under κ / ρ. Otherwise the event's ``link`` is None and ``link_candidates`` lists
+every link the rule names within the band: the one at κ first, then the deeper ones (a push
+that reads one link short is the common miss), then the shallower ones. ρ was chosen on synth
+development seeds (``studies/choose_isolation.py``).
 """
 
 from __future__ import annotations
@@ -32,6 +40,13 @@ DEFAULT_KAPPA = 3.0
 KAPPA_BY_MODEL = {"identified": 3.25, "identified-whitened": 3.25}
 
 
+# ρ: a link is named only when every significance level in [κ / ρ, κ × ρ] names it
+# (studies/choose_isolation.py, synth seed 2, identified-whitened, 96 found presses: ρ = 1
+# names all, 87.5 % right; 1.1: 94 % named, 90.0 % right; 1.2: 80 % named, 92.2 % right;
+# 1.3: 72 %, 95.7 %; 1.5: 51 %, 95.9 %)
+DEFAULT_MARGIN = 1.2
+
+
 def kappa_for(kind: str) -> float:
     """The significance factor κ of the isolation rule for a calibration model."""
     return KAPPA_BY_MODEL.get(kind, DEFAULT_KAPPA)
@@ -45,20 +60,39 @@ class LinkIsolator:
     depths: tuple[int, ...]  # each joint's depth in the kinematic tree
     scale: FloatArray  # each joint's residual RMS on collision-free training samples
     kappa: float = DEFAULT_KAPPA
+    margin: float = DEFAULT_MARGIN
 
     def significance(self, peak_abs: FloatArray) -> FloatArray:
         """Per joint: the event's largest residual magnitude over the joint's training RMS."""
         out: FloatArray = np.asarray(peak_abs, dtype=np.float64) / np.maximum(self.scale, 1e-9)
         return out
 
-    def link(self, peak_abs: FloatArray) -> str:
-        z = self.significance(peak_abs)
-        strong = np.flatnonzero(z >= self.kappa)
+    def named_at(self, z: FloatArray, level: float) -> str:
+        """The child link of the deepest joint with significance ≥ ``level`` (the most
+        significant joint's when none is)."""
+        strong = np.flatnonzero(z >= level)
         if not len(strong):
             return self.links[int(np.argmax(z))]
         depth = np.asarray(self.depths)[strong]
         deepest = strong[depth == depth.max()]
         return self.links[int(deepest[np.argmax(z[deepest])])]
+
+    def isolate(self, peak_abs: FloatArray) -> tuple[str | None, tuple[str, ...]]:
+        """(the link, or None when the evidence does not single one out; the candidates, most
+        likely first)."""
+        z = self.significance(peak_abs)
+        low, high = self.kappa / self.margin, self.kappa * self.margin
+        # every level where the answer may change lies at a joint's significance
+        levels = [low, *sorted(float(x) for x in z if low < x <= high), high]
+        at_kappa = self.named_at(z, self.kappa)
+        deeper_first = [self.named_at(z, level) for level in levels]
+        candidates = tuple(dict.fromkeys([at_kappa, *deeper_first]))
+        singled_out = len(candidates) == 1 and bool(np.any(z >= high))
+        return (at_kappa if singled_out else None), candidates
+
+    def link(self, peak_abs: FloatArray) -> str | None:
+        """The link when the evidence singles it out, else None."""
+        return self.isolate(peak_abs)[0]
 
 
 def isolator_for(
@@ -66,8 +100,10 @@ def isolator_for(
     depths: Sequence[int] | None,
     scale: FloatArray | None,
     kappa: float = DEFAULT_KAPPA,
+    margin: float = DEFAULT_MARGIN,
 ) -> LinkIsolator | None:
     """An isolator when the chain and the per-joint scale are known, else None."""
     if links is None or depths is None or scale is None:
         return None
-    return LinkIsolator(tuple(links), tuple(depths), np.asarray(scale, dtype=np.float64), kappa)
+    scale_ = np.asarray(scale, dtype=np.float64)
+    return LinkIsolator(tuple(links), tuple(depths), scale_, kappa, margin)

@@ -9,7 +9,10 @@ samples of derivative context, the filter's second-order sections, one open even
 Latency: no stage holds a sample back, so each push returns a score for every sample it
 carried. What delays a detection is the causal low-pass filter itself: a step in effort shows
 in the score after its group delay, ``OnlineDetector.latency_s`` (≈ 75 ms for the default
-3 Hz, order-2 filter), and an event closes with the first sample below the threshold.
+3 Hz, order-2 filter). An event is reported when it closes: once its score has stayed below
+the release level for longer than the merge gap (``EventRules``, defaults 50 % of the way from
+μ to the threshold and 300 ms), so ``out.events`` comes that long after a push ends; the flag of
+each sample (score ≥ threshold) comes at once.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from numpy.typing import NDArray
 
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
-from twincd.detection.events import Event
+from twincd.detection.events import Event, EventRules
 from twincd.errors import CalibrationError, DataError, JointMismatchError
 from twincd.frames import Chain, Frame, Stage
 from twincd.pipeline import check_urdf, filter_stages, pick_columns, robot_for, twin_stages
@@ -62,7 +65,8 @@ class OnlineDetector:
 
     The robot model's URDF must be the one the calibration was fitted with (its sha256): a
     changed one is refused unless ``allow_urdf_change`` (then said once). ``source`` names the
-    stream in messages (default: the calibration).
+    stream in messages (default: the calibration). ``rules``: how flags become events
+    (default: ``EventRules()``, as ``detect``).
     """
 
     def __init__(
@@ -73,6 +77,7 @@ class OnlineDetector:
         threads: int = 1,
         allow_urdf_change: bool = False,
         source: str | None = None,
+        rules: EventRules | None = None,
     ) -> None:
         calibration.require_threshold()
         where = calibration.source or "calibration"
@@ -110,7 +115,7 @@ class OnlineDetector:
         self._threads = threads
         self._chain: Chain | None = None
         self._fill = False
-        self._scoring = ScoringStage(calibration)
+        self._scoring = ScoringStage(calibration, rules=rules)
         self._last_stamp: int | None = None
         self.samples = 0
         self.skipped = 0

@@ -21,6 +21,7 @@ from twincd.pipeline import PreparedLog
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
+    from twincd.detection.events import Event
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -85,9 +86,18 @@ class ScoringMethod(ABC):
         """When each unit's decision is known: its sample's stamp (a window's last sample)."""
         return log.states.stamp_ns
 
-    def flag_links(self, log: PreparedLog, flags: BoolArray) -> list[str | None] | None:
-        """The link a method names for each flagged unit; None: it does not isolate."""
-        return None
+    isolates: ClassVar[bool] = False  # its events name links (``events``)
+
+    def events(
+        self, log: PreparedLog, scores: FloatArray, flags: BoolArray, hold: BoolArray
+    ) -> list[Event]:
+        """The events ``detect`` would report for these flags (``hold``: score ≥ the release
+        level), under the default ``EventRules``."""
+        from twincd.detection.events import EventRules, find_events
+
+        stamps = self.unit_stamps(log)
+        quiet = np.zeros((len(flags), 1))
+        return find_events(flags, scores, quiet, stamps, ("score",), None, EventRules(), hold)
 
 
 # The built-in methods, name -> "module:attribute" of a factory, written out here so the

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sklearn.metrics import precision_recall_fscore_support, roc_auc_score
 
-from twincd.detection.events import runs
+from twincd.detection.events import Event, runs
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -71,21 +71,27 @@ class EventCounts:
 
     A labelled event is a maximal run of labelled samples; it is detected when a flag falls
     inside it or within 200 ms after its end, its delay running from its first labelled sample
-    to that first flag. A false alarm is a maximal run of flags touching no labelled event
-    (± 200 ms). Events whose ground-truth link is named (``/collision_link``) are the presses
-    that exert force; isolation is judged on those that were detected.
+    to that first flag. A false alarm is an event as ``detect`` reports it (``EventRules``)
+    touching no labelled event (± 200 ms); ``events_per_detected`` is the number of detect's
+    events touching a labelled event over the labelled events detected (1.0: one push, one
+    event). Events whose ground-truth link is named (``/collision_link``) are the presses that
+    exert force; isolation is judged on those that were detected, by the link of the detect
+    event holding the first flag: ``isolation_named`` is the share of them with a link named,
+    ``isolation_accuracy`` the share of named links that are right.
     """
 
     events_total: int = 0
     events_detected: int = 0
     delays_ms: tuple[float, ...] = ()
     false_alarms: int = 0
+    events_on_labels: int = 0  # detect events touching a labelled event (± 200 ms)
     unlabelled_s: float = 0.0
     force_total: int = 0
     force_detected: int = 0
     force_delays_ms: tuple[float, ...] = ()
-    isolation_total: int = 0
-    isolation_right: int = 0
+    isolation_total: int = 0  # detected presses judged for isolation
+    isolation_named: int = 0  # of those, with a link named
+    isolation_right: int = 0  # of those named, the right one
     has_links: bool = False
 
     def __add__(self, other: EventCounts) -> EventCounts:
@@ -94,11 +100,13 @@ class EventCounts:
             self.events_detected + other.events_detected,
             self.delays_ms + other.delays_ms,
             self.false_alarms + other.false_alarms,
+            self.events_on_labels + other.events_on_labels,
             self.unlabelled_s + other.unlabelled_s,
             self.force_total + other.force_total,
             self.force_detected + other.force_detected,
             self.force_delays_ms + other.force_delays_ms,
             self.isolation_total + other.isolation_total,
+            self.isolation_named + other.isolation_named,
             self.isolation_right + other.isolation_right,
             self.has_links or other.has_links,
         )
@@ -120,6 +128,9 @@ class EventCounts:
             "delay_ms_p95": pct(self.delays_ms, 95),
             "false_alarms": self.false_alarms,
             "false_alarms_per_hour": self.false_alarms_per_hour,
+            "events_per_detected": (
+                self.events_on_labels / self.events_detected if self.events_detected else None
+            ),
         }
         if self.has_links:
             out.update(
@@ -127,7 +138,10 @@ class EventCounts:
                 force_events_detected=self.force_detected,
                 force_delay_ms_median=pct(self.force_delays_ms, 50),
                 isolation_accuracy=(
-                    self.isolation_right / self.isolation_total if self.isolation_total else None
+                    self.isolation_right / self.isolation_named if self.isolation_named else None
+                ),
+                isolation_named=(
+                    self.isolation_named / self.isolation_total if self.isolation_total else None
                 ),
             )
         return out
@@ -139,28 +153,31 @@ def event_counts(
     flag_ns: NDArray[np.int64],
     flags: BoolArray,
     links: Sequence[str] | None = None,
-    flag_links: Sequence[str | None] | None = None,
+    events: Sequence[Event] | None = None,
+    isolation: bool = False,
     tolerance_ns: int = EVENT_TOLERANCE_NS,
 ) -> EventCounts:
     """Event counts of one log.
 
     ``stamp_ns``/``labels``: the samples and their labels; ``flag_ns``/``flags``: when each
-    unit's decision is known (a sample's stamp, a window's last sample) and the flags.
-    ``links``: the true link per sample ("" where none); ``flag_links``: the link a detector
-    names for each flagged unit.
+    unit's decision is known (a sample's stamp, a window's last sample) and the flags;
+    ``events``: the events ``detect`` reports for those flags (default: the maximal runs of
+    flags). ``links``: the true link per sample ("" where none); ``isolation``: judge the link
+    the events name.
     """
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
     labels = np.asarray(labels, dtype=bool)
     flag_ns = np.asarray(flag_ns, dtype=np.int64)
     flags = np.asarray(flags, dtype=bool)
-    flagged = np.flatnonzero(flags)
-    flag_times = flag_ns[flagged]
-    events = runs(labels)
-    windows = [(int(stamp_ns[a]), int(stamp_ns[b]) + tolerance_ns) for a, b in events]
-    detected = force_total = force_detected = iso_total = iso_right = 0
+    if events is None:
+        events = [_run_event(flag_ns, a, b) for a, b in runs(flags)]
+    flag_times = flag_ns[flags]
+    labelled = runs(labels)
+    windows = [(int(stamp_ns[a]), int(stamp_ns[b]) + tolerance_ns) for a, b in labelled]
+    detected = force_total = force_detected = iso_total = iso_named = iso_right = 0
     delay_list: list[float] = []
     force_delays: list[float] = []
-    for (a, b), (lo, hi) in zip(events, windows, strict=True):
+    for (a, b), (lo, hi) in zip(labelled, windows, strict=True):
         k = int(np.searchsorted(flag_times, lo, side="left"))
         hit = k < len(flag_times) and flag_times[k] <= hi
         true_link = ""
@@ -177,31 +194,45 @@ def event_counts(
         if true_link:
             force_detected += 1
             force_delays.append(delay)
-            if flag_links is not None:
+            if isolation:
+                link = _link_at(events, int(flag_times[k]))
                 iso_total += 1
-                iso_right += int(flag_links[int(flagged[k])] == true_link)
-    # false alarms: runs of flags whose times touch no labelled event widened by the tolerance
-    false_alarms = 0
+                iso_named += link is not None
+                iso_right += link == true_link
+    # detect's events against the labelled events widened by the tolerance both ways
     starts = np.array([lo - tolerance_ns for lo, _ in windows], dtype=np.int64)
     ends = np.array([hi for _, hi in windows], dtype=np.int64)
-    for a, b in runs(flags):
-        t0, t1 = int(flag_ns[a]), int(flag_ns[b])
-        if not np.any((starts <= t1) & (ends >= t0)):
-            false_alarms += 1
+    touching = [bool(np.any((starts <= e.end_ns) & (ends >= e.start_ns))) for e in events]
     period_s = float(np.median(np.diff(stamp_ns))) / 1e9 if len(stamp_ns) > 1 else 0.0
     return EventCounts(
-        events_total=len(events),
+        events_total=len(labelled),
         events_detected=detected,
         delays_ms=tuple(delay_list),
-        false_alarms=false_alarms,
+        false_alarms=touching.count(False),
+        events_on_labels=touching.count(True),
         unlabelled_s=float((~labels).sum()) * period_s,
         force_total=force_total,
         force_detected=force_detected,
         force_delays_ms=tuple(force_delays),
         isolation_total=iso_total,
+        isolation_named=iso_named,
         isolation_right=iso_right,
         has_links=links is not None,
     )
+
+
+def _run_event(flag_ns: NDArray[np.int64], first: int, last: int) -> Event:
+    """A run of flags as an event with only its span."""
+    start, end = int(flag_ns[first]), int(flag_ns[last])
+    return Event(first, last, start, end, 0.0, start, "")
+
+
+def _link_at(events: Sequence[Event], t_ns: int) -> str | None:
+    """The link named by the event holding time ``t_ns``, if any."""
+    for e in events:
+        if e.start_ns <= t_ns <= e.end_ns:
+            return e.link
+    return None
 
 
 def roc_points(labels: BoolArray, scores: FloatArray, most: int = 300) -> list[tuple[float, float]]:

@@ -21,7 +21,7 @@ from twincd.calibration.models import (
     uses_friction,
     uses_regressor,
 )
-from twincd.detection.events import runs
+from twincd.detection.events import Event, EventRules, find_events
 from twincd.detection.isolation import LinkIsolator, kappa_for
 from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
@@ -39,6 +39,7 @@ class ModelMethod(ScoringMethod):
     unit = "sample"
     learns = True
     calibrated = True
+    isolates = True
 
     def __init__(self, kappa: float | None = None) -> None:
         self.kappa = kappa  # None: the model's own (twincd.detection.isolation.kappa_for)
@@ -95,8 +96,8 @@ class ModelMethod(ScoringMethod):
     def score(self, log: PreparedLog) -> FloatArray:
         return self._model().score(self.residual(log))
 
-    def flag_links(self, log: PreparedLog, flags: BoolArray) -> list[str | None] | None:
-        """The link named for each flagged run, on each of its samples (None elsewhere)."""
+    def isolator(self, log: PreparedLog) -> LinkIsolator | None:
+        """The isolation rule on this log's joints (None without a robot model)."""
         if log.robot is None:
             return None
         from twincd.twin.robot import child_links
@@ -105,13 +106,16 @@ class ModelMethod(ScoringMethod):
         scale = self._model().scale if self._model().scale is not None else self.rmse_
         assert scale is not None
         kappa = kappa_for(self.model_kind) if self.kappa is None else self.kappa
-        isolator = LinkIsolator(links, depths, scale, kappa)
+        return LinkIsolator(links, depths, scale, kappa)
+
+    def events(
+        self, log: PreparedLog, scores: FloatArray, flags: BoolArray, hold: BoolArray
+    ) -> list[Event]:
+        """Detect's events, with the joint and the link each names."""
+        stamps = log.states.stamp_ns
         r = self.residual(log)
-        out: list[str | None] = [None] * len(flags)
-        for first, last in runs(flags):
-            name = isolator.link(np.abs(r[first : last + 1]).max(axis=0))
-            out[first : last + 1] = [name] * (last - first + 1)
-        return out
+        iso = self.isolator(log)
+        return find_events(flags, scores, r, stamps, log.joint_names, iso, EventRules(), hold)
 
 
 class AffineWhitened(ModelMethod):

@@ -23,6 +23,7 @@ from twincd.calibration import Calibration
 from twincd.calibration.models import EPSILON_GRID, uses_friction, uses_regressor
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 from twincd.detection.detect import FlagCount
+from twincd.detection.events import EventRules
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
 from twincd.evaluation.metrics import (
@@ -65,10 +66,12 @@ EVENT_KEYS = (
     "delay_ms_p95",
     "false_alarms",
     "false_alarms_per_hour",
+    "events_per_detected",
     "force_events_total",
     "force_events_detected",
     "force_delay_ms_median",
     "isolation_accuracy",
+    "isolation_named",
     "val_false_alarms",
     "val_false_alarms_per_hour",
 )
@@ -247,23 +250,28 @@ def _events(
     logs: Sequence[PreparedLog],
     scores: Sequence[FloatArray],
     threshold: float,
+    mu: float,
     links: Links,
 ) -> EventCounts:
-    """Event counts of ``logs`` flagged at ``threshold``, merged over the logs. A calibration
-    model's log flagged mostly is said (as ``detect`` says it)."""
+    """Event counts of ``logs`` flagged at ``threshold``, with the events ``detect`` would
+    report (``EventRules``, released at its level above ``mu``), merged over the logs. A
+    calibration model's log flagged mostly is said (as ``detect`` says it)."""
+    release = EventRules().release_level(threshold, mu)
     total = EventCounts()
     for lg, score in zip(logs, scores, strict=True):
         judged = _judged(method, lg, len(score))
         flags = (np.asarray(score) >= threshold) & judged
+        hold = (np.asarray(score) >= release) & judged
         if method.calibrated and method.unit == "sample":
             counts = FlagCount()
             counts.add(flags, judged, lg.labels)
             counts.warn(lg.source, by=method.name)
         labels = lg.labels if lg.labels is not None else np.zeros(len(lg), dtype=bool)
         truth = links.get(lg.source)
-        named = method.flag_links(lg, flags) if truth is not None else None
-        stamps = lg.states.stamp_ns
-        total = total + event_counts(stamps, labels, method.unit_stamps(lg), flags, truth, named)
+        events = method.events(lg, np.asarray(score), flags, hold)
+        isolation = truth is not None and method.isolates and lg.robot is not None
+        stamps, unit_ns = lg.states.stamp_ns, method.unit_stamps(lg)
+        total = total + event_counts(stamps, labels, unit_ns, flags, truth, events, isolation)
     return total
 
 
@@ -336,9 +344,9 @@ def _run_once(
         "train_s": train_s,
         "test_s": test_s,
     }
-    figures.update(_events(method, test, scores, threshold, links).to_dict())
+    figures.update(_events(method, test, scores, threshold, mu, links).to_dict())
     if val_scores:
-        on_val = _events(method, val, val_scores, threshold, {})
+        on_val = _events(method, val, val_scores, threshold, mu, {})
         figures["val_false_alarms"] = on_val.false_alarms
         figures["val_false_alarms_per_hour"] = on_val.false_alarms_per_hour
     note = getattr(method, "note", None)

@@ -103,7 +103,7 @@ def detection_figure(summary: DetectionSummary, trace: DetectionTrace) -> Any:
             ax.axvspan(start, max(end, start + min_width), color="tab:red", alpha=0.25, lw=0)
     for i, (start, _end, e) in enumerate(events[:30], 1):
         axes[0].annotate(
-            f"{i}: {event_label(e.joint, e.link)}",
+            f"{i}: {event_label(e.joint, e.link_text)}",
             (start, 1.0),
             xycoords=("data", "axes fraction"),
             xytext=(0, 2),

@@ -14,7 +14,7 @@ JOINT_ONLY = len(EVENT_COLUMNS) - 1  # the columns when no event names a link
 
 def event_columns(summary: DetectionSummary) -> tuple[str, ...]:
     """The events table's header: the link column only when some event names a link."""
-    if any(e.link for e in summary.events):
+    if any(e.link_text for e in summary.events):
         return EVENT_COLUMNS
     return EVENT_COLUMNS[:JOINT_ONLY]
 
@@ -31,7 +31,7 @@ def event_rows(summary: DetectionSummary) -> list[list[str]]:
             f"{e.duration_s:.3f}",
             f"{e.peak_score:.4g}",
             e.joint,
-            e.link or "",
+            e.link_text,
         ]
         for i, e in enumerate(summary.events, 1)
     ]
