@@ -212,6 +212,21 @@ def test_too_few_peaks_take_an_exponential_tail_and_say_so(
     assert th.value > scores.max()  # 8 spikes in 16 s: a threshold for 1/h is above them all
 
 
+def test_a_score_without_a_tail_takes_mu_plus_4_sigma_and_says_so(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    scores = np.ones(100_000)
+    scores[::100] = 5.0  # a thousand equal spikes: every level between is one excursion each
+    usable = np.ones(len(scores), dtype=bool)
+    counter = AlarmCounter(0.01)
+    counter.push(scores, usable)
+    stats_ = ScoreStats.from_scores(scores)
+    with caplog.at_level(logging.WARNING, logger="twincd"):
+        th = budget_threshold(_excursions(scores, usable, 0.01), counter.counts, stats_, 1.0)
+    assert len(caplog.records) == 1 and "μ + 4σ instead" in caplog.text
+    assert th.tail is None and th.k_sigma == 4.0 and th.budget_per_hour is None
+
+
 @pytest.mark.parametrize(
     "k, budget", [(float("inf"), None), (4.0, float("inf")), (4.0, -1.0), (4.0, 0.0)]
 )

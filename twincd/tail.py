@@ -65,8 +65,11 @@ class Excursions:
 
     def level_for_fit(self) -> int | None:
         """The index of u: the highest level with ``TARGET_PEAKS`` peaks or more (peaks kept),
-        else the level with the most peaks kept (the higher on a tie); None without peaks."""
-        kept = [i for i, p in enumerate(self.peaks) if p]
+        else the level with the most peaks kept (the higher on a tie); None without peaks.
+        Only levels at or above the one with the most excursions are the tail's (below it,
+        the score is above the level most of the time: a few long excursions, not a tail)."""
+        mode = max(range(len(self.counts)), key=lambda i: (self.counts[i], i))
+        kept = [i for i, p in enumerate(self.peaks) if p and i >= mode]
         if not kept:
             return None
         enough = [i for i in kept if len(self.peaks[i] or ()) >= TARGET_PEAKS]
@@ -222,7 +225,7 @@ def _fit_gpd(excess: FloatArray) -> tuple[float, float]:
     if not SHAPES[0] <= shape <= SHAPES[1]:
         bound = min(max(float(shape), SHAPES[0]), SHAPES[1])
         shape, _, scale = stats.genpareto.fit(excess, f0=bound, floc=0.0)
-    return float(shape), float(scale)
+    return float(shape), max(float(scale), np.finfo(float).tiny)  # equal peaks: β → 0
 
 
 def _exponential(u: float, excess: FloatArray, rate: float, per_hour: float) -> TailFit:

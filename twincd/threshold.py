@@ -172,8 +172,8 @@ def budget_threshold(
     minutes = excursions.seconds / 60.0
     if tail is None:
         log.warning(
-            "the validation logs' score never rose above its lowest level in %.3g min of "
-            "collision-free data: no tail to extrapolate; the threshold is μ + %gσ instead",
+            "the score has no excursions to fit a tail to in %.3g min of collision-free "
+            "data (constant, or one level throughout): the threshold is μ + %gσ instead",
             minutes,
             DEFAULT_K_SIGMA,
         )
