@@ -8,10 +8,10 @@ stretches and counts the false alarms it gives on other clean data, with μ + 4�
 1. ``synth`` (synthetic xArm 7, dev seeds ≥ 2): fit on short training paths, then per draw a
    100 s stretch of one long clean validation path sets the threshold and the other long paths
    (an hour of clean time) are the test. Every stretch of every path is one draw.
-2. ``real`` (the Doosan M0609 of ``../shared/data/doosan_m0609/``, when present; nothing derived
-   from it is written into the project): the six rotations of ``studies/real_arm.py`` (fit on
-   four logs, threshold on the clean samples of one, test on the clean time of another), with
-   the pushes found at each threshold.
+2. ``real`` (the Doosan M0609 recordings, read from beside the repository as
+   ``studies/real_arm.py`` reads them, when present; nothing derived from them is written):
+   its six rotations (fit on four logs, threshold on the clean samples of one, test on the
+   clean time of another), with the pushes found at each threshold.
 
 For each way of setting the threshold: false alarms per hour observed (pooled, and the spread
 over draws), and for the budget's threshold its interval's upper end as the alternative.
