@@ -47,7 +47,8 @@ def test_threshold_rewrites_in_place_or_to_output(fitted, twin_dataset, tmp_path
     out = tmp_path / "other.json"
     result = run("threshold", twin_dataset / "val", "-c", cal, "-o", out, "-q")
     assert result.exit_code == 0 and result.stderr == ""
-    assert json.loads(out.read_text())["threshold"]["k_sigma"] == 4.0
+    default = json.loads(out.read_text())["threshold"]  # the default: μ + 4σ
+    assert default["k_sigma"] == 4.0 and "false_alarm_budget" not in default
     assert json.loads(cal.read_text())["threshold"] is None  # -c untouched with -o
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "other.json"]
 

@@ -1,11 +1,13 @@
-"""twincd/threshold.py: the threshold of a false-alarm budget (runs counted at every threshold of a
-grid in one pass, merged by addition) and its CLI."""
+"""twincd/threshold.py and twincd/tail.py: the threshold of a false-alarm budget from the score's
+excursions (declustered peaks, a generalised Pareto tail), the runs counted at every value of a
+grid, their merges, the calibration's record of them, and the CLI."""
 
 from __future__ import annotations
 
 import itertools
 import json
 import logging
+import random
 from pathlib import Path
 
 import numpy as np
@@ -13,17 +15,28 @@ import pytest
 from clitools import assert_one_line_error, run
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import stats
 
 from twincd.calibration import Calibration
 from twincd.detection.events import runs
-from twincd.errors import UsageError
+from twincd.errors import CalibrationError, UsageError
+from twincd.tail import (
+    DECLUSTER_GAP_S,
+    LEVELS,
+    MAX_PEAKS,
+    MIN_PEAKS,
+    ExcursionCounter,
+    Excursions,
+    fit_tail,
+)
 from twincd.threshold import (
     ALARM_GRID,
     AlarmCounter,
-    AlarmCounts,
+    LogScores,
     ScoreStats,
     budget_threshold,
     check_threshold_settings,
+    with_threshold,
 )
 
 
@@ -48,72 +61,286 @@ def test_runs_at_every_threshold_in_any_chunking(seed: int, n: int, cuts: list[i
         assert got.runs[g] == want, (g, ALARM_GRID[g])
 
 
-def _counts(scores: np.ndarray, period_s: float) -> tuple[AlarmCounts, ScoreStats]:
-    counter = AlarmCounter(period_s)
-    counter.push(scores, np.ones(len(scores), dtype=bool))
-    return counter.counts, ScoreStats.from_scores(scores)
+def _excursions(scores: np.ndarray, usable: np.ndarray, period_s: float, cuts=()) -> Excursions:  # type: ignore[no-untyped-def]
+    counter = ExcursionCounter(period_s)
+    bounds = [0, *sorted({c for c in cuts if 0 < c < len(scores)}), len(scores)]
+    for a, b in itertools.pairwise(bounds):
+        counter.push(scores[a:b], usable[a:b])
+    return counter.excursions
 
 
-def test_the_budget_picks_the_lowest_threshold_that_keeps_it() -> None:
-    # two hours at 10 Hz of scores near 1, with five lone spikes of 10, 20, 30, 40, 50
-    scores = np.ones(72_000)
-    scores[np.arange(5) * 10_000 + 5_000] = [10.0, 20.0, 30.0, 40.0, 50.0]
-    counts, stats = _counts(scores, 0.1)
-    for per_hour, above in ((0.0, 50.0), (0.5, 40.0), (1.0, 30.0), (2.0, 10.0)):
-        th = budget_threshold(counts, stats, per_hour)
-        assert above < th.value <= above * 1.04  # the next grid value (3.7 % apart)
-        assert th.false_alarms == int((scores >= th.value).sum())
-        assert th.false_alarms <= per_hour * 2
-        assert th.value == pytest.approx(stats.mu + th.k_sigma * stats.sigma)
-    # a budget every score keeps: never below μ, and the alarms counted are those at the value
-    lavish = budget_threshold(counts, stats, 1e6)
-    assert stats.mu <= lavish.value <= stats.mu * 1.04 and lavish.k_sigma >= 0
-    assert lavish.false_alarms == len(runs(scores >= lavish.value))
+def _declustered_peaks(scores: np.ndarray, usable: np.ndarray, level: float, gap: int) -> list:  # type: ignore[type-arg]
+    """The reference: a plain loop over samples (an excursion ends after `gap` samples below)."""
+    peaks: list[float] = []
+    last = -(10**9)
+    for i, (s, ok) in enumerate(zip(scores, usable, strict=True)):
+        if ok and s >= level:
+            if i - last > gap:
+                peaks.append(s)
+            else:
+                peaks[-1] = max(peaks[-1], s)
+            last = i
+    return sorted(peaks)
 
 
-@pytest.mark.parametrize("per_hour", [0.0, 1.0])
-def test_a_budget_on_too_little_data_says_so(
-    caplog: pytest.LogCaptureFixture, per_hour: float
+def _smooth_scores(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Heavy-tailed scores with some memory, as a filtered residual's are."""
+    raw = np.exp(rng.normal(0.0, 1.0, n))
+    return np.convolve(raw, np.ones(5) / 5)[:n]
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(1, 600),
+    cuts=st.lists(st.integers(1, 599), max_size=5),
+)
+def test_excursions_in_any_chunking_are_the_declustered_peaks(
+    seed: int, n: int, cuts: list[int]
 ) -> None:
-    counts, stats = _counts(np.linspace(1.0, 2.0, 6000), 0.01)  # one minute
+    rng = np.random.default_rng(seed)
+    scores, usable = _smooth_scores(rng, n), rng.uniform(size=n) > 0.05
+    got = _excursions(scores, usable, 0.01, cuts)
+    assert got == _excursions(scores, usable, 0.01)  # blocks never split or merge one
+    gap = round(DECLUSTER_GAP_S / 0.01)
+    for j in range(0, len(LEVELS), 7):
+        want = _declustered_peaks(scores, usable, LEVELS[j], gap)
+        assert got.counts[j] == len(want)
+        assert got.peaks[j] == (tuple(want) if len(want) <= MAX_PEAKS else None)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), logs=st.integers(1, 5), order=st.randoms())
+def test_any_order_and_split_of_the_logs_give_the_same_threshold(
+    seed: int, logs: int, order: random.Random
+) -> None:
+    rng = np.random.default_rng(seed)
+    parts = []
+    for i in range(logs):
+        scores = _smooth_scores(rng, int(rng.integers(500, 4000)))
+        usable = np.ones(len(scores), dtype=bool)
+        counter = AlarmCounter(0.01)
+        counter.push(scores, usable)
+        parts.append(
+            LogScores(
+                f"log{i}",
+                ScoreStats.from_scores(scores),
+                len(scores),
+                counter.counts,
+                _excursions(scores, usable, 0.01),
+            )
+        )
+    cal = _calibration()
+    first = with_threshold(parts, cal).require_threshold()
+    shuffled = parts[:]
+    order.shuffle(shuffled)
+    assert with_threshold(shuffled, cal).require_threshold() == first
+    # a worker that merged some logs' excursions first (any grouping) gives the same merge
+    cut = order.randint(0, logs)
+    grouped = sum((p.excursions for p in shuffled[:cut]), Excursions())  # type: ignore[misc]
+    rest = sum((p.excursions for p in shuffled[cut:]), Excursions())  # type: ignore[misc]
+    assert grouped + rest == sum((p.excursions for p in parts), Excursions())  # type: ignore[misc]
+    assert first.tail is not None and first.value == pytest.approx(first.tail.estimate)
+
+
+def _calibration() -> Calibration:
+    from twincd.signal.filters import LowPass
+
+    return Calibration(("j1",), np.ones(1), np.zeros(1), LowPass(2, 1.0))
+
+
+def _spikes(seed: int, shape: float, hours: float = 1.0) -> tuple[np.ndarray, float]:
+    """Scores at 100 Hz of lone spikes (one every 2 s, over a floor of 1) whose heights above
+    10 follow a known GPD (shape, scale 1); the true threshold of 1 spike per hour over x."""
+    rng = np.random.default_rng(seed)
+    n = round(hours * 360_000)
+    scores = np.ones(n)
+    heights = 10.0 + stats.genpareto.rvs(shape, scale=1.0, size=n // 200, random_state=rng)
+    scores[100::200] = heights[: len(scores[100::200])]
+    rate = len(scores[100::200]) / hours
+    return scores, float(stats.genpareto.isf(1.0 / rate, shape, scale=1.0) + 10.0)
+
+
+@pytest.mark.parametrize("shape", [0.0, 0.2])
+def test_the_tail_fit_recovers_a_known_gpd_quantile_within_its_interval(shape: float) -> None:
+    inside = 0
+    for seed in range(5):
+        scores, truth = _spikes(seed, shape)
+        excursions = _excursions(scores, np.ones(len(scores), dtype=bool), 0.01)
+        tail = fit_tail(excursions, 1.0)
+        assert tail is not None and tail.method == "pot-gpd" and tail.peaks >= 50
+        assert tail.low <= tail.estimate and (tail.high is None or tail.estimate <= tail.high)
+        inside += tail.low <= truth <= (np.inf if tail.high is None else tail.high)
+    assert inside >= 4  # a 90 % interval: the truth in at least 4 of 5 draws
+
+
+def test_the_budget_threshold_is_mu_plus_k_sigma_and_records_its_tail(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    scores, _ = _spikes(0, 0.1)
+    usable = np.ones(len(scores), dtype=bool)
+    counter = AlarmCounter(0.01)
+    counter.push(scores, usable)
+    stats_ = ScoreStats.from_scores(scores)
     with caplog.at_level(logging.WARNING, logger="twincd"):
-        th = budget_threshold(counts, stats, per_hour)
-    assert "1 min of collision-free data" in caplog.text and "1 h or more" in caplog.text
-    assert th.value > 2.0 and th.false_alarms == 0
+        th = budget_threshold(_excursions(scores, usable, 0.01), counter.counts, stats_, 2.0)
+    assert not caplog.text  # an hour of data: no warning
+    assert th.tail is not None and th.budget_per_hour == 2.0
+    assert th.value == pytest.approx(th.tail.estimate) and th.k_sigma > 0
+    assert th.value == pytest.approx(stats_.mu + th.k_sigma * stats_.sigma)
+    # counted at the grid value just below: at least the alarms at the threshold
+    assert th.false_alarms is not None and th.false_alarms >= len(runs(scores >= th.value))
+    # a larger budget, a lower threshold
+    lower = budget_threshold(_excursions(scores, usable, 0.01), counter.counts, stats_, 20.0)
+    assert lower.value < th.value
 
 
-@pytest.mark.parametrize("k, budget", [(float("inf"), None), (4.0, float("inf")), (4.0, -1.0)])
+def test_too_few_peaks_take_an_exponential_tail_and_say_so(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    scores, _ = _spikes(1, 0.1, hours=8 / 1800)  # eight spikes
+    usable = np.ones(len(scores), dtype=bool)
+    counter = AlarmCounter(0.01)
+    counter.push(scores, usable)
+    with caplog.at_level(logging.WARNING, logger="twincd"):
+        th = budget_threshold(
+            _excursions(scores, usable, 0.01), counter.counts, ScoreStats.from_scores(scores), 1.0
+        )
+    assert len(caplog.records) == 1 and "exponential tail" in caplog.text
+    assert th.tail is not None and th.tail.method == "pot-exponential" and th.tail.shape == 0.0
+    assert th.tail.peaks < MIN_PEAKS and th.tail.low < th.value < (th.tail.high or np.inf)
+    assert th.value > scores.max()  # 8 spikes in 16 s: a threshold for 1/h is above them all
+
+
+def test_a_score_without_a_tail_takes_mu_plus_4_sigma_and_says_so(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    scores = np.ones(100_000)
+    scores[::100] = 5.0  # a thousand equal spikes: every level between is one excursion each
+    usable = np.ones(len(scores), dtype=bool)
+    counter = AlarmCounter(0.01)
+    counter.push(scores, usable)
+    stats_ = ScoreStats.from_scores(scores)
+    with caplog.at_level(logging.WARNING, logger="twincd"):
+        th = budget_threshold(_excursions(scores, usable, 0.01), counter.counts, stats_, 1.0)
+    assert len(caplog.records) == 1 and "μ + 4σ instead" in caplog.text
+    assert th.tail is None and th.k_sigma == 4.0 and th.budget_per_hour is None
+
+
+@pytest.mark.parametrize(
+    "k, budget", [(float("inf"), None), (4.0, float("inf")), (4.0, -1.0), (4.0, 0.0)]
+)
 def test_settings_that_cannot_make_a_threshold_are_refused(k: float, budget: float | None) -> None:
-    counts, stats = _counts(np.ones(100), 0.01)
     with pytest.raises(UsageError, match="finite number"):
         check_threshold_settings(k, budget)
-    if budget is not None:
-        with pytest.raises(UsageError):
-            budget_threshold(counts, stats, budget)
 
 
-def test_cli_threshold_for_a_budget(twin_calibration: Path, twin_dataset: Path, tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_cli_threshold_default_k_and_budget(
+    twin_calibration: Path, twin_dataset: Path, tmp_path
+) -> None:  # type: ignore[no-untyped-def]
+    val = twin_dataset / "val"
     out = tmp_path / "cal.json"
     result = run(
-        "threshold", twin_dataset / "val", "-c", twin_calibration, "-o", out,
-        "--false-alarms-per-hour", "1",
-    )  # fmt: skip
+        "threshold", val, "-c", twin_calibration, "-o", out, "--false-alarms-per-hour", "1"
+    )
     assert result.exit_code == 0, result.output
-    assert "false alarm(s) in" in result.stdout and "budget 1/h" in result.stdout
+    assert (
+        "pot-gpd: budget 1 false alarm(s)/h" in result.stdout and "90 % interval" in result.stdout
+    )
     th = json.loads(out.read_text())["threshold"]
-    assert th["false_alarm_budget"]["per_hour"] == 1.0
-    assert th["false_alarm_budget"]["false_alarms"] == 0  # 32 s of data: none allowed
+    budget = th["false_alarm_budget"]
+    assert budget["per_hour"] == 1.0 and budget["method"] == "pot-gpd"
+    low, high = budget["interval"]
+    assert low <= th["value"] <= high and th["value"] == pytest.approx(budget["estimate"])
+    assert th["value"] == pytest.approx(th["mu"] + th["k_sigma"] * th["sigma"])
     cal = Calibration.load(out)
-    assert cal.threshold is not None and cal.threshold.budget_per_hour == 1.0
     assert Calibration.from_dict(cal.to_dict()).threshold == cal.threshold
-    # the threshold then clears every clean score: detect finds nothing on the val logs
-    for log in sorted((twin_dataset / "val").glob("*.mcap")):
+    # the threshold clears every clean score: detect finds nothing on the val logs
+    for log in sorted(val.glob("*.mcap")):
         assert run("detect", log, "-c", out).exit_code == 0
+    # -k keeps the paper's μ + kσ, and no budget; so does no option at all (the default)
+    for k in (["-k", "4"], []):
+        k4 = run("threshold", val, "-c", twin_calibration, "-o", tmp_path / "k4.json", *k)
+        assert k4.exit_code == 0 and k4.stdout.startswith("k-sigma:")
+        th4 = json.loads((tmp_path / "k4.json").read_text())["threshold"]
+        assert th4["k_sigma"] == 4.0 and "false_alarm_budget" not in th4
+        assert th4["mu"] == th["mu"] and th4["sigma"] == th["sigma"]
+    # a larger budget, a lower threshold
+    lavish = run(
+        "threshold", val, "-c", twin_calibration, "-o", tmp_path / "b.json",
+        "--false-alarms-per-hour", "100",
+    )  # fmt: skip
+    assert lavish.exit_code == 0 and "budget 100 false alarm(s)/h" in lavish.stdout
+    assert json.loads((tmp_path / "b.json").read_text())["threshold"]["value"] < th["value"]
     both = run(
-        "threshold", twin_dataset / "val", "-c", twin_calibration, "-o", tmp_path / "x.json",
+        "threshold", val, "-c", twin_calibration, "-o", tmp_path / "x.json",
         "-k", "4", "--false-alarms-per-hour", "1",
     )  # fmt: skip
     assert_one_line_error(both, "--false-alarms-per-hour")
-    for bad in (["--false-alarms-per-hour", "inf"], ["-k", "inf"]):
-        result = run("threshold", twin_dataset / "val", "-c", twin_calibration, "-o", out, *bad)
+    for bad in (
+        ["--false-alarms-per-hour", "inf"],
+        ["--false-alarms-per-hour", "0"],
+        ["-k", "inf"],
+    ):
+        result = run("threshold", val, "-c", twin_calibration, "-o", out, *bad)
         assert_one_line_error(result, "finite number")
+
+
+def test_cli_threshold_warns_once_with_too_few_peaks(
+    twin_calibration: Path, tmp_path: Path
+) -> None:
+    from conftest import build_twin_log
+
+    short = build_twin_log(tmp_path / "short.mcap", seed=300, seconds=4.0)
+    out = tmp_path / "cal.json"
+    result = run(
+        "threshold", short, "-c", twin_calibration, "-o", out, "--false-alarms-per-hour", "1"
+    )
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.stderr.splitlines() if "warning" in line]
+    assert len(warnings) == 1 and "exponential tail" in warnings[0], result.stderr
+    assert result.stdout.startswith("pot-exponential:")
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("shape", float("nan")),
+        ("scale", float("inf")),
+        ("level_u", "12"),
+        ("rate_per_hour", -1.0),
+        ("peaks", 12.5),
+        ("interval", [1.0]),
+        ("interval", ["a", None]),
+        ("estimate", 1e9),
+        ("method", "magic"),
+    ],
+)
+def test_a_tail_that_is_not_numbers_is_refused_on_load(  # type: ignore[no-untyped-def]
+    twin_calibration: Path, twin_dataset: Path, tmp_path, key: str, value: object
+) -> None:
+    budget = tmp_path / "budget.json"
+    val = twin_dataset / "val"
+    assert run("threshold", val, "-c", twin_calibration, "-o", budget, "-q",
+               "--false-alarms-per-hour", "1").exit_code == 0  # fmt: skip
+    data = json.loads(budget.read_text())
+    assert data["threshold"]["false_alarm_budget"]["method"] == "pot-gpd"
+    data["threshold"]["false_alarm_budget"][key] = value
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(data))  # NaN and inf as JSON's NaN and Infinity
+    with pytest.raises(CalibrationError, match="false_alarm_budget"):
+        Calibration.load(bad)
+    result = run("detect", sorted((twin_dataset / "test").glob("*.mcap"))[0], "-c", bad)
+    assert_one_line_error(result, "false_alarm_budget")
+
+
+def test_older_thresholds_keep_loading(twin_calibration: Path, tmp_path: Path) -> None:
+    data = json.loads(twin_calibration.read_text())
+    data["threshold"]["false_alarm_budget"] = {"per_hour": 1.0, "false_alarms": 0, "hours": 0.5}
+    older = tmp_path / "older.json"
+    older.write_text(json.dumps(data))
+    th = Calibration.load(older).require_threshold()
+    assert th.tail is None and th.budget_per_hour == 1.0 and th.judged_s == 1800.0
+    del data["threshold"]["false_alarm_budget"]
+    older.write_text(json.dumps(data))
+    assert Calibration.load(older).require_threshold().budget_per_hour is None

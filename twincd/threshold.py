@@ -1,13 +1,13 @@
-"""μ + kσ of the score on collision-free logs (the paper's threshold), from mergeable sums; or
-the lowest threshold that keeps false alarms within a budget per hour of those logs.
+"""The detection threshold from the score on collision-free logs: by default the threshold of a
+false-alarm budget per hour of collision-free time, extrapolated from the score's excursions
+(peaks over threshold and a generalised Pareto tail, ``twincd.tail``); or the paper's μ + kσ.
 
-A false alarm is a maximal run of flags (DESIGN §6); on collision-free logs every run is one.
-For the budget, each log counts its runs at every threshold of a fixed log-spaced grid in one
-pass (a run starts at sample i for every threshold t with s[i−1] < t ≤ s[i]), so counts merge by
-addition and memory stays flat; the threshold is then the lowest grid value above which no
-threshold gives more alarms than the budget allows. σ of collision-free scores says little of
-their rare excursions (the friction models' scores have heavy tails): a budget met on an hour of
-validation data is what a CI gate or an operator can rely on.
+Everything a log contributes merges exactly in any order: μ and σ from mergeable sums, the
+excursions' peaks per level, and, as a check recorded beside the threshold, the runs of scores
+at every value of a fixed log-spaced grid (a run starts at sample i for every threshold t with
+s[i−1] < t ≤ s[i]) — the false alarms the validation logs themselves gave. σ of collision-free
+scores says little of their rare excursions (the score's tail is far from Gaussian): μ + 4σ on a
+short log is not a false-alarm rate, while the tail of the excursions' peaks extrapolates to one.
 """
 
 from __future__ import annotations
@@ -23,9 +23,10 @@ from numpy.typing import NDArray
 
 from twincd.calibration import Calibration, Threshold, clean_mask, clean_rows
 from twincd.calibration.models import model_inputs
-from twincd.defaults import DEFAULT_K_SIGMA
+from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedLog, Setup
+from twincd.tail import MIN_PEAKS, ExcursionCounter, Excursions, fit_tail
 
 log = logging.getLogger("twincd")
 
@@ -138,7 +139,7 @@ class AlarmCounter:
 
 
 def check_threshold_settings(k_sigma: float, per_hour: float | None = None) -> None:
-    """A finite k ≥ 0, and a finite budget ≥ 0 when one is given (checked before any work)."""
+    """A finite k ≥ 0, and a finite budget > 0 when one is given (checked before any work)."""
     if not (math.isfinite(k_sigma) and k_sigma >= 0):
         raise UsageError(
             f"k of the threshold μ + kσ must be a finite number ≥ 0, not {k_sigma}",
@@ -146,9 +147,9 @@ def check_threshold_settings(k_sigma: float, per_hour: float | None = None) -> N
             "give k such as 4 (the paper's)",
             option="sigma",
         )
-    if per_hour is not None and not (math.isfinite(per_hour) and per_hour >= 0):
+    if per_hour is not None and not (math.isfinite(per_hour) and per_hour > 0):
         raise UsageError(
-            f"the false-alarm budget must be a finite number ≥ 0 per hour, not {per_hour}",
+            f"the false-alarm budget must be a finite number > 0 per hour, not {per_hour}",
             "threshold",
             "give a budget such as 1 (per hour)",
             option="false_alarms_per_hour",
@@ -156,30 +157,39 @@ def check_threshold_settings(k_sigma: float, per_hour: float | None = None) -> N
 
 
 def budget_threshold(
-    counts: AlarmCounts, stats: ScoreStats, per_hour: float, logs: Sequence[str] = ()
+    excursions: Excursions,
+    counts: AlarmCounts,
+    stats: ScoreStats,
+    per_hour: float = DEFAULT_FALSE_ALARMS_PER_HOUR,
+    logs: Sequence[str] = (),
 ) -> Threshold:
-    """The lowest value of ``ALARM_GRID`` at or above μ, above which the logs' false alarms
-    per hour never exceed ``per_hour``, as μ + kσ with its k and the alarms at that value."""
+    """The threshold x of a false-alarm budget extrapolated from the score's excursions (see
+    ``twincd.tail``), never below μ, as μ + kσ with its k; with it the tail fit and the runs the
+    validation logs gave at the grid value just below x (at least the alarms at x)."""
     check_threshold_settings(0.0, per_hour)
-    mu = stats.mu  # no collision-free samples: a clear error here
-    allowed = per_hour * counts.seconds / 3600.0
-    over = np.flatnonzero(counts.runs > allowed + 1e-9)
-    lowest = int(np.searchsorted(ALARM_GRID, mu, side="left"))  # never below μ (k ≥ 0)
-    index = min(max(int(over[-1]) + 1 if len(over) else 0, lowest), len(ALARM_GRID) - 1)
-    value = float(ALARM_GRID[index])
-    sigma = stats.sigma
-    k_sigma = (value - mu) / sigma if sigma > 0 else 0.0
-    hours = counts.seconds / 3600.0
-    needed = max(1.0, 1.0 / per_hour) if per_hour > 0 else 1.0
-    if hours < needed and per_hour * hours < 1.0:
+    mu, sigma = stats.mu, stats.sigma  # no collision-free samples: a clear error here
+    tail = fit_tail(excursions, per_hour)
+    minutes = excursions.seconds / 60.0
+    if tail is None:
         log.warning(
-            "the validation logs hold %.3g min of collision-free data: a budget of %g false "
-            "alarm(s) per hour needs %.3g h or more of it to be shown; the threshold then sits "
-            "above the highest score seen and may alarm more often on other logs",
-            counts.seconds / 60.0,
-            per_hour,
-            needed,
+            "the score has no excursions to fit a tail to in %.3g min of collision-free "
+            "data (constant, or one level throughout): the threshold is μ + %gσ instead",
+            minutes,
+            DEFAULT_K_SIGMA,
         )
+        return stats.threshold(DEFAULT_K_SIGMA, logs)
+    if tail.method != "pot-gpd":
+        log.warning(
+            "only %d score excursion(s) in %.3g min of collision-free data, fewer than the %d "
+            "a tail shape needs: the threshold assumes an exponential tail, which heavy tails "
+            "exceed; give more clean validation data",
+            tail.peaks,
+            minutes,
+            MIN_PEAKS,
+        )
+    value = max(tail.estimate, mu)
+    k_sigma = (value - mu) / sigma if sigma > 0 else 0.0
+    below = max(int(np.searchsorted(ALARM_GRID, value, side="right")) - 1, 0)
     return Threshold(
         k_sigma,
         mu,
@@ -187,8 +197,9 @@ def budget_threshold(
         tuple(logs),
         stats.n,
         budget_per_hour=per_hour,
-        false_alarms=int(counts.runs[index]),
+        false_alarms=int(counts.runs[below]),
         judged_s=counts.seconds,
+        tail=tail,
     )
 
 
@@ -200,64 +211,81 @@ class LogScores:
     stats: ScoreStats
     samples: int = 0  # every sample read (labelled ones too): what progress counts
     alarms: AlarmCounts | None = None
+    excursions: Excursions | None = None
 
 
 def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogScores:
-    """Stream one log into statistics of its calibrated score on collision-free samples, and
-    its runs at every threshold of the false-alarm grid."""
+    """Stream one log into statistics of its calibrated score on collision-free samples, its
+    excursions, and its runs at every threshold of the alarm grid."""
     stats = ScoreStats()
     with setup.open(path) as stream:
         counter: AlarmCounter | None = None
+        peaks: ExcursionCounter | None = None
         for frame in stream:
             counter = counter or AlarmCounter(stream.period_s)
+            peaks = peaks or ExcursionCounter(stream.period_s)
             scores = calibration.model.scores({**frame, "coulomb_eps": stream.coulomb_eps})
             usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             stats = stats + ScoreStats.from_scores(scores, usable)
             counter.push(scores, usable)
+            peaks.push(scores, usable)
     alarms = None if counter is None else counter.counts
-    return LogScores(str(path), stats, stream.samples, alarms)
+    excursions = None if peaks is None else peaks.excursions
+    return LogScores(str(path), stats, stream.samples, alarms, excursions)
 
 
 def with_threshold(
     parts: Iterable[LogScores],
     calibration: Calibration,
-    k_sigma: float = DEFAULT_K_SIGMA,
+    k_sigma: float | None = None,
     false_alarms_per_hour: float | None = None,
 ) -> Calibration:
-    """The calibration with μ + kσ from per-log statistics merged in any order; or, with
-    ``false_alarms_per_hour``, with the lowest threshold that keeps within that budget."""
+    """The calibration with a threshold from per-log parts merged in any order: μ + kσ when
+    ``k_sigma`` is given, else the threshold of a false-alarm budget (``false_alarms_per_hour``,
+    by default ``DEFAULT_FALSE_ALARMS_PER_HOUR``)."""
     parts = sorted(parts, key=lambda p: p.source)
     total = ScoreStats()
     alarms = AlarmCounts.zeros()
+    excursions = Excursions()
     for p in parts:
         total = total + p.stats
         if p.alarms is not None:
             alarms = alarms + p.alarms
+        if p.excursions is not None:
+            excursions = excursions + p.excursions
     seen = [p.source for p in parts]
     reused = sorted(set(seen) & set(calibration.fit_logs))
     if reused:
         log.warning(
-            "%d threshold log(s) were also used by fit (%s): μ and σ will be optimistic; "
+            "%d threshold log(s) were also used by fit (%s): the threshold will be optimistic; "
             "use separate validation logs",
             len(reused),
             reused[0],
         )
-    check_threshold_settings(k_sigma, false_alarms_per_hour)
-    if false_alarms_per_hour is not None:
-        threshold = budget_threshold(alarms, total, false_alarms_per_hour, seen)
-        return calibration.with_threshold(threshold)
-    return calibration.with_threshold(total.threshold(k_sigma, seen))
+    check_threshold_settings(DEFAULT_K_SIGMA if k_sigma is None else k_sigma, false_alarms_per_hour)
+    if k_sigma is not None and false_alarms_per_hour is not None:
+        raise UsageError(
+            "give k or a false-alarm budget, not both",
+            "threshold",
+            "drop one of them",
+            option="sigma,false_alarms_per_hour",
+        )
+    if k_sigma is not None:
+        return calibration.with_threshold(total.threshold(k_sigma, seen))
+    budget = (
+        DEFAULT_FALSE_ALARMS_PER_HOUR if false_alarms_per_hour is None else false_alarms_per_hour
+    )
+    return calibration.with_threshold(budget_threshold(excursions, alarms, total, budget, seen))
 
 
 def threshold_calibration(
     paths: Iterable[str | Path],
     calibration: Calibration,
     setup: Setup,
-    k_sigma: float = DEFAULT_K_SIGMA,
+    k_sigma: float | None = None,
     false_alarms_per_hour: float | None = None,
 ) -> Calibration:
-    """μ + kσ of the calibrated score on collision-free logs, each streamed (or the threshold
-    of a false-alarm budget, see ``with_threshold``)."""
+    """The threshold from collision-free logs, each streamed (see ``with_threshold``)."""
     parts = [score_log(p, setup, calibration) for p in paths]
     return with_threshold(parts, calibration, k_sigma, false_alarms_per_hour)
 
@@ -265,7 +293,7 @@ def threshold_calibration(
 def calibrate_threshold(
     logs: Iterable[PreparedLog], calibration: Calibration, k_sigma: float = DEFAULT_K_SIGMA
 ) -> Calibration:
-    """The same from logs already prepared in memory."""
+    """μ + kσ from logs already prepared in memory (the paper's threshold, as evaluate uses)."""
     parts = (
         LogScores(
             lg.source,

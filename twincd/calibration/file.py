@@ -19,6 +19,7 @@ from twincd.calibration.models import AFFINE, MODEL_KINDS, ResidualModel
 from twincd.errors import CalibrationError, NotFittedError
 from twincd.io.logs import LogOptions
 from twincd.signal.filters import LowPass
+from twincd.tail import TAIL_METHODS, TailFit
 
 FloatArray = NDArray[np.float64]
 
@@ -66,7 +67,7 @@ def finite_array(values: Sequence[Any], names: Sequence[str], field: str, where:
 
 @dataclass(frozen=True)
 class Threshold:
-    """μ + kσ of the score on collision-free logs (DESIGN §4 ``threshold``)."""
+    """The threshold as μ + kσ of the score on collision-free logs, whatever chose k."""
 
     k_sigma: float
     mu: float
@@ -78,6 +79,7 @@ class Threshold:
     budget_per_hour: float | None = None
     false_alarms: int | None = None
     judged_s: float | None = None
+    tail: TailFit | None = None  # the tail fit that chose the threshold of a budget
 
     @property
     def value(self) -> float:
@@ -97,6 +99,7 @@ class Threshold:
                 "per_hour": self.budget_per_hour,
                 "false_alarms": self.false_alarms,
                 "hours": None if self.judged_s is None else self.judged_s / 3600.0,
+                **({} if self.tail is None else _tail_dict(self.tail)),
             }
         return out
 
@@ -413,11 +416,87 @@ def _budget(raw: Any, where: str) -> dict[str, Any]:
     alarms = raw.get("false_alarms")
     return {
         "budget_per_hour": finite_number(raw["per_hour"], "false_alarm_budget.per_hour", where),
-        "false_alarms": None if alarms is None else int(alarms),
+        "false_alarms": None if alarms is None else _count(alarms, "false_alarms", where),
         "judged_s": None
         if hours is None
         else 3600.0 * finite_number(hours, "false_alarm_budget.hours", where),
+        "tail": None if "method" not in raw else _tail(raw, where),
     }
+
+
+def _tail_dict(tail: TailFit) -> dict[str, Any]:
+    """The tail fit as stored beside the budget (``threshold.false_alarm_budget``)."""
+    return {
+        "method": tail.method,
+        "level_u": tail.level,
+        "peaks": tail.peaks,
+        "rate_per_hour": tail.rate_per_hour,
+        "shape": tail.shape,
+        "scale": tail.scale,
+        "estimate": tail.estimate,
+        "interval": [tail.low, tail.high],
+        "confidence": tail.confidence,
+        "decluster_gap_s": tail.gap_s,
+    }
+
+
+def _tail(raw: Mapping[str, Any], where: str) -> TailFit:
+    """The tail fit of a budget's threshold, every number checked."""
+    method = raw["method"]
+    if method not in TAIL_METHODS:
+        raise CalibrationError(
+            f"calibration field false_alarm_budget.method is {method!r}, "
+            f"not one of {', '.join(TAIL_METHODS)}",
+            where,
+            "re-run `twincd threshold`",
+        )
+
+    def number(key: str, *, positive: bool = False) -> float:
+        return finite_number(raw[key], f"false_alarm_budget.{key}", where, positive=positive)
+
+    interval = raw["interval"]
+    if not isinstance(interval, list) or len(interval) != 2:
+        raise CalibrationError(
+            "calibration field false_alarm_budget.interval is not a pair [low, high]",
+            where,
+            "re-run `twincd threshold`",
+        )
+    low = finite_number(interval[0], "false_alarm_budget.interval[0]", where)
+    high = interval[1]
+    if high is not None:
+        high = finite_number(high, "false_alarm_budget.interval[1]", where)
+    estimate = number("estimate")
+    if not low <= estimate <= (math.inf if high is None else high):
+        raise CalibrationError(
+            "calibration field false_alarm_budget.interval does not hold its estimate",
+            where,
+            "re-run `twincd threshold`",
+        )
+    return TailFit(
+        method=str(method),
+        per_hour=number("per_hour", positive=True),
+        level=number("level_u"),
+        peaks=_count(raw["peaks"], "peaks", where),
+        rate_per_hour=number("rate_per_hour", positive=True),
+        shape=number("shape"),
+        scale=number("scale", positive=True),
+        estimate=estimate,
+        low=low,
+        high=high,
+        confidence=number("confidence", positive=True),
+        gap_s=number("decluster_gap_s", positive=True),
+    )
+
+
+def _count(value: Any, name: str, where: str) -> int:
+    """A count ≥ 0 of the budget's fields (a JSON integer, not a float or a string)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise CalibrationError(
+            f"calibration field false_alarm_budget.{name} is {value!r}, not a count",
+            where,
+            "re-run `twincd threshold`",
+        )
+    return value
 
 
 def _check_threshold(threshold: Threshold, raw: Mapping[str, Any], where: str) -> None:
