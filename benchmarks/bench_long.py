@@ -15,11 +15,14 @@ What it does, in one run:
    ``/collision_flag`` False at the start. Bare ros2 MCAP files (zstd chunks), plus one rosbag2
    sqlite3 copy of the --sqlite length (default 20 min).
 2. Calibrates once per run (not judged): ``twincd fit`` on a separate short log, then
-   ``twincd threshold`` on another.
+   ``twincd threshold`` on another; the same with ``fit --model identified-whitened`` (the
+   model that also filters the joint-torque regressor, hundreds of values per sample).
 3. For each length, each as its own subprocess: rosbags' read-only pass (AnyReader, every
    /joint_states message through ``reader.deserialize``: the floor of any rosbags-based reader),
    ``twincd detect LOG -c CAL``, ``detect LOG -c CAL -o OUT.mcap``, ``simulate LOG -o
-   OUT.twin.mcap`` and ``fit LOG -o CAL2.json``; on the sqlite3 copy, rosbags and ``detect``.
+   OUT.twin.mcap``, ``fit LOG -o CAL2.json``, ``fit LOG --model identified-whitened -o
+   CAL2.json`` and ``detect LOG -c IDENTIFIED_CAL``; on the sqlite3 copy, rosbags and
+   ``detect``.
 4. Start-up: ``twincd --version`` against ``python -c "import numpy"``, best of 5 each.
 
 Columns: ``s`` wall seconds of the command (start-up included, as a user sees it); ``cpu s``
@@ -92,6 +95,11 @@ NOISE_NM = 0.05
 
 # Acceptance of the long-log issue.
 SPEED_TARGETS = {"detect": 5.0, "detect -o out.mcap": 2.0, "simulate": 2.0, "fit": 5.0}
+# the identified model's fit and detect: ratios and peak RSS (≤ RSS_LIMIT_MB), no speed target
+IDENTIFIED_MODEL = "identified-whitened"
+FIT_IDENTIFIED = f"fit --model {IDENTIFIED_MODEL}"
+DETECT_IDENTIFIED = f"detect -c {IDENTIFIED_MODEL}"
+IDENTIFIED = ["--model", IDENTIFIED_MODEL]
 SPEED_MINUTES = 20.0
 RSS_LIMIT_MB = 300.0
 STARTUP_LIMIT = 3.0
@@ -522,6 +530,18 @@ def table(runs: Sequence[Run]) -> str:
     return "\n".join(lines)
 
 
+def identified_lines(runs: Sequence[Run]) -> list[str]:
+    """One verdict line per identified-model command: its ratio to rosbags and peak RSS."""
+    lines = []
+    for r in runs:
+        if r.command in (FIT_IDENTIFIED, DETECT_IDENTIFIED):
+            lines.append(
+                f"{r.command} at {r.minutes:g} min ({r.log}): {fmt(r.ratio, '.2f')}× rosbags, "
+                f"{r.rss_mb:.0f} MB ≤ {RSS_LIMIT_MB:g} MB: {r.rss_verdict or '—'}"
+            )
+    return ["", *lines] if lines else []
+
+
 def acceptance(runs: Sequence[Run], startup_ratio: float | None) -> tuple[list[str], list[str]]:
     """(failed checks, checks the run did not measure) of the issue's acceptance."""
     failed, missing = [], []
@@ -568,14 +588,17 @@ def default_twincd() -> str:
     return found
 
 
-def calibrate(bench: Bench, cal: Path, minutes: float) -> bool:
-    """fit on one short log, threshold on another: what every detect of the run uses."""
+def calibrate(bench: Bench, cal: Path, minutes: float, model: list[str] | None = None) -> bool:
+    """fit on one short log, threshold on another: what every detect of the run uses (the
+    default model, or ``model``'s options, e.g. ``IDENTIFIED``)."""
     fit_log = cached_log(bench.cache, minutes, CAL_SEEDS[0])
     val_log = cached_log(bench.cache, minutes, CAL_SEEDS[1])
-    fit = [bench.twincd, "fit", str(fit_log), "-o", str(cal)]
+    fit = [bench.twincd, "fit", str(fit_log), *(model or []), "-o", str(cal)]
     threshold = [bench.twincd, "threshold", str(val_log), "-c", str(cal)]
+    what = f" {model[-1]}" if model else ""
     return all(
-        bench.run(minutes, "mcap", f"calibrate: {argv[1]}", argv).ok for argv in (fit, threshold)
+        bench.run(minutes, "mcap", f"calibrate: {argv[1]}{what}", argv).ok
+        for argv in (fit, threshold)
     )
 
 
@@ -588,6 +611,7 @@ def output_problem(command: str, work: Path, samples: int) -> str:
         "detect -o out.mcap": ("out.mcap", (TOPIC, "/twincd/score", "/twincd/collision")),
         "simulate": ("out.twin.mcap", (TOPIC, "/twincd/sim_effort")),
         "fit": ("cal2.json", ()),
+        FIT_IDENTIFIED: ("cal2.json", ()),
     }
     if command not in wanted:
         return ""
@@ -612,14 +636,20 @@ def output_problem(command: str, work: Path, samples: int) -> str:
     return f"{name}: not {samples} messages on {', '.join(short)}" if short else ""
 
 
-def measure(bench: Bench, minutes: float, log: Path, cal: Path, sqlite: Path | None) -> None:
-    """rosbags' floor and the four commands on one log; rosbags and detect on its sqlite3 copy."""
+def measure(
+    bench: Bench, minutes: float, log: Path, cals: tuple[Path, Path], sqlite: Path | None
+) -> None:
+    """rosbags' floor and the commands on one log (``cals``: the default and the identified
+    calibration); rosbags and detect on its sqlite3 copy."""
+    cal, identified = cals
     twincd, detect = bench.twincd, [bench.twincd, "detect", str(log), "-c", str(cal)]
     commands = {
         "detect": detect,
         "detect -o out.mcap": [*detect, "-o", "out.mcap"],
         "simulate": [twincd, "simulate", str(log), "-o", "out.twin.mcap"],
         "fit": [twincd, "fit", str(log), "-o", "cal2.json"],
+        FIT_IDENTIFIED: [twincd, "fit", str(log), *IDENTIFIED, "-o", "cal2.json"],
+        DETECT_IDENTIFIED: [twincd, "detect", str(log), "-c", str(identified)],
     }
     floor = bench.rosbags(minutes, "mcap", log)
     samples = round(minutes * 60 * RATE_HZ)
@@ -645,12 +675,15 @@ def report(
 ) -> int:
     """Print the table and the acceptance; write --json; 1 if a measured check failed."""
     timed = [r for r in bench.runs if not r.command.startswith("calibrate")]
-    fit_s, threshold_s = (r.seconds for r in bench.runs[:2])
+    calibration = ", ".join(
+        f"{r.command.removeprefix('calibrate: ')} {r.seconds:.1f} s"
+        for r in bench.runs
+        if r.command.startswith("calibrate")
+    )
     print(
         f"twincd long-log benchmark — {bench.twincd} on {platform.node()}, "
         f"{os.cpu_count()} cores, load {load[0]:.2f} → {load[1]:.2f}\n"
-        f"calibration (not judged): fit {fit_s:.1f} s, threshold {threshold_s:.1f} s "
-        f"on {args.cal_minutes:g} min logs"
+        f"calibration (not judged): {calibration} on {args.cal_minutes:g} min logs"
     )
     print(table(timed))
     for r in timed:
@@ -666,6 +699,8 @@ def report(
         f"{startup['import_numpy_s']:.3f} s → {ratio:.2f}× "
         f"(≤ {STARTUP_LIMIT:g}×: {'PASS' if ratio <= STARTUP_LIMIT else 'FAIL'})"
     )
+    for line in identified_lines(timed):
+        print(line)
     failed, missing = acceptance(timed, ratio)
     broken = [r for r in bench.runs if not r.ok]
     if broken:
@@ -734,11 +769,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.sqlite in logs:
             sqlite = cached_log(cache, args.sqlite, BENCH_SEED, sqlite=True)
         cal = cal_dir / "calibration.json"  # outside `work`, which is emptied after each command
-        if not calibrate(bench, cal, args.cal_minutes):
+        identified = cal_dir / "identified.json"
+        if not (
+            calibrate(bench, cal, args.cal_minutes)
+            and calibrate(bench, identified, args.cal_minutes, IDENTIFIED)
+        ):
             print(table(bench.runs))
             return 2
         for minutes, log in logs.items():
-            measure(bench, minutes, log, cal, sqlite if minutes == args.sqlite else None)
+            copy = sqlite if minutes == args.sqlite else None
+            measure(bench, minutes, log, (cal, identified), copy)
 
         note("start-up …")
         version_s = best_of([twincd, "--version"], work, args.startup_repeats)

@@ -27,7 +27,7 @@ from twincd.calibration.models import (
     solve_identified,
 )
 from twincd.detection import OnlineDetector, detect_file
-from twincd.errors import CalibrationError
+from twincd.errors import CalibrationError, DataError
 from twincd.pipeline import Setup
 from twincd.signal.derivatives import differentiate
 from twincd.signal.filters import LowPass
@@ -303,3 +303,70 @@ def test_filter_kind_is_a_choice_and_the_calibration_keeps_it(
     assert_one_line_error(result, "--filter-kind")
     result = run("fit", xarm_dataset / "train", "-o", out, "--filter-kind", "bessel")
     assert_one_line_error(result, "--filter-kind")
+
+
+# ---------------------------------------------------------------- flat memory: blocks, mask
+
+
+def test_identified_fit_in_blocks_equals_one_block(tmp_path: Path) -> None:
+    from twincd.calibration.models import model_inputs
+    from twincd.calibration.setup import fit_log, merge_fits, setup_for_model
+
+    log = jittered_xarm_log(tmp_path / "run.mcap")
+    one = setup_for_model(Setup(robot="xarm7", block_size=1 << 20), "identified")
+    blocks = replace(one, block_size=97)
+    fits = [fit_log(log, s) for s in (one, blocks)]
+    whole, parts = (f.identified for f in fits)
+    assert whole is not None and parts is not None and whole.n == parts.n > 2000
+    np.testing.assert_allclose(parts.mean, whole.mean, rtol=1e-9, atol=1e-12)
+    scale = np.sqrt(np.einsum("dkk->dk", whole.cross))  # each column's spread
+    assert np.all(np.abs(parts.cross - whole.cross) <= 1e-9 * scale[:, :, None] * scale[:, None])
+    cals = [merge_fits([f], one, "identified") for f in fits]
+    for name in ("a", "b", "c", "d", "epsilon", "rmse", "r2"):
+        np.testing.assert_allclose(getattr(cals[1], name), getattr(cals[0], name), rtol=1e-9)
+    # and the fitted map scores a log alike
+    prepared = one.prepare(log)
+    residuals = [c.model.residual(model_inputs(prepared)) for c in cals]
+    np.testing.assert_allclose(residuals[1], residuals[0], atol=1e-9 * np.ptp(prepared.effort_f))
+
+
+def test_masked_regressor_statistics_and_prediction_equal_the_whole_ones(xarm) -> None:  # type: ignore[no-untyped-def]
+    twin, y, qd, coulomb, effort = _heavier_plant(xarm, 700, 2)
+    mask = regressor_mask(xarm)
+    rows = np.random.default_rng(3).uniform(size=len(y)) < 0.9
+    whole = IdentifiedStats.from_arrays(twin, y, qd, coulomb, effort, rows)
+    kept = IdentifiedStats.from_arrays(twin, y[:, mask], qd, coulomb, effort, rows, mask)
+    assert kept.n == whole.n  # the same bits: the entries off the mask are zero by structure
+    assert np.array_equal(kept.mean, whole.mean) and np.array_equal(kept.cross, whole.cross)
+    affine = AffineStats.from_arrays(twin, effort)
+    friction = FrictionStats.from_arrays(twin, qd, coulomb, effort)
+    model = fit_model("identified", affine, friction, whole).model
+    assert model.theta is not None and not np.any(model.theta[~mask])  # θ lives on the mask
+    inputs = {"effort_f": effort, "sim_effort_f": twin, "velocity_f": qd, "coulomb_f": coulomb}
+    inputs["coulomb_eps"] = EPSILON_GRID
+    full = model.predict({**inputs, "regressor_f": y})
+    compact = model.predict({**inputs, "regressor_f": y[:, mask], "regressor_mask": mask})
+    np.testing.assert_allclose(compact, full, rtol=1e-12, atol=1e-12 * np.ptp(full))
+    with pytest.raises(DataError, match="mask"):  # a compact regressor needs its mask
+        IdentifiedStats.from_arrays(twin, y[:, mask], qd, coulomb, effort)
+
+
+def test_streamed_frames_carry_only_the_masked_regressor(tmp_path: Path) -> None:
+    log = jittered_xarm_log(tmp_path / "run.mcap")
+    setup = Setup(robot="xarm7", coulomb_eps=EPSILON_GRID, regressor=True, block_size=500)
+    with setup.open(log) as stream:
+        frames = list(stream)
+        mask = stream.regressor_mask
+    assert mask is not None and mask.shape == (7, 70)
+    assert all(f["regressor_f"].shape == (f.n, int(mask.sum())) for f in frames)
+    # the regressor's rows never come in blocks bigger than REGRESSOR_BLOCK, whatever asked
+    from twincd.pipeline import REGRESSOR_BLOCK
+
+    assert setup.block_size_for(True) == 500 and setup.block_size_for(False) == 500
+    big = replace(setup, block_size=1 << 20)
+    assert big.block_size_for(True) == REGRESSOR_BLOCK and big.block_size_for(False) == 1 << 20
+    whole = setup.prepare(log).regressor_f
+    assert whole is not None and not np.any(whole[:, ~mask])
+    np.testing.assert_array_equal(
+        whole[:, mask], np.concatenate([f["regressor_f"] for f in frames])
+    )

@@ -318,3 +318,26 @@ def test_edge_span_is_half_a_cutoff_period_and_none_when_causal():
 
     assert edge_span(LowPass(1.0), 0.001) == 500 and edge_span(LowPass(2.0), 0.01) == 25
     assert edge_span(LowPass(1.0, causal=True), 0.001) == 0
+
+
+def test_a_wide_input_filters_to_the_bits_of_each_channel_alone() -> None:
+    """Hundreds of channels (the identified models' regressor) go through the recursion in row
+    chunks, with only the end extension's raw values kept: the same bits as one narrow run."""
+    rng = np.random.default_rng(4)
+    n, width = 9000, 700  # wide enough that every pass is cut into row chunks
+    stamps = make_stamps(rng, n, 1_000_000, gaps=1)
+    values = make_values(rng, n, width)
+    picked = [0, 333, width - 1]
+    cuts = list(itertools.pairwise([0, 1500, 5000, n]))
+
+    def run(stage: StreamingLowPass, x: np.ndarray) -> np.ndarray:
+        out = [stage.push(stamps[a:b], x[a:b]) for a, b in cuts]
+        return np.concatenate([*out, stage.finish()])
+
+    for causal in (False, True):
+        lowpass = LowPass(cutoff_hz=2.0, causal=causal)
+        wide = StreamingLowPass(lowpass, period_s=0.001)
+        got = run(wide, values)
+        assert wide.buffered == 0 and got.shape == values.shape
+        alone = run(StreamingLowPass(lowpass, period_s=0.001), values[:, picked])
+        assert np.array_equal(got[:, picked], alone)

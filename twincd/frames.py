@@ -128,12 +128,15 @@ class _Fifo:
 class Derived:
     """Adds column ``out`` = ``signal`` applied to column ``source`` (with the frame's
     ``stamp_ns``), holding each frame's other columns until the signal stage emits its samples.
+    ``keep=False`` drops ``source`` from the output: a wide input is then not held twice (in
+    the signal stage and here) while it waits.
     """
 
-    def __init__(self, signal: SignalStage, source: str, out: str) -> None:
+    def __init__(self, signal: SignalStage, source: str, out: str, keep: bool = True) -> None:
         self.signal = signal
         self.source = source
         self.out = out
+        self.keep = keep
         self._waiting = _Fifo()
 
     def _emit(self, values: Array) -> Frame:
@@ -143,8 +146,11 @@ class Derived:
     def push(self, frame: Frame) -> Frame:
         if not frame.n:
             return frame
+        values = frame[self.source]
+        if not self.keep:
+            frame = Frame({k: v for k, v in frame.items() if k != self.source}, frame.n)
         self._waiting.put(frame)
-        return self._emit(self.signal.push(frame["stamp_ns"], frame[self.source]))
+        return self._emit(self.signal.push(frame["stamp_ns"], values))
 
     def finish(self) -> Frame:
         values = self.signal.finish()

@@ -45,6 +45,9 @@ BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.intp]
 
 DEFAULT_BLOCK = 16384  # samples per block: bounded memory, per-block Python cost negligible
+# samples per block with the joint-torque regressor (identified models): each sample then
+# carries hundreds of filtered values, and a block's copies must stay a few MB
+REGRESSOR_BLOCK = 2048
 # samples looked at before the stages are set up: enough for a stable nominal period
 PEEK_SAMPLES = 1001
 # fewer usable samples than this: a log is refused, not scored (a few samples say nothing)
@@ -202,9 +205,9 @@ def filter_stages(
     filtered matches the filtered effort (tanh of the filtered velocity steps too sharply
     there). With ``regressor`` (identified models: the (D, P) mask of the regressor's entries
     that can be non-zero, ``twincd.twin.dynamics.regressor_mask``, in the frames' joint order),
-    the joint-torque regressor too, as ``regressor_f`` (N, D, P); only the masked entries are
-    filtered, the others stay 0. Without either, nothing more is filtered: the seed's model
-    costs what it did."""
+    the joint-torque regressor too, as ``regressor_f`` (N, kept): only the masked entries,
+    in row-major order (``PreparedLog`` has it whole, (N, D, P)). Without either, nothing more
+    is filtered: the seed's model costs what it did."""
     from twincd.signal.filters import StreamingLowPass
 
     eps = tuple(float(e) for e in coulomb_eps)
@@ -230,15 +233,13 @@ def filter_stages(
                 velocity_f=both[:, 2 * d : 3 * d],
                 coulomb_f=both[:, 3 * d : (3 + len(eps)) * d].reshape(len(both), len(eps), d),
             )
-        if regressor is not None:
-            full = np.zeros((len(both), *regressor.shape))
-            full[:, regressor] = both[:, (2 + extra) * d :]
-            out = out.with_columns(regressor_f=full)
+        if regressor is not None:  # only the masked entries, (N, kept): no zeros copied
+            out = out.with_columns(regressor_f=both[:, (2 + extra) * d :])
         return out
 
     return [
         Mapped(stack),
-        Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f"),
+        Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f", keep=False),
         Mapped(split),
         *edge_stages(lowpass, period_s),
     ]
@@ -296,6 +297,8 @@ class PreparedStream:
         self.velocity_from_position = False
         self.coulomb_eps = setup.coulomb_eps if filtered else ()
         self.regressor = setup.regressor and filtered  # identified models: Y(q, q̇, q̈) filtered
+        # (D, P): the regressor's entries the frames' ``regressor_f`` (N, kept) holds
+        self.regressor_mask: BoolArray | None = None
         self.checks: SignalChecks | None = None
         self.at_edges = 0  # samples within the zero-phase filter's edge spans
         self._log: LogStream | None = None
@@ -311,7 +314,7 @@ class PreparedStream:
         self._log = iter_blocks(
             self.path,
             self.setup.options,
-            block_size=self.setup.block_size,
+            block_size=self.setup.block_size_for(self.regressor),
             strict=self.setup.strict,
             known=known,
             known_from=known_from,
@@ -448,6 +451,7 @@ class PreparedStream:
                 from twincd.twin.dynamics import regressor_mask
 
                 mask = regressor_mask(regressor)[to_final]  # robot order → the final one
+                self.regressor_mask = mask
             stages += filter_stages(setup.lowpass, self.period_s, setup.coulomb_eps, mask)
         self.velocity_from_position = fill
         return Chain(stages), to_twin
@@ -626,6 +630,10 @@ class Setup:
     # with ``regressor``: leave it out, rather than refuse a log, where no robot model is known
     regressor_optional: bool = False
 
+    def block_size_for(self, regressor: bool) -> int:
+        """Samples per block read: fewer when the regressor is filtered (``REGRESSOR_BLOCK``)."""
+        return min(self.block_size, REGRESSOR_BLOCK) if regressor else self.block_size
+
     @classmethod
     def from_calibration(cls, calibration: CalibrationSettings) -> Setup:
         return cls(
@@ -746,10 +754,19 @@ def prepared_log(stream: PreparedStream, whole: Frame, lowpass: LowPass) -> Prep
         velocity_f=whole.get("velocity_f"),
         coulomb_f=whole.get("coulomb_f"),
         coulomb_eps=stream.coulomb_eps,
-        regressor_f=whole.get("regressor_f"),
+        regressor_f=_whole_regressor(whole.get("regressor_f"), stream.regressor_mask),
         robot=stream.robot,
         simulated=stream.simulated,
         lowpass=lowpass,
         period_s=stream.period_s,
         edge=None if "edge" not in whole else whole["edge"] > 0,
     )
+
+
+def _whole_regressor(compact: FloatArray | None, mask: BoolArray | None) -> FloatArray | None:
+    """The (N, D, P) regressor with zeros outside ``mask``, from the frames' (N, kept)."""
+    if compact is None or mask is None:
+        return None
+    whole = np.zeros((len(compact), *mask.shape))
+    whole[:, mask] = compact
+    return whole

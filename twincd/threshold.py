@@ -224,7 +224,13 @@ def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogSc
         for frame in stream:
             counter = counter or AlarmCounter(stream.period_s)
             peaks = peaks or ExcursionCounter(stream.period_s)
-            scores = calibration.model.scores({**frame, "coulomb_eps": stream.coulomb_eps})
+            scores = calibration.model.scores(
+                {
+                    **frame,
+                    "coulomb_eps": stream.coulomb_eps,
+                    "regressor_mask": stream.regressor_mask,
+                }
+            )
             usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             stats = stats + ScoreStats.from_scores(scores, usable)
             counter.push(scores, usable)

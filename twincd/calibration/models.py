@@ -22,8 +22,10 @@ et al.'s pairwise update of means and centred cross-products), like ``AffineStat
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -100,6 +102,76 @@ def coulomb_grid(coulomb_f: Any, where: str) -> FloatArray:
             "prepare the logs with coulomb_eps=EPSILON_GRID",
         )
     return f
+
+
+def compact_regressor(
+    regressor_f: Any, regressor_mask: BoolArray | None
+) -> tuple[FloatArray, BoolArray]:
+    """The regressor as (N, kept) entries where the (D, P) mask holds, and that mask: a whole
+    (N, D, P) regressor is cut down to ``regressor_mask`` (every entry without one)."""
+    y: FloatArray = np.asarray(regressor_f, dtype=np.float64)
+    if y.ndim == 3:
+        if regressor_mask is None:
+            regressor_mask = np.ones(y.shape[1:], dtype=bool)
+        return y[:, regressor_mask], regressor_mask
+    if regressor_mask is None or y.ndim != 2 or y.shape[1] != np.count_nonzero(regressor_mask):
+        raise DataError(
+            f"a regressor of shape {y.shape} without its (joints, parameters) mask",
+            "identified model",
+            "pass the mask of the regressor's entries (twincd.twin.dynamics.regressor_mask)",
+        )
+    return y, np.asarray(regressor_mask, dtype=bool)
+
+
+def _joint_moments(
+    kept: BoolArray,
+    sim: FloatArray,
+    y: FloatArray,
+    velocity: FloatArray,
+    coulomb: FloatArray,
+    effort: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Mean (K,) and centred cross-products (K, K) of one joint's columns τ̂̃, Ỹ_j (its
+    ``kept`` entries, zero elsewhere), q̇̃, Coulomb (E), τ̃. The full width keeps BLAS's
+    summation order: any block size gives the bits of one (N, D, K) product."""
+    params = len(kept)
+    cols = np.zeros((len(sim), params + 3 + coulomb.shape[1]))
+    cols[:, 0] = sim
+    cols[:, 1 + np.flatnonzero(kept)] = y
+    cols[:, params + 1] = velocity
+    cols[:, params + 2 : -1] = coulomb
+    cols[:, -1] = effort
+    mean: FloatArray = cols.mean(axis=0)
+    cols -= mean
+    return mean, cols.T @ cols
+
+
+@contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """BLAS on one thread: a block's products are small (thousands × ~80), and OpenBLAS's
+    threads spin against the reader's and the other processes' on a busy machine (16× slower
+    measured at 4096 × 79 on two shared cores)."""
+    with _blas_threads().limit(limits=1, user_api="blas"):
+        yield
+
+
+@lru_cache(maxsize=1)
+def _blas_threads() -> Any:
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def regressor_effort(y: FloatArray, theta: FloatArray, regressor_mask: BoolArray) -> FloatArray:
+    """Ỹ_j θ_j per joint, (N, D), from the masked regressor (N, kept). einsum's own loop, not
+    BLAS: each sample's sum runs in one order whatever the block's length (live detection
+    pushes one sample at a time, a file thousands), so batch and live agree to the bit."""
+    out = np.empty((len(y), len(theta)))
+    end = 0
+    for j, kept in enumerate(regressor_mask):
+        start, end = end, end + int(np.count_nonzero(kept))
+        out[:, j] = np.einsum("nk,k->n", y[:, start:end], theta[j, kept])
+    return out
 
 
 @dataclass(frozen=True)
@@ -210,27 +282,38 @@ class IdentifiedStats:
         coulomb_f: FloatArray,
         effort_f: FloatArray,
         mask: BoolArray | None = None,
+        regressor_mask: BoolArray | None = None,
     ) -> IdentifiedStats:
-        """Statistics of (N, D) efforts and velocity, the (N, D, P) filtered regressor and the
-        (N, E, D) Coulomb features (one per ε of ``EPSILON_GRID``), rows where ``mask`` holds."""
+        """Statistics of (N, D) efforts and velocity, the filtered regressor and the (N, E, D)
+        Coulomb features (one per ε of ``EPSILON_GRID``), rows where ``mask`` holds.
+
+        The regressor is either whole, (N, D, P), or only its entries where ``regressor_mask``
+        (D, P) holds, (N, kept) in row-major order (what the streamed stages carry; the entries
+        outside it are structurally zero). One joint's (N, K) columns at a time, never the
+        (N, D, K) stack: the same bits, a seventh of the memory."""
         f = coulomb_grid(coulomb_f, "identified fit")
-        cols = np.concatenate(
-            [
-                np.asarray(sim_effort_f, dtype=np.float64)[..., None],
-                np.asarray(regressor_f, dtype=np.float64),
-                np.asarray(velocity_f, dtype=np.float64)[..., None],
-                np.moveaxis(f, 1, 2),
-                np.asarray(effort_f, dtype=np.float64)[..., None],
-            ],
-            axis=2,
-        )  # (N, D, K)
+        sim = np.asarray(sim_effort_f, dtype=np.float64)
+        y, regressor_mask = compact_regressor(regressor_f, regressor_mask)
+        joints, params = regressor_mask.shape
         if mask is not None:
-            cols = cols[mask]
-        if len(cols) == 0:
-            return cls.zeros(cols.shape[1], cols.shape[2] - 3 - len(EPSILON_GRID))
-        mean = cols.mean(axis=0)
-        centred = np.moveaxis(cols - mean, 0, 1)  # (D, N, K): one BLAS product per joint
-        return cls(len(cols), mean, np.matmul(np.swapaxes(centred, 1, 2), centred))
+            sim, y, f = sim[mask], y[mask], f[mask]
+            velocity_f, effort_f = np.asarray(velocity_f)[mask], np.asarray(effort_f)[mask]
+        if len(sim) == 0:
+            return cls.zeros(joints, params)
+        k = params + 3 + len(EPSILON_GRID)
+        mean, cross = np.zeros((joints, k)), np.zeros((joints, k, k))
+        ends = np.cumsum(regressor_mask.sum(axis=1))  # joint j's entries end at ends[j] in y
+        with one_blas_thread():
+            for j in range(joints):
+                mean[j], cross[j] = _joint_moments(
+                    regressor_mask[j],
+                    sim[:, j],
+                    y[:, ends[j] - np.count_nonzero(regressor_mask[j]) : ends[j]],
+                    np.asarray(velocity_f, dtype=np.float64)[:, j],
+                    f[:, :, j],
+                    np.asarray(effort_f, dtype=np.float64)[:, j],
+                )
+        return cls(len(sim), mean, cross)
 
     @property
     def params(self) -> int:
@@ -367,21 +450,31 @@ class ResidualModel:
             out = out + self.c * coulomb + self.d * np.asarray(inputs["velocity_f"])
         if self.theta is not None:
             regressor = inputs.get("regressor_f")
+            regressor_mask = inputs.get("regressor_mask")
             if regressor is None:
                 raise DataError(
                     f"the {self.kind} model needs the filtered joint-torque regressor",
                     "scoring",
                     "prepare logs with the calibration's settings (Setup.from_calibration)",
                 )
+            if regressor_mask is not None and np.ndim(regressor) == 2:
+                if np.shape(regressor_mask) != self.theta.shape:
+                    raise self._theta_mismatch(np.shape(regressor_mask)[1])
+                y = np.asarray(regressor, dtype=np.float64)
+                return out + regressor_effort(y, self.theta, np.asarray(regressor_mask, dtype=bool))
             if np.shape(regressor)[1:] != self.theta.shape:
-                raise JointMismatchError(
-                    f"the calibration's theta holds {self.theta.shape[1]} inertial parameters "
-                    f"per joint, the robot model has {np.shape(regressor)[2]}",
-                    "scoring",
-                    "use a calibration fitted with this robot's URDF, or re-run `twincd fit`",
-                )
+                raise self._theta_mismatch(np.shape(regressor)[-1])
             out = out + np.einsum("ndp,dp->nd", regressor, self.theta)
         return out
+
+    def _theta_mismatch(self, params: int) -> JointMismatchError:
+        assert self.theta is not None
+        return JointMismatchError(
+            f"the calibration's theta holds {self.theta.shape[1]} inertial parameters "
+            f"per joint, the robot model has {params}",
+            "scoring",
+            "use a calibration fitted with this robot's URDF, or re-run `twincd fit`",
+        )
 
     def residual(self, inputs: Mapping[str, Any]) -> FloatArray:
         """τ̃ − f(τ̂̃, …), (N, D)."""

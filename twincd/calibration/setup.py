@@ -83,6 +83,7 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
                     frame["coulomb_f"],
                     frame["effort_f"],
                     clean,
+                    stream.regressor_mask,
                 )
                 identified = part_id if identified is None else identified + part_id
             for sink in sinks:

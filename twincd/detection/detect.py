@@ -89,12 +89,15 @@ class ScoringStage:
         )
         self.events = EventTracker(joint_names or calibration.joint_names, isolator, self.rules)
         self.counts = FlagCount()
+        # (D, P) entries of the frames' (N, kept) regressor, set by whoever builds the stages
+        self.regressor_mask: BoolArray | None = None
 
     def push(self, frame: Frame) -> tuple[Frame, list[Event]]:
         """``frame`` (with ``effort_f``, ``sim_effort_f``, ``stamp_ns``, and ``velocity_f`` and
         ``coulomb_f`` for friction models) plus ``residual``, ``score`` and ``flag`` columns,
         and the events that closed in it."""
-        r = self.model.residual({**frame, "coulomb_eps": self.coulomb_eps})
+        inputs = {**frame, "coulomb_eps": self.coulomb_eps, "regressor_mask": self.regressor_mask}
+        r = self.model.residual(inputs)
         scores = self.model.score(r)
         flags = scores >= self.threshold
         hold = scores >= self.release

@@ -39,6 +39,7 @@ def detect_file(
     stage = ScoringStage(calibration)
     with setup.open(path) as stream:
         for frame in stream:
+            stage.regressor_mask = stream.regressor_mask
             out, closed = stage.push(frame)
             _deliver(summary, sinks, out, closed)
         _deliver(summary, sinks, Frame(), stage.finish())
@@ -61,7 +62,7 @@ def detect_file_online(
         path,
         setup.options,
         joints=calibration.joint_names,
-        block_size=setup.block_size,
+        block_size=setup.block_size_for(calibration.regressor),
         strict=setup.strict,
     ) as blocks:
         detector: OnlineDetector | None = None

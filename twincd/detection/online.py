@@ -154,6 +154,7 @@ class OnlineDetector:
 
             assert robot is not None  # the identified models always load it
             mask = regressor_mask(robot)[back]  # robot order → the calibration's
+            self._scoring.regressor_mask = mask
         stages += filter_stages(cal.lowpass, self.period_s, cal.coulomb_eps, mask)
         return Chain(stages)
 

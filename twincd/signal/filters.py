@@ -67,6 +67,9 @@ __all__ = [
 DECAY_TOLERANCE = 1e-12
 # samples emitted per backward pass when much is ready at once: cost (block + margin) / block
 _BLOCK = 16384
+# values (rows × channels) per call of the recursion: its temporaries stay a few MB however
+# wide the input (the identified models filter hundreds of channels) or long the pass
+_CHUNK_VALUES = 1 << 19
 
 
 # butterworth: the flattest pass band (the default); critical: equal real poles, no overshoot,
@@ -234,14 +237,32 @@ class StreamingLowPass(SegmentedStage):
     @property
     def buffered(self) -> int:
         """Samples held in the internal buffers (at most ``margin`` + 1)."""
-        return len(self._x)
+        return len(self._x) if self._yf is None else len(self._yf)
 
     def _steady(self, value: FloatArray) -> FloatArray:
         """Filter state at rest on ``value`` (one per channel)."""
         return rest_state(self.sos, value)
 
     def _filter(self, x: FloatArray, state: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return sosfilt(self.sos, x, state)
+        """The recursion over ``x`` in row chunks (the same bits as one call, see ``sosfilt``)."""
+        rows = self._chunk_rows(x)
+        if len(x) <= rows:
+            return sosfilt(self.sos, x, state)
+        out = np.empty(x.shape)
+        for c in range(0, len(x), rows):
+            out[c : c + rows], state = sosfilt(self.sos, x[c : c + rows], state)
+        return out, state
+
+    def _settle(self, x: FloatArray, state: FloatArray) -> FloatArray:
+        """The state after filtering ``x``, without keeping its output."""
+        rows = self._chunk_rows(x)
+        for c in range(0, len(x), rows):
+            _, state = sosfilt(self.sos, x[c : c + rows], state)
+        return state
+
+    @staticmethod
+    def _chunk_rows(x: FloatArray) -> int:
+        return max(1024, _CHUNK_VALUES // max(1, x.shape[1] if x.ndim > 1 else 1))
 
     def _extend(self, t: IntArray, y: FloatArray) -> FloatArray:
         if self.causal:
@@ -251,8 +272,10 @@ class StreamingLowPass(SegmentedStage):
             self._n += len(y)
             out, self._zf = self._filter(y, self._zf)
             return out
-        # a copy either way: the buffer must not alias the caller's array
-        self._x = np.concatenate((self._x, y)) if self._n else y.copy()
+        # a copy either way: the buffer must not alias the caller's array; once the forward
+        # pass runs, only the last padlen + 1 raw values are kept (the end extension's)
+        tail = y if self._zf is None else y[-(self.padlen + 1) :]
+        self._x = np.concatenate((self._x, tail)) if self._n else tail.copy()
         self._n += len(y)
         if self._zf is None:
             if self._n > self.padlen:  # the segment is long enough for the full pad
@@ -291,8 +314,10 @@ class StreamingLowPass(SegmentedStage):
         outputs for [a, b) are those at least ``margin`` samples from the start."""
         assert self._yf is not None
         seg = self._yf[a - self._base : start + 1 - self._base]
-        yb, _ = self._filter(seg[::-1], self._steady(seg[-1]))
-        out: FloatArray = yb[::-1][: b - a]
+        kept = b - a  # the run-in over the rest only settles the state: its output is dropped
+        state = self._settle(seg[: kept - 1 : -1], self._steady(seg[-1]))
+        yb, _ = self._filter(seg[kept - 1 :: -1], state)
+        out: FloatArray = yb[::-1]
         return out
 
     def _trim(self) -> None:
@@ -300,8 +325,9 @@ class StreamingLowPass(SegmentedStage):
             return  # everything is needed until the forward pass starts (≤ padlen samples)
         keep = max(self._base, min(self._next, self._n - (self.padlen + 1)))
         assert self._yf is not None
-        # copies: the buffers must not alias the caller's arrays
-        self._x = self._x[keep - self._base :].copy()
+        # copies: the buffers must not alias the caller's arrays; of the raw values only the
+        # end extension's are needed once the forward pass has started
+        self._x = self._x[-(self.padlen + 1) :].copy()
         self._yf = self._yf[keep - self._base :].copy()
         self._base = keep
 
