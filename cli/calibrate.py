@@ -1,7 +1,7 @@
 """``twincd fit`` and ``twincd threshold``: the paper's regression and its μ + kσ threshold.
 
 Also the option handling that detect and evaluate share: a calibration's recorded settings are
-the defaults, and an explicit option that contradicts them is an error (DESIGN §2).
+the defaults, and an explicit option that contradicts them is an error (contract: Inputs).
 """
 
 from __future__ import annotations

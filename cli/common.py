@@ -230,7 +230,8 @@ def flag_hint(option: str | None) -> str:
 
 
 def error_line(exc: TwincdError) -> str:
-    """The error's one line (DESIGN §5) with the flags of the setting it concerns."""
+    """The error's one line (contract: Exit codes and streams) with the flags of the setting it
+    concerns."""
     text = exc.message
     hint = flag_hint(exc.option)
     if hint:
@@ -427,7 +428,7 @@ class LogRun:
     errors: list[tuple[Path, TwincdError]]
 
     def error_docs(self) -> list[dict[str, str]]:
-        """``"errors": [{"path", "error"}]`` of ``--json`` (DESIGN §5)."""
+        """``"errors": [{"path", "error"}]`` of ``--json`` (contract: Exit codes and streams)."""
         return [{"path": str(path), "error": error_line(exc)} for path, exc in self.errors]
 
     @property
@@ -527,7 +528,7 @@ def check_reports(
 def all_or_nothing() -> Iterator[list[Path]]:
     """Collects the files a multi-log run may write; if the run fails, those it wrote are
     removed again (files older than the run are left alone), so a failed run leaves nothing
-    behind (DESIGN §5)."""
+    behind (contract: Exit codes and streams)."""
     from twincd.io.atomic import remove_stale_temporaries
 
     started = time.time_ns()

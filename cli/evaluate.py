@@ -1,4 +1,5 @@
-"""``twincd evaluate``: the seed paper's Table II on labelled test logs (DESIGN §6–§7)."""
+"""``twincd evaluate``: the seed paper's Table II on labelled test logs (contract: Metrics,
+Methods)."""
 
 from __future__ import annotations
 

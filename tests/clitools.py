@@ -1,4 +1,5 @@
-"""Running the CLI in tests: typer's CliRunner and the one-line error check (DESIGN §5)."""
+"""Running the CLI in tests: typer's CliRunner and the one-line error check (contract: Exit codes
+and streams)."""
 
 from __future__ import annotations
 

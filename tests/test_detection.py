@@ -200,7 +200,7 @@ def test_events_are_the_same_in_any_chunking(flags: list[bool], cuts: list[int],
 
 def test_filter_edges_never_flag_but_the_middle_does(tmp_path, twin_dataset):
     """A bump inside the zero-phase filter's edge span (first 0.5 s at 1 Hz) flags nothing; the
-    same bump in the middle is found (PITFALLS: sosfiltfilt edges)."""
+    same bump in the middle is found (sosfiltfilt's edge transients)."""
     from conftest import build_twin_log
 
     from twincd.calibration import fit_calibration

@@ -1,4 +1,5 @@
-"""Library errors speak in library words; the CLI adds the flags (DESIGN §5)."""
+"""Library errors speak in library words; the CLI adds the flags (contract: Exit codes and
+streams)."""
 
 from __future__ import annotations
 

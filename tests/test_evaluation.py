@@ -1,4 +1,5 @@
-"""twincd.evaluation: methods judged alike on train/val/test (DESIGN §5–§7)."""
+"""twincd.evaluation: methods judged alike on train/val/test (contract: Exit codes and streams,
+Metrics, Methods)."""
 
 from __future__ import annotations
 

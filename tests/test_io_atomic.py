@@ -1,5 +1,6 @@
 """Outputs: whole or nothing, never over a file that is not twincd's own output of that kind,
-temporaries of killed runs removed, two writers of one output refused (DESIGN §3, §5)."""
+temporaries of killed runs removed, two writers of one output refused (contract: Topics twincd
+writes, Exit codes and streams)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Log reading (DESIGN §1): every input form, name matching, time handling, labels."""
+"""Log reading (contract: Inputs): every input form, name matching, time handling, labels."""
 
 from __future__ import annotations
 

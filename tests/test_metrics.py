@@ -1,4 +1,4 @@
-"""twincd.evaluation.metrics against scikit-learn on small arrays (DESIGN §6)."""
+"""twincd.evaluation.metrics against scikit-learn on small arrays (contract: Metrics)."""
 
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ def test_auc_matches_sklearn_and_is_none_for_one_class():
     assert auc(np.ones(4, dtype=bool), np.arange(4.0)) is None
 
 
-# ---------------------------------------------------------------- event metrics (DESIGN §6)
+# ---------------------------------------------------------------- event metrics (contract: Metrics)
 
 MS = 1_000_000
 

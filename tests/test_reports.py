@@ -1,4 +1,5 @@
-"""Reports: figures, Markdown and HTML reports, JUnit XML, the GitHub job summary (DESIGN §5)."""
+"""Reports: figures, Markdown and HTML reports, JUnit XML, the GitHub job summary (contract: Exit
+codes and streams)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
 """One exception root for the whole library; each subclass carries its CLI exit code.
 
 A message reads as ``<what> (<where>) — <what to do>`` so that the CLI can print it on one
-line as ``twincd: error: <message>`` (DESIGN §5). Messages speak in library words and never
+line as ``twincd: error: <message>`` (contract: Exit codes and streams). Messages speak in library
+words and never
 name a command-line flag: an error about a setting names it in ``option`` (``"robot"``,
 ``"train"``, several joined by commas), and the CLI turns that into its flags.
 """
@@ -110,7 +111,7 @@ class ClusterError(TwincdError):
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM (CI cancellation, ``docker stop``), raised like Ctrl-C so that every clean-up
-    that runs on an interrupt runs for it too (DESIGN §5: exit 143)."""
+    that runs on an interrupt runs for it too (contract: Exit codes and streams: exit 143)."""
 
 
 def raise_terminated(signum: int, frame: object) -> None:

@@ -1,4 +1,5 @@
-"""Per-sample detection outputs, written while a log streams (DESIGN §3): the input copied
+"""Per-sample detection outputs, written while a log streams (contract: Topics twincd writes): the
+input copied
 losslessly into MCAP plus ``/twincd/residual``, ``/twincd/score``, ``/twincd/collision`` and
 ``/twincd/event`` channels, or one CSV/JSONL row per sample. Every output is written to a
 temporary file and renamed into place only when the log has been processed completely."""

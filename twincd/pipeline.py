@@ -622,7 +622,7 @@ class Setup:
     allow_urdf_change: bool = False  # a changed URDF gets a warning instead
     period_s: float | None = None  # the calibration's sampling period
     block_size: int = DEFAULT_BLOCK
-    # False: a truncated log is read up to the damage, with one warning (DESIGN §1)
+    # False: a truncated log is read up to the damage, with one warning (contract: Inputs)
     strict: bool = False
     twin_threads: int | None = None  # None: every core this process may use
     coulomb_eps: tuple[float, ...] = ()  # ε of the filtered Coulomb features (friction models)

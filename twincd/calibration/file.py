@@ -1,4 +1,4 @@
-"""The calibration file (DESIGN §4): everything detection needs, as JSON."""
+"""The calibration file (docs/contract.md): everything detection needs, as JSON."""
 
 from __future__ import annotations
 
@@ -28,7 +28,8 @@ SCHEMA = "twincd.calibration/1"
 
 def finite_number(value: Any, name: str, where: str, *, positive: bool = False) -> float:
     """``value`` as a float, or a ``CalibrationError``: JSON numbers only (no strings, no
-    booleans), finite, and above 0 when ``positive`` (DESIGN §4: every number is validated)."""
+    booleans), finite, and above 0 when ``positive`` (every number of the calibration file is
+    validated: docs/contract.md)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise CalibrationError(
             f"calibration field {name} is {type(value).__name__} {value!r}, not a number",
@@ -106,7 +107,7 @@ class Threshold:
 
 @dataclass(frozen=True)
 class Calibration:
-    """Everything detection needs, as stored in calibration JSON (DESIGN §4)."""
+    """Everything detection needs, as stored in calibration JSON (docs/contract.md)."""
 
     joint_names: tuple[str, ...]
     a: FloatArray
@@ -128,7 +129,7 @@ class Calibration:
     # nominal sampling period of the fitted logs: later logs are filtered at this rate, so that
     # batch and live detection agree (None in files written before it was recorded)
     period_s: float | None = None
-    # the calibration model (DESIGN §4 ``model``): the seed's affine map, or one of MODEL_KINDS
+    # the calibration model (``model``): the seed's affine map, or one of MODEL_KINDS
     kind: str = AFFINE
     c: FloatArray | None = None  # friction models: Coulomb coefficient of tanh(q̇̃/ε)
     d: FloatArray | None = None  # friction models: viscous coefficient of q̇̃

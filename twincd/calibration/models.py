@@ -1,4 +1,5 @@
-"""Calibration models beyond the paper's affine map (DESIGN §4 ``model``), and their scores.
+"""Calibration models beyond the paper's affine map (contract: The calibration file ``model``), and
+their scores.
 
 - ``affine``: τ̃ ≈ a⊙τ̂̃ + b, score ‖r‖² (the seed paper, eq. 3–5).
 - ``friction``: per joint τ̃ ≈ a·τ̂̃ + b + c·LP[tanh(q̇/ε)] + d·q̇̃, the joint friction (Coulomb

@@ -1,4 +1,4 @@
-"""Live detection (DESIGN §8): samples pushed one at a time or in blocks of any size.
+"""Live detection (contract: Live detection): samples pushed one at a time or in blocks of any size.
 
 The detector runs the calibration's causal chain — causal Savitzky–Golay derivative (the window
 ends at the newest sample), RNEA, causal Butterworth filter — and the same scoring and event

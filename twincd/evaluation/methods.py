@@ -1,4 +1,4 @@
-"""The scoring-method interface shared by the paper's method and its baselines (DESIGN §7).
+"""The scoring-method interface shared by the paper's method and its baselines (contract: Methods).
 
 A method is a small estimator in the scikit-learn manner: parameters in ``__init__``,
 ``fit(train_logs)`` returns self and sets attributes ending in ``_``, ``score(log)`` gives one
@@ -27,7 +27,7 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
 
-# DESIGN §7, in the paper's Table II order (ours first)
+# contract: Methods, in the paper's Table II order (ours first)
 METHOD_NAMES = (
     "proposed",
     "naive-diff",
@@ -37,7 +37,7 @@ METHOD_NAMES = (
     "lstm-mob",
     "window-ocsvm",
     "window-ae",
-    # our own calibration models (DESIGN §4 ``model``), beyond the paper
+    # our own calibration models (contract: The calibration file ``model``), beyond the paper
     "affine-whitened",
     "friction",
     "friction-whitened",
@@ -127,7 +127,7 @@ def register(name: str, target: str) -> None:
 
 
 def make_method(name: str, **params: Any) -> ScoringMethod:
-    """A fresh, unfitted method by its DESIGN §7 name."""
+    """A fresh, unfitted method by its contract: Methods name."""
     target = _REGISTRY.get(name)
     if target is None:
         raise UsageError(

@@ -1,4 +1,4 @@
-"""The seed paper's evaluation metrics (section IV-C, DESIGN §6), on scikit-learn's metrics.
+"""The seed paper's evaluation metrics (section IV-C, contract: Metrics), on scikit-learn's metrics.
 
 Per unit (sample or window) over all evaluated logs together: F1 at μ + iσ for the paper's
 sweep of i, precision/recall/F1 at one threshold, and the ROC AUC of the raw score.
@@ -60,14 +60,15 @@ def auc(labels: BoolArray, scores: FloatArray) -> float | None:
     return float(roc_auc_score(y, np.asarray(scores, dtype=np.float64)))
 
 
-# ------------------------------------------------------------------ event metrics (DESIGN §6)
+# ------------------------------------------------------------------ event metrics (contract:
+# Metrics)
 
 EVENT_TOLERANCE_NS = 200_000_000  # a flag up to 200 ms after a labelled event still finds it
 
 
 @dataclass(frozen=True)
 class EventCounts:
-    """Event-level counts of one or more logs, mergeable with ``+`` (DESIGN §6).
+    """Event-level counts of one or more logs, mergeable with ``+`` (contract: Metrics).
 
     A labelled event is a maximal run of labelled samples; it is detected when a flag falls
     inside it or within 200 ms after its end, its delay running from its first labelled sample

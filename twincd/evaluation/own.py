@@ -1,4 +1,4 @@
-"""Our own calibration models as ``evaluate`` methods (DESIGN §7): each calibration model of
+"""Our own calibration models as ``evaluate`` methods (contract: Methods): each calibration model of
 ``twincd.calibration.models`` other than the seed's is a method of the same name, fitted on the
 training logs from the same mergeable statistics as ``twincd fit --model NAME``."""
 

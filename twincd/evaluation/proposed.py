@@ -1,4 +1,4 @@
-"""The seed paper's method as a scoring method for ``evaluate`` (DESIGN §7 ``proposed``)."""
+"""The seed paper's method as a scoring method for ``evaluate`` (contract: Methods ``proposed``)."""
 
 from __future__ import annotations
 

@@ -105,7 +105,7 @@ def _per_hour(m: MethodResult, count: str) -> str:
 
 
 def event_rows(result: Evaluation) -> list[list[str]]:
-    """Event metrics (DESIGN §6) as text cells, one row per method that ran."""
+    """Event metrics (contract: Metrics) as text cells, one row per method that ran."""
     rows = []
     for m in result.methods:
         if m.skipped is not None:

@@ -1,4 +1,5 @@
-"""Judge scoring methods as the seed paper does (section IV-B/C, Table II; DESIGN §6–§7).
+"""Judge scoring methods as the seed paper does (section IV-B/C, Table II; contract: Metrics,
+Methods).
 
 Each method fits on the training logs, μ and σ of its score come from the validation logs, and
 its scores on the test logs give the F1 sweep over μ + iσ, F1/precision/recall at μ + kσ (k the
@@ -58,7 +59,7 @@ _AVERAGED = (
     "train_s",
     "test_s",
 )
-# event metrics (DESIGN §6), averaged over repeats like the figures above
+# event metrics (contract: Metrics), averaged over repeats like the figures above
 EVENT_KEYS = (
     "events_total",
     "events_detected",
@@ -108,7 +109,7 @@ def parse_methods(text: str | None, default: str = "proposed") -> list[str]:
 
 @dataclass
 class MethodResult:
-    """One method's row of Table II (DESIGN §5 ``evaluate --json``)."""
+    """One method's row of Table II (contract: Exit codes and streams ``evaluate --json``)."""
 
     name: str
     unit: str = "sample"

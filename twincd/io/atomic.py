@@ -1,5 +1,5 @@
 """Outputs that appear whole or not at all, and never over something that is not ours
-(DESIGN §3, §5).
+(contract: Topics twincd writes, Exit codes and streams).
 
 Every file twincd writes goes to a temporary file beside its target and is renamed into place
 only when complete, so an interrupted run leaves no partial output. A temporary is named

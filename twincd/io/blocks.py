@@ -2,7 +2,7 @@
 
 ``iter_blocks(path, options)`` streams a log of any length at flat memory: topic batches
 (``twincd.io.batches``) go through a reorder buffer that sorts the newest samples by stamp and
-emits the older ones in blocks. Rules (DESIGN §1):
+emits the older ones in blocks. Rules (contract: Inputs):
 
 - time is ``header.stamp``, the log time where the stamp is 0;
 - the stream's joints are the ``known`` ones (a robot model's or a calibration's), else those of
@@ -125,7 +125,7 @@ def warn_ignored_joints(source: str, names: Sequence[str], used: Sequence[str], 
 
 
 def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
-    """The JointState topic to read (DESIGN §1: fall back to the only JointState topic)."""
+    """The JointState topic to read (contract: Inputs: fall back to the only JointState topic)."""
     if wanted in topics:
         if topics[wanted] != JOINT_STATE:
             raise TopicError(

@@ -1,4 +1,4 @@
-"""Contact-link ground truth (DESIGN §1 ``/collision_link``): std_msgs/String, held like the
+"""Contact-link ground truth (contract: Inputs ``/collision_link``): std_msgs/String, held like the
 label onto the joint-state samples. A small topic (a few messages per press), so it is read with
 rosbags' reader on its own rather than through the block reader of the joint states."""
 

@@ -1,4 +1,5 @@
-"""Log I/O: find logs, read joint states, labels and simulated effort into arrays (DESIGN §1).
+"""Log I/O: find logs, read joint states, labels and simulated effort into arrays (contract:
+Inputs).
 
 Logs are read by ``twincd.io.blocks`` (time-ordered sample blocks at flat memory) on top of
 ``twincd.io.batches`` (every log form: rosbag2 sqlite3 or MCAP folders, bare ``.mcap`` files,

@@ -1,4 +1,5 @@
-"""MCAP output: copy a log losslessly and add twincd's channels, or write a new log (DESIGN §3).
+"""MCAP output: copy a log losslessly and add twincd's channels, or write a new log (contract:
+Topics twincd writes).
 
 Output is always a bare ros2-profile MCAP with ``ros2msg`` schemas, ``cdr`` messages and an
 ``offered_qos_profiles`` entry on every channel, written to a temporary file beside the target

@@ -1,4 +1,5 @@
-"""What people look at and what CI reads (DESIGN §5): figures (matplotlib, the ``plot``
+"""What people look at and what CI reads (contract: Exit codes and streams): figures (matplotlib,
+the ``plot``
 extra), Markdown and self-contained HTML reports, JUnit XML and the GitHub job summary; the
 figure data of long logs collected while they stream, at bounded memory."""
 

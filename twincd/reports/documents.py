@@ -1,5 +1,6 @@
 """Reports of ``detect``, ``evaluate`` and ``fit`` for people (Markdown, or one self-contained
-HTML page with inline SVG figures) and for CI (a Markdown job summary), DESIGN §5."""
+HTML page with inline SVG figures) and for CI (a Markdown job summary), contract: Exit codes and
+streams."""
 
 from __future__ import annotations
 

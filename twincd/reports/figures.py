@@ -168,7 +168,7 @@ def evaluation_figure(result: Evaluation) -> Any:
 
 
 def event_metrics(method: Any) -> dict[str, Any]:
-    """The event metrics a method result carries (DESIGN §6), if any: read from its JSON
+    """The event metrics a method result carries (contract: Metrics), if any: read from its JSON
     form so that whichever way they are stored, they show."""
     if method.skipped is not None:
         return {}

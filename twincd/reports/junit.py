@@ -1,4 +1,5 @@
-"""JUnit XML for CI systems (Jenkins, GitLab, GitHub test reporters), DESIGN §5: ``detect``
+"""JUnit XML for CI systems (Jenkins, GitLab, GitHub test reporters), contract: Exit codes and
+streams: ``detect``
 gives one test case per log, failed when a collision is found; ``evaluate`` one per gate."""
 
 from __future__ import annotations

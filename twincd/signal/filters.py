@@ -79,7 +79,8 @@ FILTER_KINDS = ("butterworth", "critical")
 
 @dataclass(frozen=True)
 class LowPass:
-    """Low-pass settings; recorded in the calibration (DESIGN §4 ``filter``)."""
+    """Low-pass settings; recorded in the calibration (contract: The calibration file
+    ``filter``)."""
 
     cutoff_hz: float = DEFAULT_CUTOFF_HZ
     order: int = DEFAULT_ORDER
@@ -357,7 +358,7 @@ class StreamingLowPass(SegmentedStage):
 def edge_span(lowpass: LowPass, period_s: float) -> int:
     """Samples at each end of a segment that a zero-phase filter's edges may distort: half a
     period of the cut-off. sosfiltfilt's odd extension treats measured and twin effort alike
-    but their edge transients differ (PITFALLS): these samples are filtered but never flag a
+    but their edge transients differ: these samples are filtered but never flag a
     collision and never enter a fit or μ, σ. Causal filtering has no end edge and 0 here."""
     if lowpass.causal:
         return 0

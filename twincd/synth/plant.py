@@ -54,7 +54,7 @@ Topics of a written log (bare MCAP, ros2 profile, or rosbag2 sqlite3):
   a recorder latency of 0.2–1.0 ms.
 - ``/collision_flag`` std_msgs/msg/Bool: ``false`` at the start, then one message at every
   switch change (held until the next; log time = switch time + latency).
-- ``/collision_link`` std_msgs/msg/String (DESIGN §1, ground truth for isolation; test logs
+- ``/collision_link`` std_msgs/msg/String (contract: Inputs, ground truth for isolation; test logs
   only): beside every ``/collision_flag`` message, with the same log time, the link the press
   touches (``link3``…``link6``) when the switch goes on, ``""`` when it goes off, at the start,
   and for a press that touches nothing.

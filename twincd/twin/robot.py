@@ -270,7 +270,7 @@ def _full_model(urdf_path: Path, version: tuple[int, int] = (0, 0)) -> pin.Model
     return model
 
 
-# gripper joints: the arm's twin does not drive them (DESIGN §1: locked, never fitted)
+# gripper joints: the arm's twin does not drive them (contract: Inputs: locked, never fitted)
 _UNDRIVEN = re.compile(r"finger|gripper", re.IGNORECASE)
 
 
