@@ -332,16 +332,9 @@ def threshold(
     from twincd.executors import Bound
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.threshold import check_threshold_settings, score_log, with_threshold
+    from twincd.threshold import check_threshold_choice, score_log, with_threshold
 
-    if sigma is not None and false_alarms_per_hour is not None:
-        raise UsageError(
-            "give k or a false-alarm budget, not both",
-            "threshold",
-            "drop one of them",
-            option="sigma,false_alarms_per_hour",
-        )
-    check_threshold_settings(DEFAULT_K_SIGMA if sigma is None else sigma, false_alarms_per_hour)
+    check_threshold_choice(sigma, false_alarms_per_hour)
     cal = Calibration.load(calibration)
     target = output or calibration
     paths = expand_logs(logs)

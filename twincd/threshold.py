@@ -138,6 +138,18 @@ class AlarmCounter:
         return self._counts
 
 
+def check_threshold_choice(k_sigma: float | None, per_hour: float | None) -> None:
+    """k or a budget (not both), each valid: checked before any work is done."""
+    if k_sigma is not None and per_hour is not None:
+        raise UsageError(
+            "give k or a false-alarm budget, not both",
+            "threshold",
+            "drop one of them",
+            option="sigma,false_alarms_per_hour",
+        )
+    check_threshold_settings(DEFAULT_K_SIGMA if k_sigma is None else k_sigma, per_hour)
+
+
 def check_threshold_settings(k_sigma: float, per_hour: float | None = None) -> None:
     """A finite k ≥ 0, and a finite budget > 0 when one is given (checked before any work)."""
     if not (math.isfinite(k_sigma) and k_sigma >= 0):
@@ -268,14 +280,7 @@ def with_threshold(
             len(reused),
             reused[0],
         )
-    check_threshold_settings(DEFAULT_K_SIGMA if k_sigma is None else k_sigma, false_alarms_per_hour)
-    if k_sigma is not None and false_alarms_per_hour is not None:
-        raise UsageError(
-            "give k or a false-alarm budget, not both",
-            "threshold",
-            "drop one of them",
-            option="sigma,false_alarms_per_hour",
-        )
+    check_threshold_choice(k_sigma, false_alarms_per_hour)
     if k_sigma is not None:
         return calibration.with_threshold(total.threshold(k_sigma, seen))
     budget = (
