@@ -5,7 +5,7 @@ would run it: simulate, fit, detect.
 The recording is not part of the repository; it is read from ``../shared/data/`` beside it when
 present, and the script says so when absent.
 
-    python studies/real_panda.py
+    python studies/panda_at_rest.py
 """
 
 from __future__ import annotations
