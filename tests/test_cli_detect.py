@@ -52,11 +52,45 @@ def test_json_shape(cal, twin_dataset):
 
 @pytest.mark.parametrize("suffix", [".mcap", ".csv", ".jsonl"])
 def test_outputs_written(cal, twin_dataset, tmp_path, suffix):
+    """Every format holds one row (or message) per sample, the flags detect counted, scores at
+    or above the threshold exactly where flagged, and the joints' residuals."""
+    log = twin_dataset / "test" / "test_1.mcap"
     out = tmp_path / f"out{suffix}"
-    result = run("detect", twin_dataset / "test" / "test_1.mcap", "-c", cal, "-o", out)
+    result = run("detect", log, "-c", cal, "-o", out, "--json", "-q")
     assert result.exit_code == 1, result.output
-    assert out.is_file() and out.stat().st_size > 0
     assert [p.name for p in tmp_path.iterdir()] == [out.name]
+    doc = json.loads(result.stdout)
+    summary = doc["logs"][0]
+    if suffix == ".mcap":
+        from rosbags.highlevel import AnyReader
+
+        with AnyReader([out]) as reader:
+            by_topic: dict[str, list] = {}
+            for conn, _, raw in reader.messages():
+                if conn.topic.startswith("/twincd/"):
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    by_topic.setdefault(conn.topic, []).append(msg)
+        scores = [m.data for m in by_topic["/twincd/score"]]
+        flags = [m.data for m in by_topic["/twincd/collision"]]
+        residuals = [len(m.effort) for m in by_topic["/twincd/residual"]]
+        assert len(by_topic["/twincd/event"]) == len(summary["events"])
+    elif suffix == ".csv":
+        import csv
+
+        with out.open() as f:
+            rows = list(csv.DictReader(f))
+        scores = [float(r["score"]) for r in rows]
+        flags = [r["collision"] == "1" for r in rows]
+        residuals = [sum(k.startswith("residual_") for k in r) for r in rows]
+    else:
+        rows = [json.loads(line) for line in out.read_text().splitlines()]
+        scores = [r["score"] for r in rows]
+        flags = [r["collision"] for r in rows]
+        residuals = [sum(k.startswith("residual_") for k in r) for r in rows]
+    assert len(scores) == len(flags) == summary["samples"]
+    assert sum(flags) == summary["collision_samples"] > 0
+    assert all(s >= doc["threshold"] for s, f in zip(scores, flags, strict=True) if f)
+    assert set(residuals) == {3}
 
 
 def test_several_logs_into_a_folder(cal, twin_dataset, tmp_path):
