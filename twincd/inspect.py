@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_ROBOT
 from twincd.errors import TwincdError
 from twincd.io.options import LogOptions
+from twincd.types import FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
@@ -31,9 +31,6 @@ if TYPE_CHECKING:
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import CalibrationError, DataError, JointMismatchError
@@ -33,6 +32,7 @@ from twincd.io.blocks import warn_ignored_joints
 from twincd.io.logs import JointStates, LogOptions
 from twincd.signal.checks import SignalChecks
 from twincd.signal.filters import LowPass
+from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
     from twincd.io.blocks import LogStream
@@ -40,9 +40,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("twincd")
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
-IntArray = NDArray[np.intp]
 
 DEFAULT_BLOCK = 16384  # samples per block: bounded memory, per-block Python cost negligible
 # samples per block with the joint-torque regressor (identified models): each sample then
@@ -130,11 +127,11 @@ def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) ->
 # ------------------------------------------------------------------ the stages
 
 
-def pick_columns(columns: IntArray) -> Mapped:
+def pick_columns(columns: IndexArray) -> Mapped:
     """Select and reorder the joint columns of every per-joint array: the output has exactly
     ``len(columns)`` joints, whatever the frames carry beyond them."""
     n = len(columns)
-    keep: IntArray | slice = slice(0, n) if np.array_equal(columns, np.arange(n)) else columns
+    keep: IndexArray | slice = slice(0, n) if np.array_equal(columns, np.arange(n)) else columns
 
     def pick(frame: Frame) -> Frame:
         # a leading run of columns is a view (no copy); any other selection a copy
@@ -257,7 +254,7 @@ def edge_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
 # ------------------------------------------------------------------ one log, streamed
 
 
-def _finite_rows(frame: Frame, columns: Sequence[str], used: IntArray) -> BoolArray:
+def _finite_rows(frame: Frame, columns: Sequence[str], used: IndexArray) -> BoolArray:
     ok = np.ones(frame.n, dtype=bool)
     for c in columns:
         if c in frame:
@@ -354,7 +351,7 @@ class PreparedStream:
                 break
         return head
 
-    def _set_up(self, first: Frame) -> tuple[Chain, IntArray]:
+    def _set_up(self, first: Frame) -> tuple[Chain, IndexArray]:
         """Decide, from the first samples, the twin source, the joints and the period."""
         from twincd.signal import nominal_period
 

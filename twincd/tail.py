@@ -25,8 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
+from twincd.types import BoolArray, FloatArray
 
 # levels u: 16 per decade over any score (15 % apart)
 LEVELS = np.logspace(-9.0, 12.0, 21 * 16 + 1)

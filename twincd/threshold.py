@@ -27,11 +27,9 @@ from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedLog, Setup
 from twincd.tail import MIN_PEAKS, ExcursionCounter, Excursions, fit_tail
+from twincd.types import BoolArray, FloatArray
 
 log = logging.getLogger("twincd")
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 
 @dataclass(frozen=True)

@@ -15,17 +15,15 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.errors import DataError, NotFittedError
+from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
     from twincd.pipeline import PreparedLog
 
 log = logging.getLogger("twincd")
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 # a joint whose twin effort varies less than this fraction of the measured effort's spread gives
 # a slope that mostly amplifies noise (the paper's joint 7: a = 21.7)

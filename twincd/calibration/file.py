@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd import __version__
 from twincd.calibration.affine import AffineCalibration
@@ -20,8 +19,7 @@ from twincd.errors import CalibrationError, NotFittedError
 from twincd.io.logs import LogOptions
 from twincd.signal.filters import LowPass
 from twincd.tail import TAIL_METHODS, TailFit
-
-FloatArray = NDArray[np.float64]
+from twincd.types import FloatArray
 
 SCHEMA = "twincd.calibration/1"
 

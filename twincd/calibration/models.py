@@ -30,16 +30,14 @@ from functools import lru_cache
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.errors import DataError, JointMismatchError
+from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
     from twincd.calibration.affine import AffineStats
     from twincd.pipeline import PreparedLog
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 AFFINE = "affine"
 MODEL_KINDS = (

@@ -10,11 +10,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.detection.events import Event, EventRules, EventTracker
 from twincd.detection.isolation import isolator_for, kappa_for
 from twincd.frames import Frame, FrameSink
+from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
@@ -22,8 +22,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("twincd")
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 # more flagged than this share of a log's judged collision-free samples: the calibration does
 # not fit the log (a collision is brief; a log flagged throughout is a misfit, not a finding)

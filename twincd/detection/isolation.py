@@ -28,9 +28,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from twincd.types import FloatArray
 
 DEFAULT_KAPPA = 3.0
 # κ per calibration model where validation chose another: the identified models' residual is

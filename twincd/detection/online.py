@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
@@ -30,14 +29,11 @@ from twincd.detection.events import Event, EventRules
 from twincd.errors import CalibrationError, DataError, JointMismatchError
 from twincd.frames import Chain, Frame, Stage
 from twincd.pipeline import check_urdf, filter_stages, pick_columns, robot_for, twin_stages
+from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.twin.robot import RobotModel
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
-IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True)

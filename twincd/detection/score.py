@@ -4,9 +4,8 @@ that the baselines reuse (naive-diff is a = 1, b = 0)."""
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from twincd.types import FloatArray
 
 
 def residual(

@@ -14,18 +14,15 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.errors import UsageError
 from twincd.pipeline import PreparedLog
+from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.detection.events import Event
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
-IntArray = NDArray[np.int64]
 
 # contract: Methods, in the paper's Table II order (ours first)
 METHOD_NAMES = (

@@ -14,9 +14,7 @@ from numpy.typing import NDArray
 from sklearn.metrics import precision_recall_fscore_support, roc_auc_score
 
 from twincd.detection.events import Event, runs
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
+from twincd.types import BoolArray, FloatArray
 
 # i = 0, 0.1, …, 1.0, then 2, 3, 4, 5 (rounded so that keys read 0.3, not 0.30000000000000004)
 SWEEP_K: tuple[float, ...] = (*(round(0.1 * i, 1) for i in range(11)), 2.0, 3.0, 4.0, 5.0)

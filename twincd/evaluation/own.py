@@ -7,7 +7,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.calibration import Calibration
 from twincd.calibration.affine import AffineStats, clean_mask
@@ -26,9 +25,7 @@ from twincd.detection.isolation import LinkIsolator, kappa_for
 from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.pipeline import PreparedLog
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
+from twincd.types import BoolArray, FloatArray
 
 
 class ModelMethod(ScoringMethod):

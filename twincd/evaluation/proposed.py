@@ -5,15 +5,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.calibration import AffineCalibration, Calibration
 from twincd.detection.score import affine_score
 from twincd.errors import NotFittedError
 from twincd.evaluation.methods import ScoringMethod
 from twincd.pipeline import PreparedLog
-
-FloatArray = NDArray[np.float64]
+from twincd.types import FloatArray
 
 
 class ProposedMethod(ScoringMethod):

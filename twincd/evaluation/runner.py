@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.calibration import Calibration
 from twincd.calibration.models import EPSILON_GRID, uses_friction, uses_regressor
@@ -39,9 +38,8 @@ from twincd.evaluation.metrics import (
 from twincd.io.links import read_links
 from twincd.pipeline import PreparedLog, Setup, same_joints
 from twincd.threshold import ScoreStats
+from twincd.types import BoolArray, FloatArray
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 T = TypeVar("T")
 Progress = Callable[[Sequence[Any], str], Iterable[Any]]
 Loader = Callable[[Sequence[Path], Setup, str], list[PreparedLog]]

@@ -22,7 +22,6 @@ from pathlib import Path, PurePath
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.errors import LogReadError, TopicError, TwincdError
 from twincd.io.cdr import (
@@ -35,17 +34,13 @@ from twincd.io.cdr import (
 )
 from twincd.io.mcap_read import MAGIC, McapDamage, McapFile
 from twincd.io.sqlite_read import FETCH, Sqlite3Storage, SqliteDamage
+from twincd.types import BoolArray, ByteArray, FloatArray, IntArray
 
 STRING = "std_msgs/msg/String"
 SUPPORTED = (JOINT_STATE, BOOL, STRING)
 DEFAULT_BATCH = 16384  # messages decoded at once: 4× smaller peak memory than 65 536, as fast
 _NS = 1_000_000_000
 _END = 2**63 - 1  # the watermark once everything has been read
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
-ByteArray = NDArray[np.uint8]
 
 
 @dataclass(frozen=True)

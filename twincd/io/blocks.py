@@ -47,15 +47,13 @@ from twincd.io.batches import (
     TopicReader,
 )
 from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
+from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.io.options import LogOptions
 
 log = logging.getLogger("twincd")
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's joint states
 DEFAULT_BLOCK = 16384

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from twincd.types import BoolArray, ByteArray, FloatArray, IntArray
+
 JOINT_STATE = "sensor_msgs/msg/JointState"
 BOOL = "std_msgs/msg/Bool"
 FLOAT64 = "std_msgs/msg/Float64"
@@ -40,11 +42,6 @@ def __getattr__(name: str) -> Any:  # ``TYPESTORE``, as the module offered it be
         return typestore()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
-ByteArray = NDArray[np.uint8]
 
 _NS = 1_000_000_000
 _BLOCK = 65536  # rows per block when joint_state_cdr encodes a long series

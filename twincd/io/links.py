@@ -7,12 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.errors import LogReadError
 from twincd.io.batches import first_line, open_reader
-
-IntArray = NDArray[np.int64]
+from twincd.types import IntArray
 
 STRING = "std_msgs/msg/String"
 

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.errors import JointMismatchError, LogReadError
 from twincd.io.batches import open_reader as open_reader  # re-exported: older imports
@@ -31,12 +30,10 @@ from twincd.io.options import DEFAULT_TOPIC as DEFAULT_TOPIC
 from twincd.io.options import LogOptions as LogOptions
 from twincd.io.options import parse_joint_map as parse_joint_map
 from twincd.signal.derivatives import differentiate
+from twincd.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger("twincd")
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 TWIN_SUFFIX = ".twin.mcap"  # what `simulate` writes beside a log
 DETECT_SUFFIX = ".detect.mcap"  # what `detect -o FOLDER` writes per log

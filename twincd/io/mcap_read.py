@@ -22,6 +22,8 @@ from typing import Any, BinaryIO
 import numpy as np
 from numpy.typing import NDArray
 
+from twincd.types import ByteArray, IntArray
+
 MAGIC = b"\x89MCAP0\r\n"
 _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX = 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
 _DATA_END = 0x0F
@@ -29,9 +31,6 @@ _MESSAGE_HEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, length, channel, sequence, log 
 _RAW_REGION = 1 << 20  # bytes of unchunked top-level records read as one pseudo-chunk
 _MAX_TIME = 2**63 - 1  # nanoseconds: later log times do not fit the int64 time line
 _MAX_CHUNK = 4 << 30  # mcap's own record size limit: larger means a corrupt length field
-
-IntArray = NDArray[np.int64]
-ByteArray = NDArray[np.uint8]
 
 
 class McapDamage(Exception):

@@ -11,10 +11,8 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
-IntArray = NDArray[np.int64]
-ByteArray = NDArray[np.uint8]
+from twincd.types import ByteArray, IntArray
 
 FETCH = 16384  # rows per fetchmany
 

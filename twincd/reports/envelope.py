@@ -5,10 +5,8 @@ maximum of its column)."""
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from twincd.types import FloatArray, IntArray
 
 
 class Envelope:

@@ -9,9 +9,9 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.reports.envelope import Envelope
+from twincd.types import FloatArray
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -21,7 +21,6 @@ if TYPE_CHECKING:
     from twincd.frames import Frame
     from twincd.pipeline import Setup
 
-FloatArray = NDArray[np.float64]
 
 # one column per pixel of a 1000-pixel-wide figure; min and max keep every spike
 DEFAULT_COLUMNS = 1000

@@ -21,9 +21,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from twincd.types import FloatArray
+
 log = logging.getLogger("twincd")
 
-FloatArray = NDArray[np.float64]
 
 # positions this far outside a limit (a share of the joint's range, at least LIMIT_FLOOR in the
 # joint's unit) are implausible. URDF limits are often narrower than the arm's real range (a

@@ -27,14 +27,13 @@ from numpy.typing import ArrayLike
 from twincd.errors import UsageError
 from twincd.signal.stream import (
     DEFAULT_GAP_FACTOR,
-    FloatArray,
-    IntArray,
     SegmentedStage,
     nominal_period,
     run_whole,
     seconds_to_ns,
     segment_bounds,
 )
+from twincd.types import FloatArray, IntArray
 
 __all__ = [
     "DEFAULT_GAP_FACTOR",

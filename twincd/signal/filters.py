@@ -41,13 +41,12 @@ from twincd.signal.iir import (
 )
 from twincd.signal.stream import (
     DEFAULT_GAP_FACTOR,
-    FloatArray,
-    IntArray,
     SegmentedStage,
     nominal_period,
     run_whole,
     seconds_to_ns,
 )
+from twincd.types import FloatArray, IntArray
 
 __all__ = [
     "DECAY_TOLERANCE",

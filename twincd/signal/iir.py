@@ -18,9 +18,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from twincd.types import FloatArray
 
 __all__ = ["butter_lowpass_sos", "rest_state", "sosfilt"]
 

@@ -14,12 +14,10 @@ import math
 from abc import ABC, abstractmethod
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from twincd.errors import DataError, UsageError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from twincd.types import FloatArray, IntArray
 
 DEFAULT_GAP_FACTOR = 5.0
 # intervals looked at by nominal_period: enough for a stable median, cheap on hour-long logs

@@ -85,7 +85,6 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-from numpy.typing import NDArray
 from scipy.interpolate import make_interp_spline
 
 from twincd.defaults import SYNTH_SEGMENT_S
@@ -94,10 +93,7 @@ from twincd.executors import Executor, Progress
 from twincd.io.cdr import TYPESTORE, bool_cdr, header, joint_state_cdr, serialize
 from twincd.twin.dynamics import inverse_dynamics
 from twincd.twin.robot import RobotModel, load_robot
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
+from twincd.types import BoolArray, FloatArray, IntArray
 
 ROBOT = "xarm7"
 SPLITS = ("train", "val", "test")

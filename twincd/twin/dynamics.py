@@ -22,9 +22,7 @@ from twincd.signal.derivatives import (
     differentiate,
 )
 from twincd.twin.robot import RobotModel
-
-FloatArray = NDArray[np.float64]
-
+from twincd.types import FloatArray
 
 # whether an OpenMP team of more than one thread has run in this process: a process forked after
 # that hangs at its own first parallel region, so a pool must then start its workers afresh

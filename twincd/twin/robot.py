@@ -23,17 +23,15 @@ from typing import TYPE_CHECKING, Any
 from xml.etree import ElementTree
 
 import numpy as np
-from numpy.typing import NDArray
 
 if TYPE_CHECKING:
     import pinocchio as pin
 
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import JointMismatchError, RobotModelError
+from twincd.types import FloatArray
 
 log = logging.getLogger("twincd")
-
-FloatArray = NDArray[np.float64]
 
 
 @lru_cache(maxsize=1)

@@ -33,11 +33,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from twincd.errors import NotFittedError
-from twincd.evaluation.baselines.mob import DEFAULT_GAIN, FloatArray, MobFeatureMethod
+from twincd.evaluation.baselines.mob import DEFAULT_GAIN, MobFeatureMethod
 from twincd.evaluation.baselines.windows import WINDOW_SIZE
 from twincd.evaluation.methods import MethodSkipped
 from twincd.pipeline import PreparedLog
 from twincd.signal.filters import LowPass
+from twincd.types import FloatArray
 
 NEEDS_TORCH = "needs PyTorch: pip install 'twincd[baselines]'"
 # One thread: on a shared 2-core machine, 2 torch threads made these small models 10–25× slower

@@ -33,7 +33,6 @@ from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.baselines.autoencoder import DEFAULT_LR, adam, import_torch, run_epoch
 from twincd.evaluation.baselines.mob import (
     DEFAULT_GAIN,
-    FloatArray,
     check_mob,
     filtered_velocity,
     mob_features,
@@ -42,6 +41,7 @@ from twincd.evaluation.baselines.windows import MinMaxScaler
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.pipeline import PreparedLog
 from twincd.signal.filters import LowPass
+from twincd.types import FloatArray
 
 DEFAULT_EPOCHS = 60
 SEQ_LEN = 100

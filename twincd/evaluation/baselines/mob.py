@@ -39,12 +39,11 @@ from twincd.evaluation.baselines.windows import (
     window_starts,
     windows,
 )
-from twincd.evaluation.methods import BoolArray, MethodSkipped, ScoringMethod
+from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.pipeline import PreparedLog
 from twincd.signal.filters import LowPass
 from twincd.twin.robot import RobotModel
-
-FloatArray = NDArray[np.float64]
+from twincd.types import BoolArray, FloatArray
 
 DEFAULT_GAIN = 100.0  # paper IV-A: "we fixed the observer gain to 100.0"
 

@@ -12,8 +12,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from twincd.detection.score import affine_score
-from twincd.evaluation.methods import FloatArray, ScoringMethod
+from twincd.evaluation.methods import ScoringMethod
 from twincd.pipeline import PreparedLog
+from twincd.types import FloatArray
 
 
 class NaiveDiff(ScoringMethod):

@@ -17,9 +17,10 @@ from typing import ClassVar
 import numpy as np
 
 from twincd.errors import NotFittedError
-from twincd.evaluation.baselines.mob import DEFAULT_GAIN, FloatArray, MobFeatureMethod
+from twincd.evaluation.baselines.mob import DEFAULT_GAIN, MobFeatureMethod
 from twincd.evaluation.baselines.windows import WINDOW_SIZE, subsample
 from twincd.signal.filters import LowPass
+from twincd.types import FloatArray
 
 DEFAULT_NU = 0.1
 DEFAULT_MAX_TRAIN = 20_000

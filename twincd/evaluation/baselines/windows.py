@@ -13,14 +13,10 @@ serve the scores and the labels, so both always have one entry per window.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.errors import DataError, NotFittedError
 from twincd.signal.derivatives import segment_bounds
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
-IntArray = NDArray[np.int64]
+from twincd.types import BoolArray, FloatArray, IntArray
 
 WINDOW_SIZE = 16  # paper IV-B 6): 16 samples × 7 joints = 112 inputs
 
