@@ -131,3 +131,13 @@ def test_a_changed_urdf_makes_the_log_unusable(tmp_path):
     urdf.write_text(urdf.read_text() + "\n<!-- edited -->\n")
     result = run("inspect", log, "-c", cal)
     assert result.exit_code == 2 and "changed since the calibration" in result.stderr
+
+
+def test_a_log_cut_before_its_first_joint_state_says_so(tmp_path):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes((SAMPLE / "test" / "test_000.mcap").read_bytes()[:3000])
+    found = inspect_log(cut)
+    assert not found.usable and "no readable messages" in str(found.problem)
+    assert any("damaged" in w for w in found.warnings)
+    result = run("inspect", cut)
+    assert result.exit_code == 2 and result.stderr.count("twincd: error:") == 1

@@ -183,6 +183,13 @@ def _inspect(
         found.joint_topic = choose_topic(reader.topics, options.topic, str(path))
         has_sim = options.sim_topic in reader.topics
         _read_topics(reader, found, options)
+        if reader.damage is not None:
+            log.warning("%s: %s", found.path, reader.damage)
+        if not found.joint_sets:
+            from twincd.errors import LogReadError
+
+            what = f"topic {found.joint_topic} has no readable messages"
+            raise LogReadError(what, found.path, "record joint states, or repair the log")
     rename = dict(options.joint_map or {})
     in_log = tuple(dict.fromkeys(rename.get(n, n) for s in found.joint_sets for n in s.joints))
     model_name = robot or (calibration.robot if calibration is not None else None)
