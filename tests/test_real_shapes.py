@@ -110,15 +110,15 @@ def xarm_messages(names: Sequence[str], n: int = 600, seed: int = 3) -> list[Mes
             return [float(a[i, c]) if c >= 0 else 0.05 for c in cols]
 
         stamp = t0 + i * period
-        msgs.append(
-            Message(
-                "/joint_states",
-                "sensor_msgs/msg/JointState",
-                stamp,
-                joint_state(stamp, names, row(q), row(qd), row(effort)),
-            )
-        )
+        msgs.append(state_message(stamp, names, row(q), row(qd), row(effort)))
     return msgs
+
+
+def state_message(stamp: int, names: Sequence[str], *arrays: object) -> Message:
+    """One /joint_states message (position, velocity, effort) at ``stamp``."""
+    return Message(
+        "/joint_states", "sensor_msgs/msg/JointState", stamp, joint_state(stamp, names, *arrays)
+    )
 
 
 @pytest.mark.parametrize(
@@ -270,17 +270,12 @@ def panda_log(path: Path, seed: int, bump: bool) -> Path:
     for i in range(n):
         stamp = t0 + i * period
         msgs.append(
-            Message(
-                "/joint_states",
-                "sensor_msgs/msg/JointState",
+            state_message(
                 stamp,
-                joint_state(
-                    stamp,
-                    PANDA,
-                    np.r_[q[i], fingers[i]],
-                    np.r_[qd[i], 0.0, 0.0],
-                    np.r_[effort[i], 0.0, 0.0],
-                ),
+                PANDA,
+                np.r_[q[i], fingers[i]],
+                np.r_[qd[i], 0.0, 0.0],
+                np.r_[effort[i], 0.0, 0.0],
             )
         )
         if i and flag[i] != flag[i - 1]:
