@@ -201,15 +201,18 @@ def fit(
     filter_kind: FilterKind = None,
     causal: Causal = None,
     model: Annotated[
-        str,
+        str | None,
         typer.Option(
             "--model",
             help="Calibration model: affine (the paper's a·twin + b), affine-whitened, "
             "friction (+ c·tanh(q̇/ε) + d·q̇), identified (+ the URDF's inertial parameters "
-            "re-fitted through the joint-torque regressor; needs the URDF); *-whitened: the "
-            "score weighted per joint.",
+            "re-fitted through the joint-torque regressor; needs a robot model); *-whitened: "
+            "each joint's residual over its noise at its speed, scored by depth "
+            "[default: the best the logs allow: identified-whitened with a robot model, "
+            "friction-whitened with only a logged twin effort].",
+            show_default=False,
         ),
-    ] = "affine",
+    ] = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
     strict: Strict = False,
@@ -235,13 +238,9 @@ def fit(
     paths = expand_logs(logs)
     check_target(output, "calibration", force=force, inputs=paths)
     check_reports(report, None, force=force, inputs=paths)
-    from twincd.calibration.models import uses_regressor
+    from twincd.calibration.setup import filter_kind_for
 
-    # the identified models' residual is at the noise floor, where a Butterworth filter's
-    # ringing around a push shows as alarms before and after it: they filter without overshoot
-    kind = filter_kind
-    if kind is None:
-        kind = "critical" if uses_regressor(model) else "butterworth"
+    kind = filter_kind_for(model) if filter_kind is None else filter_kind
     setup = resolve_setup(
         None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal,
         strict, kind,
@@ -283,8 +282,8 @@ def threshold(
         typer.Option(
             "--sigma",
             "-k",
-            help=f"The paper's threshold μ + kσ [default: {DEFAULT_K_SIGMA:g}, unless a "
-            "false-alarm budget is given].",
+            help="The paper's threshold μ + kσ, mean and standard deviation [default: "
+            f"μ + {DEFAULT_K_SIGMA:g}σ, robustly (median and MAD) for a whitened model].",
             min=0,
         ),
     ] = None,
@@ -353,10 +352,6 @@ def threshold(
     done = run_per_log(
         work, paths, paths, jobs, "scoring", quiet, keep_going=keep_going, scheduler=scheduler
     )
-    # μ + 4σ stays the default until a score whose tail a budget holds on real arms is the
-    # default one (on the real arm's rotations, a 1/h budget found 37 % of pushes, μ + 4σ 78 %)
-    if sigma is None and false_alarms_per_hour is None:
-        sigma = DEFAULT_K_SIGMA
     cal = with_threshold(done.results, cal, sigma, false_alarms_per_hour)
     cal.save(target)
     stdout.print(threshold_line(cal.require_threshold()), soft_wrap=True)
@@ -372,6 +367,8 @@ def threshold_line(th: Threshold) -> str:
     seen = f"{th.samples} samples, {len(th.logs)} log(s)"
     tail = th.tail
     if tail is None:
+        if th.estimator == "median-mad":
+            line = line.replace("μ =", "μ (median) =").replace("σ =", "σ (MAD) =")
         return f"k-sigma: {line}  ({seen})"
     high = "∞" if tail.high is None else f"{tail.high:.6g}"
     hours = (th.judged_s or 0.0) / 3600.0

@@ -65,7 +65,10 @@ def rotate(i: int, work: Path, args: argparse.Namespace) -> Rotation:
     return Rotation(test.name, doc["methods"][0], (doc["samples"] - doc["positives"]) * PERIOD_S)
 
 
-def spread(values: list[float]) -> str:
+def spread(values: list[float | None]) -> str:
+    """Mean (min–max) of the rotations that have the figure (a rotation that found nothing has
+    no delay)."""
+    values = [v for v in values if v is not None]
     return f"{mean(values):.3g} ({min(values):.3g}–{max(values):.3g})" if values else "n/a"
 
 
@@ -95,7 +98,7 @@ def main() -> int:
         per = m["events_per_detected"] or float("nan")
         print(
             f"{r.test:<16}{m['events_detected']:>4.0f}/{m['events_total']:<4.0f}"
-            f"{m['delay_ms_median'] or float('nan'):>10.0f}{m['false_alarms']:>5.0f}"
+            f"{m['delay_ms_median'] if m['delay_ms_median'] is not None else float('nan'):>10.0f}{m['false_alarms']:>5.0f}"
             f"{per:>9.2f}{m['auc']:>7.3f}"
         )
     print(

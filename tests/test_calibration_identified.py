@@ -316,7 +316,7 @@ def test_identified_fit_in_blocks_equals_one_block(tmp_path: Path) -> None:
     one = setup_for_model(Setup(robot="xarm7", block_size=1 << 20), "identified")
     blocks = replace(one, block_size=97)
     fits = [fit_log(log, s) for s in (one, blocks)]
-    whole, parts = (f.identified for f in fits)
+    whole, parts = (f.stats.identified for f in fits)
     assert whole is not None and parts is not None and whole.n == parts.n > 2000
     np.testing.assert_allclose(parts.mean, whole.mean, rtol=1e-9, atol=1e-12)
     scale = np.sqrt(np.einsum("dkk->dk", whole.cross))  # each column's spread

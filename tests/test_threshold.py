@@ -17,9 +17,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from twincd.calibration import Calibration
+from twincd.calibration import Calibration, clean_mask
+from twincd.calibration.models import model_inputs
 from twincd.detection.events import runs
 from twincd.errors import CalibrationError, UsageError
+from twincd.pipeline import Setup
 from twincd.tail import (
     DECLUSTER_GAP_S,
     LEVELS,
@@ -131,10 +133,10 @@ def test_any_order_and_split_of_the_logs_give_the_same_threshold(
             )
         )
     cal = _calibration()
-    first = with_threshold(parts, cal).require_threshold()
+    first = with_threshold(parts, cal, false_alarms_per_hour=1.0).require_threshold()
     shuffled = parts[:]
     order.shuffle(shuffled)
-    assert with_threshold(shuffled, cal).require_threshold() == first
+    assert with_threshold(shuffled, cal, false_alarms_per_hour=1.0).require_threshold() == first
     # a worker that merged some logs' excursions first (any grouping) gives the same merge
     cut = order.randint(0, logs)
     grouped = sum((p.excursions for p in shuffled[:cut]), Excursions())  # type: ignore[misc]
@@ -258,13 +260,29 @@ def test_cli_threshold_default_k_and_budget(
     # the threshold clears every clean score: detect finds nothing on the val logs
     for log in sorted(val.glob("*.mcap")):
         assert run("detect", log, "-c", out).exit_code == 0
-    # -k keeps the paper's μ + kσ, and no budget; so does no option at all (the default)
-    for k in (["-k", "4"], []):
+    # -k keeps the paper's μ + kσ (mean and standard deviation), and no budget; no option at
+    # all is μ + 4σ too, with the median and MAD for a model scored by the depth statistic
+    whitened = Calibration.load(twin_calibration).model.statistic == "depth"
+    for k, estimator in ((["-k", "4"], "mean-sd"), ([], "median-mad" if whitened else "mean-sd")):
         k4 = run("threshold", val, "-c", twin_calibration, "-o", tmp_path / "k4.json", *k)
         assert k4.exit_code == 0 and k4.stdout.startswith("k-sigma:")
         th4 = json.loads((tmp_path / "k4.json").read_text())["threshold"]
         assert th4["k_sigma"] == 4.0 and "false_alarm_budget" not in th4
-        assert th4["mu"] == th["mu"] and th4["sigma"] == th["sigma"]
+        assert th4["estimator"] == estimator
+        if estimator == "mean-sd":
+            assert th4["mu"] == th["mu"] and th4["sigma"] == th["sigma"]
+        else:  # the median and MAD of the clean scores, to the histogram's step
+            cal4 = Calibration.load(tmp_path / "k4.json")
+            setup = Setup.from_calibration(cal4)
+            clean = [
+                cal4.model.scores(model_inputs(lg))[clean_mask(lg)]
+                for lg in (setup.prepare(p) for p in sorted(val.glob("*.mcap")))
+            ]
+            scores = np.concatenate(clean)
+            median = float(np.median(scores))
+            mad = float(np.median(np.abs(scores - median)))
+            assert th4["mu"] == pytest.approx(median, abs=0.011)
+            assert th4["sigma"] == pytest.approx(1.4826 * mad, abs=0.02)
     # a larger budget, a lower threshold
     lavish = run(
         "threshold", val, "-c", twin_calibration, "-o", tmp_path / "b.json",

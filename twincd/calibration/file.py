@@ -7,6 +7,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +15,14 @@ import numpy as np
 
 from twincd import __version__
 from twincd.calibration.affine import AffineCalibration
-from twincd.calibration.models import AFFINE, MODEL_KINDS, ResidualModel
+from twincd.calibration.models import (
+    AFFINE,
+    MODEL_KINDS,
+    SPEED_BINS,
+    STATISTICS,
+    ResidualModel,
+    depth_order,
+)
 from twincd.errors import CalibrationError, NotFittedError
 from twincd.io.logs import LogOptions
 from twincd.signal.filters import LowPass
@@ -22,6 +30,8 @@ from twincd.tail import TAIL_METHODS, TailFit
 from twincd.types import FloatArray
 
 SCHEMA = "twincd.calibration/1"
+# what a threshold's μ and σ are (``Threshold.estimator``)
+ESTIMATORS = ("mean-sd", "median-mad")
 
 
 def finite_number(value: Any, name: str, where: str, *, positive: bool = False) -> float:
@@ -66,7 +76,11 @@ def finite_array(values: Sequence[Any], names: Sequence[str], field: str, where:
 
 @dataclass(frozen=True)
 class Threshold:
-    """The threshold as μ + kσ of the score on collision-free logs, whatever chose k."""
+    """The threshold as μ + kσ of the score on collision-free logs, whatever chose k.
+
+    ``estimator`` says what μ and σ are: "mean-sd" the mean and standard deviation (the
+    paper's), "median-mad" the median and 1.4826 × the median absolute deviation (robust: a
+    stretch of unlabelled contact in the validation logs does not move them)."""
 
     k_sigma: float
     mu: float
@@ -79,6 +93,7 @@ class Threshold:
     false_alarms: int | None = None
     judged_s: float | None = None
     tail: TailFit | None = None  # the tail fit that chose the threshold of a budget
+    estimator: str = "mean-sd"
 
     @property
     def value(self) -> float:
@@ -90,6 +105,7 @@ class Threshold:
             "mu": self.mu,
             "sigma": self.sigma,
             "value": self.value,
+            "estimator": self.estimator,
             "logs": list(self.logs),
             "samples": self.samples,
         }
@@ -132,7 +148,10 @@ class Calibration:
     c: FloatArray | None = None  # friction models: Coulomb coefficient of tanh(q̇̃/ε)
     d: FloatArray | None = None  # friction models: viscous coefficient of q̇̃
     epsilon: FloatArray | None = None  # friction models: ε (rad/s) chosen on the training logs
-    scale: FloatArray | None = None  # whitened models: residual RMS per joint on training logs
+    # whitened models: each joint's residual RMS on the clean training samples, (D, B) in bins
+    # of the joint's speed (edges ``speed_bins``), or (D,) in files written before the bins
+    scale: FloatArray | None = None
+    speed_bins: tuple[float, ...] = SPEED_BINS
     # identified models: per joint the weights (D, P) of the filtered joint-torque regressor
     theta: FloatArray | None = None
     # the body each joint moves (its child link), for naming the link an event touched
@@ -153,8 +172,22 @@ class Calibration:
     def model(self) -> ResidualModel:
         """The map and score that detection applies."""
         return ResidualModel(
-            self.kind, self.a, self.b, self.c, self.d, self.epsilon, self.scale, self.theta
+            self.kind,
+            self.a,
+            self.b,
+            self.c,
+            self.d,
+            self.epsilon,
+            self.scale,
+            self.theta,
+            self.speed_bins,
+            depth_order(self.depths, len(self.joint_names)),
         )
+
+    @property
+    def joint_scale(self) -> FloatArray | None:
+        """One noise scale per joint, what isolation compares joints by (``ResidualModel``)."""
+        return self.model.joint_scale(self.rmse)
 
     def require_threshold(self) -> Threshold:
         if self.threshold is None:
@@ -208,18 +241,25 @@ class Calibration:
             },
             "model": {
                 "kind": self.kind,
+                **self._statistic(),
                 "joints": {n: self._coefficients(i) for i, n in enumerate(names)},
             },
             "fit": fit,
             "threshold": None if self.threshold is None else self.threshold.to_dict(),
         }
 
+    def _statistic(self) -> dict[str, Any]:
+        """How the model scores: written for the depth statistic (its speed bins' edges)."""
+        if self.scale is None or self.scale.ndim == 1:
+            return {}
+        return {"statistic": "depth", "speed_bins": list(self.speed_bins)}
+
     def _coefficients(self, i: int) -> dict[str, Any]:
         out: dict[str, Any] = {"a": float(self.a[i]), "b": float(self.b[i])}
         for key in ("c", "d", "epsilon", "scale"):
             values = getattr(self, key)
             if values is not None:
-                out[key] = float(values[i])
+                out[key] = values[i].tolist() if values.ndim == 2 else float(values[i])
         if self.theta is not None:
             out["theta"] = [float(x) for x in self.theta[i]]
         return out
@@ -254,9 +294,9 @@ class Calibration:
             coeff = model["joints"]
             a = finite_array([coeff[n]["a"] for n in names], names, "a", where)
             b = finite_array([coeff[n]["b"] for n in names], names, "b", where)
-            extra = {
-                key: _optional_column(coeff, names, key) for key in ("c", "d", "epsilon", "scale")
-            }
+            extra = {key: _optional_column(coeff, names, key) for key in ("c", "d", "epsilon")}
+            speed_bins = _speed_bins(model, where)
+            extra["scale"] = _scale(coeff, names, speed_bins, where)
             theta = _theta(coeff, names, where)
             _require_coefficients(str(kind), {**extra, "theta": theta}, where)
             links, depths = robot.get("links"), robot.get("depths")
@@ -290,6 +330,7 @@ class Calibration:
                     logs=tuple(th.get("logs", ())),
                     samples=int(th.get("samples", 0)),
                     **_budget(th.get("false_alarm_budget"), where),
+                    estimator=_estimator(th.get("estimator", "mean-sd"), where),
                 )
             if th is not None and threshold is not None:
                 _check_threshold(threshold, th, where)
@@ -316,6 +357,7 @@ class Calibration:
                 links=None if links is None else tuple(str(x) for x in links),
                 depths=None if depths is None else tuple(int(x) for x in depths),
                 theta=theta,
+                speed_bins=SPEED_BINS if speed_bins is None else speed_bins,
                 **extra,
             )
         except CalibrationError:
@@ -405,6 +447,17 @@ def _joint_names(raw: Any, where: str) -> tuple[str, ...]:
             "calibration field robot.joint_names names a joint twice", where, "re-run `twincd fit`"
         )
     return tuple(raw)
+
+
+def _estimator(value: Any, where: str) -> str:
+    if value not in ESTIMATORS:
+        raise CalibrationError(
+            f"calibration field threshold.estimator is {value!r}, not one of "
+            f"{', '.join(ESTIMATORS)}",
+            where,
+            "re-run `twincd threshold`",
+        )
+    return str(value)
 
 
 def _budget(raw: Any, where: str) -> dict[str, Any]:
@@ -525,6 +578,61 @@ def _optional_column(coeff: Mapping[str, Any], names: Sequence[str], key: str) -
     if any(v is None for v in values):
         raise ValueError(f"coefficient {key!r} is missing for some joints")
     return np.array([float(v) for v in values])
+
+
+def _speed_bins(model: Mapping[str, Any], where: str) -> tuple[float, ...] | None:
+    """The depth statistic's speed bins (None: a model scored by the sum, as files written
+    before the bins): rising, positive, finite edges."""
+    statistic = model.get("statistic", "sum")
+    if statistic not in STATISTICS:
+        raise CalibrationError(
+            f"calibration field model.statistic is {statistic!r}, not one of "
+            f"{', '.join(STATISTICS)}",
+            where,
+            "re-run `twincd fit`",
+        )
+    if statistic == "sum":
+        return None
+    edges = model["speed_bins"]
+    if not isinstance(edges, list) or not edges:
+        raise CalibrationError(
+            "calibration field model.speed_bins is not a list of speeds",
+            where,
+            "re-run `twincd fit`",
+        )
+    out = tuple(finite_number(e, "model.speed_bins", where, positive=True) for e in edges)
+    if any(b <= a for a, b in pairwise(out)):
+        raise CalibrationError(
+            "calibration field model.speed_bins does not rise", where, "re-run `twincd fit`"
+        )
+    return out
+
+
+def _scale(
+    coeff: Mapping[str, Any],
+    names: Sequence[str],
+    speed_bins: tuple[float, ...] | None,
+    where: str,
+) -> FloatArray | None:
+    """The whitening scale: one number per joint (the sum), or one per speed bin (the depth
+    statistic), all joints or none."""
+    if speed_bins is None:
+        return _optional_column(coeff, names, "scale")
+    rows = [coeff[n].get("scale") for n in names]
+    bins = len(speed_bins) + 1
+    if any(not isinstance(r, list) or len(r) != bins for r in rows):
+        raise CalibrationError(
+            f"calibration field scale is not a list of {bins} numbers (one per speed bin) for "
+            "every joint",
+            where,
+            "re-run `twincd fit`",
+        )
+    return np.array(
+        [
+            [finite_number(v, f"scale[{n}]", where) for v in r]
+            for r, n in zip(rows, names, strict=True)
+        ]
+    )
 
 
 def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatArray | None:

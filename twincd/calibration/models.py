@@ -25,14 +25,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from twincd.errors import DataError, JointMismatchError
-from twincd.types import BoolArray, FloatArray
+from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration.affine import AffineStats
@@ -40,6 +40,8 @@ if TYPE_CHECKING:
 
 
 AFFINE = "affine"
+IDENTIFIED_WHITENED = "identified-whitened"
+FRICTION_WHITENED = "friction-whitened"
 MODEL_KINDS = (
     "affine",
     "affine-whitened",
@@ -52,6 +54,15 @@ MODEL_KINDS = (
 EPSILON_GRID: tuple[float, ...] = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 # a joint whose residual is almost zero on training data must not get an infinite weight
 _MIN_SCALE = 1e-6
+# Whitened models: interior edges (rad/s) of the bins of a joint's own speed |q̇_j| in which its
+# residual's RMS is measured (bins 0 … len): rest, creep, slow, … fast. Chosen in
+# studies/real_arm_statistics.py on the real arm's rotations and synth.
+SPEED_BINS: tuple[float, ...] = (0.003, 0.01, 0.03, 0.1, 0.3)
+# a bin with fewer clean training samples than this takes the joint's overall RMS
+MIN_BIN_SAMPLES = 100
+# the statistics a whitened model scores with: "sum" Σ_j (r_j/s_j)² (files without speed bins),
+# "depth" the largest χ²_k z over the first k joints (``depth_score``)
+STATISTICS = ("sum", "depth")
 
 
 # ridge of the identified model's least squares, relative to each (standardised) column's own
@@ -322,6 +333,182 @@ class IdentifiedStats:
         return IdentifiedStats(*merge_moments(self, other, joint_axis=0))
 
 
+def speed_bin(speed: FloatArray, edges: Sequence[float] = SPEED_BINS) -> IntArray:
+    """Each sample's bin of |speed| (any shape) among the interior ``edges``: 0 … len(edges)."""
+    out: IntArray = np.searchsorted(np.asarray(edges), np.abs(speed), side="right").astype(np.int64)
+    return out
+
+
+@dataclass(frozen=True)
+class SpeedStats:
+    """Mergeable statistics of each joint's model columns in bins of the joint's own speed.
+
+    Per bin b and joint j: the count ``n`` (B, D), the means ``mean`` (B, D, K) and centred
+    cross-products ``cross`` (B, D, K, K) of the columns [τ̂̃, Ỹ_j (P, zero without the
+    regressor), q̇̃, LP[tanh(q̇/ε)] (E: every ε of ``EPSILON_GRID``, or none), τ̃]. Any model
+    fitted from the same samples is linear in these columns, so its residual's sum of squares
+    in a bin is a quadratic form of them (``speed_scale``): the whitening scale comes out of
+    the one pass that fits the model, exactly.
+    """
+
+    n: IntArray
+    mean: FloatArray
+    cross: FloatArray
+    params: int  # P: regressor entries per joint (0 without it)
+    coulomb: int  # E: Coulomb features per joint (0 without them)
+
+    @classmethod
+    def zeros(cls, joints: int, params: int = 0, coulomb: int = 0) -> SpeedStats:
+        b, k = len(SPEED_BINS) + 1, params + 3 + coulomb
+        return cls(
+            np.zeros((b, joints), np.int64),
+            np.zeros((b, joints, k)),
+            np.zeros((b, joints, k, k)),
+            params,
+            coulomb,
+        )
+
+    @classmethod
+    def from_arrays(
+        cls,
+        speed: FloatArray,
+        sim_effort_f: FloatArray,
+        effort_f: FloatArray,
+        velocity_f: FloatArray | None = None,
+        coulomb_f: FloatArray | None = None,
+        regressor_f: FloatArray | None = None,
+        regressor_mask: BoolArray | None = None,
+        mask: BoolArray | None = None,
+    ) -> SpeedStats:
+        """Statistics of (N, D) speeds |q̇| (raw, as scoring sees them), efforts and velocity,
+        the (N, E, D) Coulomb features and the regressor (whole or masked, as
+        ``IdentifiedStats.from_arrays``), rows where ``mask`` holds."""
+        sim = np.asarray(sim_effort_f, dtype=np.float64)
+        rows = np.ones(len(sim), bool) if mask is None else np.asarray(mask, bool)
+        joints = sim.shape[1]
+        f = None if coulomb_f is None else coulomb_grid(coulomb_f, "whitening scale")[rows]
+        y, kept = None, None
+        if regressor_f is not None:
+            y, kept = compact_regressor(regressor_f, regressor_mask)
+            y = y[rows]
+        params = 0 if kept is None else kept.shape[1]
+        out = cls.zeros(joints, params, 0 if f is None else f.shape[1])
+        bins = speed_bin(np.asarray(speed, dtype=np.float64)[rows])
+        sim, effort = sim[rows], np.asarray(effort_f, dtype=np.float64)[rows]
+        velocity = (
+            np.zeros_like(sim) if velocity_f is None else np.asarray(velocity_f, np.float64)[rows]
+        )
+        n, mean, cross = out.n.copy(), out.mean.copy(), out.cross.copy()
+        ends = None if kept is None else np.cumsum(kept.sum(axis=1))
+        with one_blas_thread():
+            for j in range(joints):
+                if kept is None or y is None or ends is None:
+                    joint_kept, joint_y = np.zeros(0, bool), np.zeros((len(sim), 0))
+                else:
+                    joint_kept = kept[j]
+                    joint_y = y[:, ends[j] - np.count_nonzero(kept[j]) : ends[j]]
+                coulomb = np.zeros((len(sim), 0)) if f is None else f[:, :, j]
+                for b in np.unique(bins[:, j]):
+                    at = bins[:, j] == b
+                    n[b, j] = np.count_nonzero(at)
+                    mean[b, j], cross[b, j] = _joint_moments(
+                        joint_kept,
+                        sim[at, j],
+                        joint_y[at],
+                        velocity[at, j],
+                        coulomb[at],
+                        effort[at, j],
+                    )
+        return cls(n, mean, cross, params, out.coulomb)
+
+    def __add__(self, other: SpeedStats) -> SpeedStats:
+        if (self.params, self.coulomb) != (other.params, other.coulomb):
+            raise DataError(
+                "whitening statistics of logs prepared differently do not merge",
+                f"{self.params}/{self.coulomb} vs {other.params}/{other.coulomb} columns",
+                "prepare every log with the same settings",
+            )
+        from twincd.calibration.affine import same_joints
+
+        same_joints(self.n.shape[1], other.n.shape[1])
+        merged = _merge_counted((self.n, self.mean, self.cross), (other.n, other.mean, other.cross))
+        return SpeedStats(*merged, self.params, self.coulomb)
+
+    def pooled(self) -> tuple[int, FloatArray, FloatArray]:
+        """Count, means (D, K) and cross-products (D, K, K) over every bin: the statistics of
+        one joint's columns regardless of speed (``IdentifiedStats``'s, in the same layout)."""
+        total = (self.n[0], self.mean[0], self.cross[0])
+        for b in range(1, len(self.n)):
+            total = _merge_counted(total, (self.n[b], self.mean[b], self.cross[b]))
+        return int(total[0].max(initial=0)), total[1], total[2]
+
+
+def _merge_counted(
+    mine: tuple[IntArray, FloatArray, FloatArray], theirs: tuple[IntArray, FloatArray, FloatArray]
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Chan et al.'s pairwise merge where every cell has its own count (empty cells merge as
+    nothing): counts (...), means (..., K), centred cross-products (..., K, K)."""
+    n1, m1, c1 = mine
+    n2, m2, c2 = theirs
+    n = n1 + n2
+    total = np.maximum(n, 1)
+    delta = m2 - m1
+    mean = m1 + delta * (n2 / total)[..., None]
+    weight = (n1 * n2 / total)[..., None, None]
+    return n, mean, c1 + c2 + delta[..., :, None] * delta[..., None, :] * weight
+
+
+def speed_scale(stats: SpeedStats, model: ResidualModel, overall: FloatArray) -> FloatArray:
+    """(D, B) each joint's residual RMS under ``model`` in each bin of its own speed, exact
+    from ``stats``; a bin with fewer than ``MIN_BIN_SAMPLES`` samples takes ``overall`` (D,)."""
+    joints = len(model.a)
+    p, e = stats.params, stats.coulomb
+    w = np.zeros((joints, p + 3 + e))  # the residual τ̃ − f(…) as weights on the columns
+    w[:, 0] = -model.a
+    w[:, -1] = 1.0
+    if model.theta is not None:
+        if model.theta.shape[1] != p:
+            raise model._theta_mismatch(p)
+        w[:, 1 : p + 1] = -model.theta
+    if model.c is not None and model.d is not None and model.epsilon is not None:
+        if e != len(EPSILON_GRID):
+            raise DataError(
+                f"the {model.kind} model's whitening needs every ε candidate's Coulomb feature",
+                "fit",
+                "prepare the logs with setup_for_model(setup, model)",
+            )
+        w[:, p + 1] = -model.d
+        at = [EPSILON_GRID.index(float(x)) for x in model.epsilon]
+        w[np.arange(joints), p + 2 + np.array(at, dtype=np.intp)] = -model.c
+    spread = np.einsum("dk,bdkl,dl->bd", w, stats.cross, w)
+    offset = np.einsum("bdk,dk->bd", stats.mean, w) - model.b
+    sse = np.maximum(spread, 0.0) + stats.n * offset**2
+    rms = np.sqrt(sse / np.maximum(stats.n, 1))
+    enough = stats.n >= MIN_BIN_SAMPLES
+    out: FloatArray = np.where(enough, rms, np.asarray(overall, np.float64)[None, :]).T
+    return np.maximum(out, _MIN_SCALE)
+
+
+def wilson_hilferty(x: FloatArray, k: int) -> FloatArray:
+    """χ²_k values as standard-normal z by Wilson and Hilferty's cube root (finite for x ≥ 0)."""
+    c = 2.0 / (9.0 * k)
+    out: FloatArray = (np.cbrt(x / k) - (1.0 - c)) / np.sqrt(c)
+    return out
+
+
+def depth_score(whitened: FloatArray, order: IndexArray | None = None) -> FloatArray:
+    """(N,) the largest over k of the z of Σ_{i≤k} w_i² (χ²_k without a collision), the joints
+    of (N, D) ``whitened`` taken in ``order`` (base first): a push on the k-th link loads
+    joints 1…k, and one scale serves every k."""
+    w = whitened if order is None else whitened[:, order]
+    energy = np.cumsum(w * w, axis=1)
+    z = np.empty_like(energy)
+    for k in range(energy.shape[1]):
+        z[:, k] = wilson_hilferty(energy[:, k], k + 1)
+    out: FloatArray = z.max(axis=1) if z.shape[1] else np.zeros(len(z))
+    return out
+
+
 @dataclass(frozen=True)
 class FrictionSolution:
     a: FloatArray
@@ -421,7 +608,8 @@ class ResidualModel:
     """What scoring needs of a calibration: the map from twin to measured effort and the score.
 
     ``c``, ``d``, ``epsilon`` are set for friction and identified models, ``theta`` (D, P) for
-    identified ones, ``scale`` for whitened ones.
+    identified ones, ``scale`` for whitened ones: (D, B) per bin of ``speed_bins`` (the depth
+    statistic, taking the joints in ``order``), or (D,) in files written before the bins.
     """
 
     kind: str
@@ -432,6 +620,18 @@ class ResidualModel:
     epsilon: FloatArray | None = None
     scale: FloatArray | None = None
     theta: FloatArray | None = None
+    speed_bins: tuple[float, ...] = SPEED_BINS
+    order: tuple[int, ...] | None = None  # joints base first (None: as they come)
+
+    @property
+    def statistic(self) -> str:
+        """How residuals become a score (one of ``STATISTICS``; "sum" for unwhitened models)."""
+        return "depth" if self.scale is not None and self.scale.ndim == 2 else "sum"
+
+    @property
+    def needs_speed(self) -> bool:
+        """Scoring reads each sample's joint speeds (``velocity``) as well as its residual."""
+        return self.statistic == "depth"
 
     def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
         """The twin's effort mapped to the real robot's, (N, D), from prepared samples
@@ -480,14 +680,37 @@ class ResidualModel:
         out: FloatArray = np.asarray(inputs["effort_f"], np.float64) - self.predict(inputs)
         return out
 
-    def score(self, residual: FloatArray) -> FloatArray:
-        """Σ_j r_j² (affine, friction) or Σ_j (r_j/s_j)² (whitened), (N,)."""
-        r = residual if self.scale is None else residual / np.maximum(self.scale, _MIN_SCALE)
-        out: FloatArray = np.einsum("ij,ij->i", r, r)
-        return out
+    def score(self, residual: FloatArray, velocity: FloatArray | None = None) -> FloatArray:
+        """(N,) Σ_j r_j² (affine, friction), the depth statistic of r_j / s_j(|q̇_j|) (whitened,
+        from the (N, D) joint ``velocity``), or Σ_j (r_j/s_j)² (whitened, written before the
+        speed bins)."""
+        if self.scale is None or self.scale.ndim == 1:
+            r = residual if self.scale is None else residual / np.maximum(self.scale, _MIN_SCALE)
+            out: FloatArray = np.einsum("ij,ij->i", r, r)
+            return out
+        if velocity is None:
+            raise DataError(
+                f"the {self.kind} model scores with the joints' speeds",
+                "scoring",
+                "pass the joint velocity with the residual",
+            )
+        bins = speed_bin(np.asarray(velocity, dtype=np.float64), self.speed_bins)
+        joints = np.arange(residual.shape[1])
+        scale = np.maximum(self.scale, _MIN_SCALE)[joints[None, :], bins]
+        order = None if self.order is None else np.asarray(self.order, dtype=np.intp)
+        return depth_score(residual / scale, order)
 
     def scores(self, inputs: Mapping[str, Any]) -> FloatArray:
-        return self.score(self.residual(inputs))
+        """Per-sample scores of prepared samples (``predict``'s inputs, ``effort_f``, and the raw
+        ``velocity`` for the depth statistic)."""
+        return self.score(self.residual(inputs), inputs.get("velocity"))
+
+    def joint_scale(self, rmse: FloatArray | None) -> FloatArray | None:
+        """One noise scale per joint (what isolation compares joints by): the flat whitening
+        scale, else ``rmse`` (the training residual RMS)."""
+        if self.scale is not None and self.scale.ndim == 1:
+            return self.scale
+        return rmse
 
 
 def model_inputs(log: PreparedLog) -> dict[str, Any]:
@@ -499,6 +722,7 @@ def model_inputs(log: PreparedLog) -> dict[str, Any]:
         "coulomb_f": log.coulomb_f,
         "coulomb_eps": log.coulomb_eps,
         "regressor_f": log.regressor_f,
+        "velocity": log.states.velocity,
     }
 
 
@@ -516,8 +740,13 @@ def fit_model(
     affine: AffineStats,
     friction: FrictionStats,
     identified: IdentifiedStats | None = None,
+    speed: SpeedStats | None = None,
+    order: Sequence[int] | None = None,
 ) -> ModelFit:
-    """``kind`` fitted from merged statistics (all kinds of statistics come from one pass)."""
+    """``kind`` fitted from merged statistics (all kinds of statistics come from one pass).
+    A whitened model takes its scale per speed bin from ``speed`` and scores with the depth
+    statistic over the joints in ``order`` (base first); without ``speed``, one scale per joint
+    and the sum (as files written before the speed bins)."""
     from twincd.calibration.affine import solve
 
     if uses_regressor(kind):
@@ -529,14 +758,93 @@ def fit_model(
             )
         ident = solve_identified(identified)
         fr = ident.friction
-        scale = fr.rmse if is_whitened(kind) else None
-        model = ResidualModel(kind, fr.a, fr.b, fr.c, fr.d, fr.epsilon, scale, ident.theta)
-        return ModelFit(model, fr.r2, fr.rmse)
-    if uses_friction(kind):
+        model = ResidualModel(kind, fr.a, fr.b, fr.c, fr.d, fr.epsilon, theta=ident.theta)
+        r2, rmse = fr.r2, fr.rmse
+    elif uses_friction(kind):
         fr = solve_friction(friction)
-        scale = fr.rmse if is_whitened(kind) else None
-        model = ResidualModel(kind, fr.a, fr.b, fr.c, fr.d, fr.epsilon, scale)
-        return ModelFit(model, fr.r2, fr.rmse)
-    sol = solve(affine)
-    scale = sol.rmse if is_whitened(kind) else None
-    return ModelFit(ResidualModel(kind, sol.a, sol.b, scale=scale), sol.r2, sol.rmse)
+        model = ResidualModel(kind, fr.a, fr.b, fr.c, fr.d, fr.epsilon)
+        r2, rmse = fr.r2, fr.rmse
+    else:
+        sol = solve(affine)
+        model = ResidualModel(kind, sol.a, sol.b)
+        r2, rmse = sol.r2, sol.rmse
+    if is_whitened(kind):
+        scale = rmse if speed is None else speed_scale(speed, model, rmse)
+        joints = None if order is None else tuple(int(i) for i in order)
+        model = replace(model, scale=scale, order=joints)
+    return ModelFit(model, r2, rmse)
+
+
+@dataclass(frozen=True)
+class FitStats:
+    """Everything a fit of any model kind needs from some samples, from one pass: mergeable
+    (``+``, exact and in any order), small and picklable (what one log sends back from a
+    worker). ``friction`` and ``identified`` exist when the samples were prepared with every
+    ε's Coulomb feature (and the regressor); ``speed`` always (the whitening scale)."""
+
+    affine: AffineStats
+    speed: SpeedStats
+    friction: FrictionStats | None = None
+    identified: IdentifiedStats | None = None
+
+    @classmethod
+    def from_inputs(cls, inputs: Mapping[str, Any], clean: BoolArray) -> FitStats:
+        """The statistics of prepared samples (``ResidualModel.predict``'s inputs plus
+        ``effort_f`` and the raw ``velocity``), rows where ``clean`` holds."""
+        from twincd.calibration.affine import AffineStats
+
+        sim, effort = inputs["sim_effort_f"], inputs["effort_f"]
+        affine = AffineStats.from_arrays(sim, effort, clean)
+        grid = tuple(inputs.get("coulomb_eps") or ()) == EPSILON_GRID
+        friction = None
+        if grid:
+            friction = FrictionStats.from_arrays(
+                sim, inputs["velocity_f"], inputs["coulomb_f"], effort, clean
+            )
+        regressor = inputs.get("regressor_f") if grid else None
+        speed = SpeedStats.from_arrays(
+            inputs["velocity"],
+            sim,
+            effort,
+            inputs.get("velocity_f"),
+            inputs["coulomb_f"] if grid else None,
+            regressor,
+            inputs.get("regressor_mask"),
+            clean,
+        )
+        identified = None
+        if regressor is not None:
+            # the identified model's moments are the speed bins' pooled: one product, not two
+            n, mean, cross = speed.pooled()
+            identified = IdentifiedStats(n, mean, cross)
+        return cls(affine, speed, friction, identified)
+
+    def __add__(self, other: FitStats) -> FitStats:
+        def both(mine: Any, theirs: Any) -> Any:
+            return None if mine is None or theirs is None else mine + theirs
+
+        return FitStats(
+            self.affine + other.affine,
+            self.speed + other.speed,
+            both(self.friction, other.friction),
+            both(self.identified, other.identified),
+        )
+
+    def fit(self, kind: str, order: Sequence[int] | None = None) -> ModelFit:
+        """``kind`` fitted from these statistics (``fit_model``)."""
+        if uses_friction(kind) and self.friction is None:
+            raise DataError(
+                f"the {kind} model needs Coulomb features for every ε candidate",
+                "fit",
+                "prepare the logs with setup_for_model(setup, model)",
+            )
+        friction = self.friction or FrictionStats.zeros(len(self.affine.mean_x))
+        return fit_model(kind, self.affine, friction, self.identified, self.speed, order)
+
+
+def depth_order(depths: Sequence[int] | None, joints: int) -> tuple[int, ...]:
+    """The joints base first: by their depth in the kinematic tree when known (ties keep the
+    joints' order), else as they come."""
+    if depths is None:
+        return tuple(range(joints))
+    return tuple(int(i) for i in np.argsort(np.asarray(depths), kind="stable"))

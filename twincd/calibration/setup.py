@@ -12,15 +12,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.calibration.affine import AffineCalibration, AffineStats, clean_rows
+from twincd.calibration.affine import AffineCalibration, clean_rows
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.calibration.models import (
     AFFINE,
     EPSILON_GRID,
+    FRICTION_WHITENED,
+    IDENTIFIED_WHITENED,
     MODEL_KINDS,
-    FrictionStats,
-    IdentifiedStats,
-    fit_model,
+    FitStats,
+    depth_order,
     uses_friction,
     uses_regressor,
 )
@@ -38,8 +39,7 @@ class LogFit:
     """What one log contributes to a fit: small, picklable, mergeable (the per-log step)."""
 
     source: str
-    stats: AffineStats
-    friction: FrictionStats | None  # every ε candidate at once, when prepared with them
+    stats: FitStats
     joint_names: tuple[str, ...]
     period_s: float
     simulated: bool
@@ -47,15 +47,12 @@ class LogFit:
     seconds: float  # time spent in the regression sums, as the paper times training
     samples: int = 0  # every sample read (labelled ones too): what progress counts
     labelled: bool = True  # the log has collision labels (else every sample is taken as clean)
-    identified: IdentifiedStats | None = None  # when prepared with the regressor
 
 
 def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> LogFit:
-    """Stream one log through read → twin → filter into affine statistics; every frame also
-    goes to ``sinks`` (e.g. what a report's figure draws)."""
-    stats: AffineStats | None = None
-    friction: FrictionStats | None = None
-    identified: IdentifiedStats | None = None
+    """Stream one log through read → twin → filter into the statistics of every model kind;
+    every frame also goes to ``sinks`` (e.g. what a report's figure draws)."""
+    stats: FitStats | None = None
     seconds = 0.0
     labelled = False
     with setup.open(path) as stream:
@@ -63,36 +60,17 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
             labelled |= "labels" in frame
             start = time.perf_counter()
             clean = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
-            part = AffineStats.from_arrays(frame["sim_effort_f"], frame["effort_f"], clean)
+            # the stream knows its regressor's entries once its first block is read
+            prepared = {"coulomb_eps": stream.coulomb_eps, "regressor_mask": stream.regressor_mask}
+            part = FitStats.from_inputs({**frame, **prepared}, clean)
             stats = part if stats is None else stats + part
             seconds += time.perf_counter() - start
-            if stream.coulomb_eps == EPSILON_GRID:
-                more = FrictionStats.from_arrays(
-                    frame["sim_effort_f"],
-                    frame["velocity_f"],
-                    frame["coulomb_f"],
-                    frame["effort_f"],
-                    clean,
-                )
-                friction = more if friction is None else friction + more
-            if stream.regressor and stream.coulomb_eps == EPSILON_GRID:
-                part_id = IdentifiedStats.from_arrays(
-                    frame["sim_effort_f"],
-                    frame["regressor_f"],
-                    frame["velocity_f"],
-                    frame["coulomb_f"],
-                    frame["effort_f"],
-                    clean,
-                    stream.regressor_mask,
-                )
-                identified = part_id if identified is None else identified + part_id
             for sink in sinks:
                 sink.write(frame, [])
         assert stats is not None  # the stream raises on logs without samples
         return LogFit(
             source=stream.source,
             stats=stats,
-            friction=friction,
             joint_names=stream.joint_names,
             period_s=stream.period_s,
             simulated=stream.simulated,
@@ -100,7 +78,6 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
             seconds=seconds,
             samples=stream.samples,
             labelled=labelled,
-            identified=identified,
         )
 
 
@@ -110,8 +87,8 @@ def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:
     return stream.robot.name, stream.robot.urdf_sha256
 
 
-def check_model(model: str) -> None:
-    if model not in MODEL_KINDS:
+def check_model(model: str | None) -> None:
+    if model is not None and model not in MODEL_KINDS:
         raise UsageError(
             f"unknown calibration model {model!r}",
             "fit",
@@ -120,19 +97,38 @@ def check_model(model: str) -> None:
         )
 
 
-def setup_for_model(setup: Setup, model: str) -> Setup:
+def setup_for_model(setup: Setup, model: str | None) -> Setup:
     """The setup that prepares what fitting ``model`` needs (friction: every ε candidate;
-    identified: the joint-torque regressor too)."""
+    identified: the joint-torque regressor too; None, the best model the logs allow: both,
+    the regressor where a robot model is known)."""
     check_model(model)
+    best = model is None
     return replace(
         setup,
-        coulomb_eps=EPSILON_GRID if uses_friction(model) else (),
-        regressor=uses_regressor(model),
+        coulomb_eps=EPSILON_GRID if best or uses_friction(str(model)) else (),
+        regressor=best or uses_regressor(str(model)),
+        regressor_optional=best or setup.regressor_optional,
     )
 
 
-def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Calibration:
-    """The calibration from per-log statistics, merged in any order (exact merges)."""
+def filter_kind_for(model: str | None) -> str:
+    """The low-pass kind a model fits best with: an identified model's residual is at the noise
+    floor, where a Butterworth filter's ringing around a push shows as alarms before and after
+    it, so it (and the best model, which is identified when it can be) filters without
+    overshoot."""
+    return "critical" if model is None or uses_regressor(model) else "butterworth"
+
+
+def best_model(stats: FitStats) -> str:
+    """The best model the prepared logs allow: identified and whitened when every log had the
+    robot model's regressor, else friction and whitened (logs that carry their own twin effort
+    and no robot model). Chosen on the real arm's rotations and synth (docs: models)."""
+    return IDENTIFIED_WHITENED if stats.identified is not None else FRICTION_WHITENED
+
+
+def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) -> Calibration:
+    """The calibration of ``model`` (None: ``best_model``) from per-log statistics, merged in
+    any order (exact merges)."""
     check_model(model)
     parts = sorted(parts, key=lambda p: p.source)  # any completion order gives one answer
     if not parts:
@@ -141,9 +137,14 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Ca
     total = parts[0].stats
     for p in parts[1:]:
         total = total + p.stats
+    if model is None:
+        model = best_model(total)
+        log.info(
+            "fit: model %s, the best these logs allow (--model affine is the paper's)", model
+        )
     start = time.perf_counter()
     # a friction model's slope a is conditioned by its other terms too: no affine warning
-    estimator = AffineCalibration(names, not uses_friction(model)).fit_stats(total)
+    estimator = AffineCalibration(names, not uses_friction(model)).fit_stats(total.affine)
     estimator.fit_s_ = sum(p.seconds for p in parts) + time.perf_counter() - start
     _warn_about_fit(estimator, [p.source for p in parts if not p.labelled])
     robots = sorted({p.robot for p in parts if p.robot is not None})
@@ -162,20 +163,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Ca
     cal = replace(cal, kind=model, links=links, depths=depths)
     if model != AFFINE:
         start = time.perf_counter()
-        friction = FrictionStats.zeros(len(names))
-        for p in parts:
-            if p.friction is None and uses_friction(model):
-                raise DataError(
-                    f"the {model} model needs Coulomb features for every ε candidate",
-                    p.source,
-                    "prepare the logs with setup_for_model(setup, model)",
-                )
-            friction = friction if p.friction is None else friction + p.friction
-        identified = None
-        for p in parts:
-            if p.identified is not None:
-                identified = p.identified if identified is None else identified + p.identified
-        fitted = fit_model(model, total, friction, identified)
+        fitted = total.fit(model, depth_order(depths, len(names)))
         m = fitted.model
         cal = replace(
             cal,
@@ -243,7 +231,10 @@ def _warn_about_fit(estimator: AffineCalibration, unlabelled: list[str]) -> None
         )
 
 
-def fit_calibration(paths: Iterable[str | Path], setup: Setup, model: str = AFFINE) -> Calibration:
-    """Fit ``model`` over ``paths`` log by log (memory flat in the number of logs and samples)."""
+def fit_calibration(
+    paths: Iterable[str | Path], setup: Setup, model: str | None = None
+) -> Calibration:
+    """Fit ``model`` (None: the best the logs allow, ``best_model``) over ``paths`` log by log
+    (memory flat in the number of logs and samples)."""
     setup = setup_for_model(setup, model)
     return merge_fits([fit_log(path, setup) for path in paths], setup, model)

@@ -82,7 +82,7 @@ class ScoringStage:
         isolator = isolator_for(
             calibration.links,
             calibration.depths,
-            calibration.scale if calibration.scale is not None else calibration.rmse,
+            calibration.joint_scale,
             kappa_for(calibration.kind),
         )
         self.events = EventTracker(joint_names or calibration.joint_names, isolator, self.rules)
@@ -96,7 +96,7 @@ class ScoringStage:
         and the events that closed in it."""
         inputs = {**frame, "coulomb_eps": self.coulomb_eps, "regressor_mask": self.regressor_mask}
         r = self.model.residual(inputs)
-        scores = self.model.score(r)
+        scores = self.model.score(r, frame.get("velocity"))
         flags = scores >= self.threshold
         hold = scores >= self.release
         judged = np.ones(len(flags), dtype=bool)

@@ -9,13 +9,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from twincd.calibration import Calibration
-from twincd.calibration.affine import AffineStats, clean_mask
+from twincd.calibration.affine import clean_mask
 from twincd.calibration.models import (
     EPSILON_GRID,
-    FrictionStats,
-    IdentifiedStats,
+    FitStats,
     ResidualModel,
-    fit_model,
+    depth_order,
     model_inputs,
     uses_friction,
     uses_regressor,
@@ -50,27 +49,15 @@ class ModelMethod(ScoringMethod):
     def fit(self, train: Sequence[PreparedLog]) -> ModelMethod:
         if not train:
             raise DataError("no training logs", self.name, "give collision-free training logs")
-        affine = AffineStats.zeros(train[0].sim_effort_f.shape[1])
-        friction = FrictionStats.zeros(train[0].sim_effort_f.shape[1])
-        identified: IdentifiedStats | None = None
-        for lg in train:
-            mask = clean_mask(lg)
-            affine = affine + AffineStats.from_arrays(lg.sim_effort_f, lg.effort_f, mask)
-            if lg.velocity_f is not None and lg.coulomb_f is not None:
-                friction = friction + FrictionStats.from_arrays(
-                    lg.sim_effort_f, lg.velocity_f, lg.coulomb_f, lg.effort_f, mask
-                )
-                if uses_regressor(self.model_kind) and lg.regressor_f is not None:
-                    part = IdentifiedStats.from_arrays(
-                        lg.sim_effort_f,
-                        lg.regressor_f,
-                        lg.velocity_f,
-                        lg.coulomb_f,
-                        lg.effort_f,
-                        mask,
-                    )
-                    identified = part if identified is None else identified + part
-        fitted = fit_model(self.model_kind, affine, friction, identified)
+        stats = FitStats.from_inputs(model_inputs(train[0]), clean_mask(train[0]))
+        for lg in train[1:]:
+            stats = stats + FitStats.from_inputs(model_inputs(lg), clean_mask(lg))
+        depths = None
+        if train[0].robot is not None:
+            from twincd.twin.robot import child_links
+
+            depths = child_links(train[0].robot, train[0].joint_names)[1]
+        fitted = stats.fit(self.model_kind, depth_order(depths, len(train[0].joint_names)))
         self.model_: ResidualModel = fitted.model
         self.rmse_: FloatArray = fitted.rmse
         return self
@@ -78,7 +65,7 @@ class ModelMethod(ScoringMethod):
     def from_calibration(self, calibration: Calibration) -> ModelMethod:
         method = type(self)(self.kappa)
         method.model_ = calibration.model
-        rmse = calibration.rmse if calibration.rmse is not None else calibration.scale
+        rmse = calibration.joint_scale
         method.rmse_ = rmse if rmse is not None else np.ones(len(calibration.joint_names))
         return method
 
@@ -91,7 +78,7 @@ class ModelMethod(ScoringMethod):
         return self._model().residual(model_inputs(log))
 
     def score(self, log: PreparedLog) -> FloatArray:
-        return self._model().score(self.residual(log))
+        return self._model().score(self.residual(log), log.states.velocity)
 
     def isolator(self, log: PreparedLog) -> LinkIsolator | None:
         """The isolation rule on this log's joints (None without a robot model)."""
@@ -100,7 +87,7 @@ class ModelMethod(ScoringMethod):
         from twincd.twin.robot import child_links
 
         links, depths = child_links(log.robot, log.joint_names)
-        scale = self._model().scale if self._model().scale is not None else self.rmse_
+        scale = self._model().joint_scale(self.rmse_)
         assert scale is not None
         kappa = kappa_for(self.model_kind) if self.kappa is None else self.kappa
         return LinkIsolator(links, depths, scale, kappa)
