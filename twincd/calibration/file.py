@@ -16,7 +16,7 @@ from twincd import __version__
 from twincd.calibration.affine import AffineCalibration
 from twincd.calibration.models import AFFINE, MODEL_KINDS, ResidualModel
 from twincd.errors import CalibrationError, NotFittedError
-from twincd.io.logs import LogOptions
+from twincd.io.options import LogOptions
 from twincd.signal.filters import LowPass
 from twincd.tail import TAIL_METHODS, TailFit
 from twincd.types import FloatArray
@@ -364,7 +364,7 @@ class Calibration:
 
     def save(self, path: str | Path) -> None:
         """Write atomically (a temporary file renamed into place)."""
-        from twincd.io.mcap_write import atomic_output
+        from twincd.io.atomic import atomic_output
 
         text = json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
         with atomic_output(Path(path)) as stream:

@@ -1,7 +1,8 @@
-"""Time-ordered sample blocks of one log's joint states, with labels and the twin's effort.
+"""Time-ordered sample blocks of one log's joint states, with labels and the twin's effort (the
+sample layer of the block stream, on top of ``twincd.io.stream.topics``).
 
 ``iter_blocks(path, options)`` streams a log of any length at flat memory: topic batches
-(``twincd.io.batches``) go through a reorder buffer that sorts the newest samples by stamp and
+(``twincd.io.stream.topics``) go through a reorder buffer that sorts the newest samples by stamp and
 emits the older ones in blocks. Rules (contract: Inputs):
 
 - time is ``header.stamp``, the log time where the stamp is 0;
@@ -39,18 +40,26 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.errors import JointMismatchError, LogReadError, SplitJointsError, TopicError
-from twincd.io.batches import (
-    DEFAULT_BATCH,
-    Batch,
-    BoolBatch,
-    JointStateBatch,
-    TopicReader,
-)
 from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
+from twincd.io.stream.batch import DEFAULT_BATCH, END, Batch, BoolBatch, JointStateBatch
+from twincd.io.stream.topics import TopicReader
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.io.options import LogOptions
+
+__all__ = [
+    "CLOCK_JUMP_NS",
+    "DEFAULT_BLOCK",
+    "DEFAULT_REORDER",
+    "OWN_PREFIX",
+    "LogStream",
+    "SampleBlock",
+    "StreamCounts",
+    "choose_topic",
+    "iter_blocks",
+    "warn_ignored_joints",
+]
 
 log = logging.getLogger("twincd")
 
@@ -58,7 +67,6 @@ log = logging.getLogger("twincd")
 OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's joint states
 DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
-_END = 2**63 - 1
 CLOCK_JUMP_NS = 5_000_000_000  # stamps this much further behind the log time: the clock jumped back
 _T = TypeVar("_T", bound=np.generic)
 
@@ -521,7 +529,7 @@ class LogStream:
             yield from self._take(topic, batch, mark)
         for topic, batch in self._items:
             yield from self._take(topic, batch, self._reader.watermark_ns)
-        yield from self._emit(_END, final=True)
+        yield from self._emit(END, final=True)
         if self.counts.samples == 0:
             raise LogReadError(
                 "no sample carries every joint",
