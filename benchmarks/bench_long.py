@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.io.mcap_write import DEFAULT_QOS  # what `ros2 bag record` offers by default
+from twincd.io.mcap import DEFAULT_QOS  # what `ros2 bag record` offers by default
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

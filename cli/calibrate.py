@@ -111,7 +111,7 @@ def resolve_setup(
 ) -> Setup:
     """Settings for reading logs: explicit options over the calibration's, never against them
     (``filter_kind`` None: Butterworth without a calibration)."""
-    from twincd.io.logs import parse_joint_map
+    from twincd.io.options import parse_joint_map
     from twincd.pipeline import Setup
     from twincd.signal.filters import LowPass
 

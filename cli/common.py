@@ -25,7 +25,7 @@ from twincd.errors import InternalError, OutputError, Terminated, TwincdError, r
 
 if TYPE_CHECKING:
     from twincd.executors import MapExecutor
-    from twincd.io.logs import LogOptions
+    from twincd.io.options import LogOptions
 
 T = TypeVar("T")
 log = logging.getLogger("twincd")
@@ -172,7 +172,7 @@ def log_options(
     defaults: LogOptions | None = None,
 ) -> LogOptions:
     """Options from the command line; unset ones fall back to ``defaults`` (a calibration's)."""
-    from twincd.io.logs import LogOptions, parse_joint_map
+    from twincd.io.options import LogOptions, parse_joint_map
 
     base = defaults or LogOptions()
     return LogOptions(

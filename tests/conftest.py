@@ -55,7 +55,7 @@ def build_twin_log(
     ``joints``): ``joints`` keep their data, any other name is an extra joint (a gripper, a
     linear axis) with signals of its own; /twincd/sim_effort keeps ``joints``."""
     from twincd.io.cdr import bool_cdr, joint_state_cdr
-    from twincd.io.mcap_write import McapLogWriter
+    from twincd.io.mcap import McapLogWriter
 
     dof = len(joints)
     n = round(seconds * rate_hz)

@@ -19,7 +19,8 @@ from twincd.calibration import (
     solve,
 )
 from twincd.errors import CalibrationError, DataError, NotFittedError
-from twincd.io.logs import LogOptions, expand_logs
+from twincd.io.logs import expand_logs
+from twincd.io.options import LogOptions
 from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass
 

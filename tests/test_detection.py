@@ -17,9 +17,9 @@ from twincd.detection import affine_score, detect, detect_file, find_events, res
 from twincd.errors import DataError, NotFittedError, OutputError
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.proposed import ProposedMethod
-from twincd.io.logs import expand_logs, read_log
+from twincd.io.logs import expand_logs
 from twincd.outputs import write_detection
-from twincd.pipeline import Setup
+from twincd.pipeline import Setup, read_log
 from twincd.signal.filters import LowPass
 from twincd.threshold import ScoreStats, calibrate_threshold
 
@@ -141,7 +141,7 @@ def test_outputs_csv_jsonl_mcap(calibrated, twin_dataset, tmp_path):
     js = by_topic["/joint_states"]
     for topic in ("/twincd/residual", "/twincd/score", "/twincd/collision"):
         assert by_topic[topic] == js, topic
-    from twincd.io.logs import LogOptions
+    from twincd.io.options import LogOptions
 
     residual_log = read_log(tmp_path / "out.mcap", LogOptions(topic="/twincd/residual"))
     np.testing.assert_array_equal(residual_log.stamp_ns, result.log.states.stamp_ns)

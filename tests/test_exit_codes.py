@@ -87,7 +87,7 @@ def commands(world: dict[str, Path], out: Path) -> dict[str, tuple[list[Any], li
 # where a fault is injected: (module, attribute); "reader" and "writer" errors of the
 # operating system are errors of input and output (exit 2), anywhere else a defect (3)
 POINTS = {
-    "reader": ("twincd.io.batches", "McapFile"),
+    "reader": ("twincd.io.stream.backends", "McapFile"),
     "twin": ("twincd.twin.dynamics", "inverse_dynamics"),
     "synth twin": ("twincd.synth.plant", "inverse_dynamics"),
     "filter": ("twincd.signal.filters.LowPass", "sos"),

@@ -152,7 +152,7 @@ def test_flipped_bytes(world, tmp_path_factory, flips):
 )
 def test_random_cdr_payloads(world, tmp_path_factory, bad):
     from twincd.io.cdr import joint_state_cdr
-    from twincd.io.mcap_write import McapLogWriter
+    from twincd.io.mcap import McapLogWriter
 
     folder = tmp_path_factory.mktemp("cdr")
     log = folder / "cdr.mcap"
@@ -396,7 +396,7 @@ def test_log_time_above_2_63_is_a_clean_error(tmp_path):
     from rosbags.typesys import Stores, get_typestore
 
     from twincd.io.cdr import joint_state_cdr
-    from twincd.io.mcap_write import DEFAULT_QOS, QOS_KEY
+    from twincd.io.mcap import DEFAULT_QOS, QOS_KEY
 
     msgdef, _ = get_typestore(Stores.ROS2_HUMBLE).generate_msgdef("sensor_msgs/msg/JointState")
     q = np.linspace(0, 1, 50)[:, None]

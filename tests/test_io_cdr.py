@@ -15,7 +15,6 @@ from twincd.io.cdr import (
     BOOL,
     FLOAT64,
     JOINT_STATE,
-    TYPESTORE,
     CdrStats,
     bool_block,
     decode_bools,
@@ -23,10 +22,11 @@ from twincd.io.cdr import (
     float64_block,
     header,
     joint_state_block,
+    typestore,
 )
 
-JointState = TYPESTORE.types[JOINT_STATE]
-Bool = TYPESTORE.types[BOOL]
+JointState = typestore().types[JOINT_STATE]
+Bool = typestore().types[BOOL]
 
 
 def message(stamp_ns, names, pos, vel=(), eff=(), frame_id=""):
@@ -42,7 +42,7 @@ def message(stamp_ns, names, pos, vel=(), eff=(), frame_id=""):
 def decode_all(msgs, little_endian=True):
     """Serialise with rosbags, decode in groups of equal length; (decoded per message, stats)."""
     datas = [
-        bytes(TYPESTORE.serialize_cdr(m, JOINT_STATE, little_endian=little_endian)) for m in msgs
+        bytes(typestore().serialize_cdr(m, JOINT_STATE, little_endian=little_endian)) for m in msgs
     ]
     by_length = defaultdict(list)
     for i, d in enumerate(datas):
@@ -65,7 +65,7 @@ def decode_all(msgs, little_endian=True):
 
 def assert_same(msgs, decoded):
     for m, (names, stamp, pos, vel, eff) in zip(msgs, decoded):
-        ref = TYPESTORE.deserialize_cdr(TYPESTORE.serialize_cdr(m, JOINT_STATE), JOINT_STATE)
+        ref = typestore().deserialize_cdr(typestore().serialize_cdr(m, JOINT_STATE), JOINT_STATE)
         assert names == tuple(ref.name)
         assert stamp == ref.header.stamp.sec * 1_000_000_000 + ref.header.stamp.nanosec
         for got, want in ((pos, ref.position), (vel, ref.velocity), (eff, ref.effort)):
@@ -99,7 +99,7 @@ def test_decoder_equals_rosbags_on_mixed_layouts(little_endian):
 
 def test_rosbags_writes_big_endian():
     data = bytes(
-        TYPESTORE.serialize_cdr(message(1, ["a"], [1.0]), JOINT_STATE, little_endian=False)
+        typestore().serialize_cdr(message(1, ["a"], [1.0]), JOINT_STATE, little_endian=False)
     )
     assert data[:2] == b"\x00\x00"
 
@@ -151,7 +151,7 @@ def test_frame_id_text_does_not_split_layouts():
     # a counter in frame_id (same length) keeps every row on one layout
     msgs = [message(i, ["a", "b"], [i, -i], frame_id=f"cam{i % 10}") for i in range(40)]
     payloads = np.stack(
-        [np.frombuffer(TYPESTORE.serialize_cdr(m, JOINT_STATE), np.uint8) for m in msgs]
+        [np.frombuffer(typestore().serialize_cdr(m, JOINT_STATE), np.uint8) for m in msgs]
     )
     stats = CdrStats()
     (group,) = decode_joint_states(payloads, stats)
@@ -162,7 +162,7 @@ def test_frame_id_text_does_not_split_layouts():
 def test_same_length_different_names_split_into_groups():
     msgs = [message(i, ["ab", "c"] if i % 2 else ["c", "ab"], [i, -i]) for i in range(10)]
     payloads = np.stack(
-        [np.frombuffer(TYPESTORE.serialize_cdr(m, JOINT_STATE), np.uint8) for m in msgs]
+        [np.frombuffer(typestore().serialize_cdr(m, JOINT_STATE), np.uint8) for m in msgs]
     )
     groups = decode_joint_states(payloads)
     assert [g.names for g in groups] == [("c", "ab"), ("ab", "c")]
@@ -173,7 +173,7 @@ def test_same_length_different_names_split_into_groups():
 def test_padding_bytes_do_not_matter():
     msgs = [message(i, ["a"], [float(i)], [], [], frame_id="xy") for i in range(4)]
     payloads = np.stack(
-        [np.frombuffer(TYPESTORE.serialize_cdr(m, JOINT_STATE), np.uint8) for m in msgs]
+        [np.frombuffer(typestore().serialize_cdr(m, JOINT_STATE), np.uint8) for m in msgs]
     ).copy()
     payloads[2, 19] = 0xAB  # the byte after frame_id "xy\0" aligns the name count: padding
     stats = CdrStats()
@@ -198,7 +198,7 @@ def test_rows_the_parser_refuses_go_to_rosbags(monkeypatch):
 
 
 def test_corrupt_payloads_are_an_error_not_a_guess():
-    good = bytes(TYPESTORE.serialize_cdr(message(5, ["ab"], [1.5]), JOINT_STATE))
+    good = bytes(typestore().serialize_cdr(message(5, ["ab"], [1.5]), JOINT_STATE))
     odd = bytearray(good)
     odd[16] = ord("x")  # frame_id "" loses its NUL: neither parser accepts it
     payloads = np.stack([np.frombuffer(good, np.uint8), np.frombuffer(bytes(odd), np.uint8)])
@@ -216,7 +216,10 @@ def test_module_stats_count_too():
 def test_bools():
     values = np.array([True, False, True, True, False])
     payloads = np.stack(
-        [np.frombuffer(TYPESTORE.serialize_cdr(Bool(data=bool(v)), BOOL), np.uint8) for v in values]
+        [
+            np.frombuffer(typestore().serialize_cdr(Bool(data=bool(v)), BOOL), np.uint8)
+            for v in values
+        ]
     )
     stats = CdrStats()
     np.testing.assert_array_equal(decode_bools(payloads, stats), values)
@@ -226,7 +229,7 @@ def test_bools():
     np.testing.assert_array_equal(decode_bools(odd, stats), [1, 1, 1, 1, 0])
     assert stats.fallback == 1
     big = np.frombuffer(
-        TYPESTORE.serialize_cdr(Bool(data=True), BOOL, little_endian=False), np.uint8
+        typestore().serialize_cdr(Bool(data=True), BOOL, little_endian=False), np.uint8
     )
     assert decode_bools(big[None, :]).tolist() == [True]
 
@@ -254,7 +257,7 @@ def test_joint_state_block_is_rosbags_bytes_on_the_fast_path(names, widths):
     block = joint_state_block(stamps, names, *values, stats=stats)
     assert stats.fast == n and stats.fallback == 0  # fails if the template path broke
     for i in range(n):
-        ref = TYPESTORE.serialize_cdr(
+        ref = typestore().serialize_cdr(
             message(int(stamps[i]), names, *(v[i] for v in values)), JOINT_STATE
         )
         assert block[i].tobytes() == bytes(ref)
@@ -266,21 +269,21 @@ def test_joint_state_block_falls_back_and_says_so(monkeypatch):
     stats = CdrStats()
     block = joint_state_block([5, 6], ["a"], [[1.0], [2.0]], None, None, stats=stats)
     assert stats.fallback == 2 and stats.fast == 0
-    ref = TYPESTORE.serialize_cdr(message(6, ["a"], [2.0]), JOINT_STATE)
+    ref = typestore().serialize_cdr(message(6, ["a"], [2.0]), JOINT_STATE)
     assert block[1].tobytes() == bytes(ref)
 
 
 def test_scalar_blocks_are_rosbags_bytes():
-    Float64 = TYPESTORE.types[FLOAT64]
+    Float64 = typestore().types[FLOAT64]
     values = np.array([0.0, -1.5, np.nan, np.inf, 1e300])
     stats = CdrStats()
     block = float64_block(values, stats)
     assert block.shape == (5, 12) and stats.fast == 5
     for v, row in zip(values, block):
-        assert row.tobytes() == bytes(TYPESTORE.serialize_cdr(Float64(data=float(v)), FLOAT64))
+        assert row.tobytes() == bytes(typestore().serialize_cdr(Float64(data=float(v)), FLOAT64))
     flags = np.array([True, False, True])
     block = bool_block(flags, stats)
     assert block.shape == (3, 5) and stats.fast == 8
     for v, row in zip(flags, block):
-        assert row.tobytes() == bytes(TYPESTORE.serialize_cdr(Bool(data=bool(v)), BOOL))
+        assert row.tobytes() == bytes(typestore().serialize_cdr(Bool(data=bool(v)), BOOL))
     assert float64_block([]).shape == (0, 12) and bool_block([]).shape == (0, 5)

@@ -18,11 +18,11 @@ def test_links_are_held_like_labels():
 
 
 def test_read_links_from_a_log(tmp_path: Path, twin_log) -> None:  # type: ignore[no-untyped-def]
-    from twincd.io.cdr import TYPESTORE, serialize
-    from twincd.io.mcap_write import McapLogWriter
+    from twincd.io.cdr import serialize, typestore
+    from twincd.io.mcap import McapLogWriter
 
     path = tmp_path / "links.mcap"
-    string = TYPESTORE.types["std_msgs/msg/String"]
+    string = typestore().types["std_msgs/msg/String"]
     with McapLogWriter(path) as out:
         ch = out.add_topic("/collision_link", "std_msgs/msg/String")
         for when, link in ((100, ""), (200, "link5"), (300, "")):

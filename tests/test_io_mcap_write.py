@@ -19,10 +19,10 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
 import twincd
-import twincd.io.mcap_write as mcap_write
+import twincd.io.mcap.messages as message_blocks
 from twincd.errors import LogReadError
 from twincd.io.cdr import joint_state_cdr
-from twincd.io.mcap_write import (
+from twincd.io.mcap import (
     DEFAULT_QOS,
     QOS_KEY,
     AugmentedMcap,
@@ -377,7 +377,7 @@ def test_unusual_mcap_inputs(tmp_path, kind):
 
 
 def test_interleaved_writes_of_fixed_and_variable_payloads(tmp_path, monkeypatch):
-    monkeypatch.setattr(mcap_write, "CHUNK_SIZE", 2048)  # many chunks, writes split across them
+    monkeypatch.setattr(message_blocks, "CHUNK_SIZE", 2048)  # many chunks, writes split across them
     src = rich_mcap(tmp_path / "in.mcap", n=50)
     before = mcap_messages(src)
     out = tmp_path / "out.mcap"

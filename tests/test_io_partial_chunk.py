@@ -23,11 +23,11 @@ from conftest import build_twin_log
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.writer import CompressionType
-from test_io_batches import write_mcap
+from test_io_topics import write_mcap
 
 from twincd.errors import LogReadError
-from twincd.io.blocks import iter_blocks
-from twincd.io.logs import LogOptions
+from twincd.io.options import LogOptions
+from twincd.io.stream import iter_blocks
 
 settings.register_profile(
     "ci", max_examples=30, deadline=None, suppress_health_check=list(HealthCheck)
@@ -50,7 +50,7 @@ def _rosbag2(path: Path, msgs: list[Message]) -> Path:
 
 
 def _twincd(path: Path, msgs: list[Message]) -> Path:
-    from twincd.io.mcap_write import McapLogWriter
+    from twincd.io.mcap import McapLogWriter
 
     out = path.with_suffix(".mcap")
     with McapLogWriter(out) as writer:
@@ -244,7 +244,7 @@ def test_detect_output_of_a_cut_chunk_holds_what_was_read(one_chunk_twin, tmp_pa
 @pytest.mark.parametrize("form", FORMS)
 @pytest.mark.parametrize("fraction", [0.3, 0.7])
 def test_the_copy_of_a_cut_chunk_has_the_messages_read(logs, form, fraction, tmp_path, caplog):
-    from twincd.io.mcap_write import AugmentedMcap
+    from twincd.io.mcap import AugmentedMcap
 
     log, data, _ = logs[form]
     cut = cut_copy(log, data, fraction, tmp_path)

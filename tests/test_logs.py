@@ -9,7 +9,9 @@ import pytest
 from builders import FORMS, SUFFIX, XARM, Bool, Message, String, joint_recording, joint_state, write
 
 from twincd.errors import LogReadError, TopicError, UsageError
-from twincd.io.logs import LogOptions, expand_logs, parse_joint_map, read_log
+from twincd.io.logs import expand_logs
+from twincd.io.options import LogOptions, parse_joint_map
+from twincd.pipeline import read_log
 
 
 @pytest.fixture

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from twincd.io import cdr as messages
-from twincd.io.cdr import TYPESTORE, joint_state_cdr
+from twincd.io.cdr import joint_state_cdr, typestore
 
 
 @pytest.mark.parametrize(
@@ -32,7 +32,7 @@ def test_every_row_matches_rosbags(names, monkeypatch):
     # every row came from the numpy template, none from rosbags (a broken fast path fails here)
     assert (messages.STATS.fast, messages.STATS.fallback) == (n, 0)
     for i in range(n):
-        msg = TYPESTORE.deserialize_cdr(fast[i], "sensor_msgs/msg/JointState")
+        msg = typestore().deserialize_cdr(fast[i], "sensor_msgs/msg/JointState")
         assert list(msg.name) == names
         assert msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec == stamps[i]
         ref = messages._joint_state_rosbags(int(stamps[i]), names, *(v[i] for v in values))

@@ -182,7 +182,7 @@ def test_joint_order_comes_from_names_not_from_the_first_log(twin_log, tmp_path:
     """Logs that carry their own twin effort and no robot model: whatever order their messages
     list the joints in, and whichever log comes first, the columns are in one order."""
     from twincd.calibration import fit_log, merge_fits
-    from twincd.io.logs import read_log
+    from twincd.pipeline import read_log
 
     a = twin_log(tmp_path / "a.mcap", seed=1, joints=("j1", "j2", "j3"))
     b = twin_log(tmp_path / "b.mcap", seed=2, joints=("j3", "j1", "j2"))

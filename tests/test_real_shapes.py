@@ -20,8 +20,7 @@ from hypothesis import strategies as st
 
 from twincd.calibration import Calibration
 from twincd.detection import detect
-from twincd.io.logs import read_log
-from twincd.pipeline import Setup
+from twincd.pipeline import Setup, read_log
 
 # an extra joint before, after and among the arm's (j1..j3)
 SUPERSETS = {

@@ -20,8 +20,8 @@ from builders import (
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from twincd.io.logs import read_log
-from twincd.io.mcap_write import QOS_KEY
+from twincd.io.mcap import QOS_KEY
+from twincd.pipeline import read_log
 from twincd.signal.filters import LowPass
 from twincd.simulate import default_output, simulate_log
 

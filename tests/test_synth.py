@@ -13,8 +13,8 @@ import pinocchio as pin
 import pytest
 from typer.testing import CliRunner
 
-from twincd.io.cdr import TYPESTORE
-from twincd.io.logs import read_log
+from twincd.io.cdr import typestore
+from twincd.pipeline import read_log
 from twincd.synth import plant as synth
 from twincd.twin.dynamics import simulate_effort
 
@@ -193,7 +193,7 @@ def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path)
     # the ground-truth topic: wrench in the link frame; J_LOCALᵀ w reproduces τ_ext
     from rosbags.highlevel import AnyReader
 
-    with AnyReader([path], default_typestore=TYPESTORE) as reader:
+    with AnyReader([path], default_typestore=typestore()) as reader:
         conns = [c for c in reader.connections if c.topic == synth.CONTACT_TOPIC]
         msgs = [(t_, reader.deserialize(raw, c.msgtype)) for c, t_, raw in reader.messages(conns)]
     by_time = {int(t_): m for t_, m in msgs}

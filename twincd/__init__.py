@@ -20,8 +20,8 @@ except PackageNotFoundError:  # running from a source tree that was never instal
     __version__ = "0.0.0+unknown"
 
 _EXPORTS = {
-    "LogOptions": "twincd.io.logs",
-    "read_log": "twincd.io.logs",
+    "LogOptions": "twincd.io.options",
+    "read_log": "twincd.pipeline",
     "expand_logs": "twincd.io.logs",
     "Setup": "twincd.pipeline",
     "Calibration": "twincd.calibration",

@@ -45,7 +45,7 @@ PRELOAD = (
     "twincd.pipeline",
     "twincd.outputs",
     "twincd.threshold",
-    "twincd.io.blocks",
+    "twincd.io.stream",
     "mcap.reader",  # and the decompressors it loads
     "lz4.frame",
     "zstandard",

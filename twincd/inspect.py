@@ -27,7 +27,7 @@ from twincd.types import FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.io.batches import TopicReader
+    from twincd.io.stream import TopicReader
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
@@ -175,8 +175,7 @@ def _inspect(
     allow_urdf_change: bool,
     found: Inspection,
 ) -> None:
-    from twincd.io.batches import TopicReader
-    from twincd.io.blocks import choose_topic
+    from twincd.io.stream import TopicReader, choose_topic
 
     with TopicReader(path, strict=strict) as reader:
         found.topics = [TopicInfo(n, t) for n, t in sorted(reader.topics.items())]
@@ -221,7 +220,7 @@ def _inspect(
 
 def _read_topics(reader: TopicReader, found: Inspection, options: LogOptions) -> None:
     """Joint sets of the JointState topic, and the labels, in one pass."""
-    from twincd.io.batches import BoolBatch, JointStateBatch, StringBatch
+    from twincd.io.stream import BoolBatch, JointStateBatch, StringBatch
 
     sets: dict[tuple[str, ...], list[int]] = {}
     labels = positive = 0
@@ -345,7 +344,7 @@ def _read_samples(
     model: RobotModel | None,
     found: Inspection,
 ) -> None:
-    from twincd.io.blocks import iter_blocks
+    from twincd.io.stream import iter_blocks
     from twincd.pipeline import warn_velocity_from_position
     from twincd.signal.checks import SignalChecks
 

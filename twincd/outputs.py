@@ -155,14 +155,14 @@ class McapSink:
     def __init__(
         self, source: Path, target: Path, joint_names: Sequence[str], partial: bool = False
     ) -> None:
-        from twincd.io.mcap_write import AugmentedMcap
+        from twincd.io.mcap import AugmentedMcap
 
         self.joint_names = list(joint_names)
         replaced = (RESIDUAL_TOPIC, SCORE_TOPIC, COLLISION_TOPIC, EVENT_TOPIC)
         self._out = AugmentedMcap(source, target, replaced, output="detect", partial=partial)
 
     def __enter__(self) -> McapSink:
-        from twincd.io.logs import JOINT_STATE
+        from twincd.io.cdr import JOINT_STATE
 
         self._out.__enter__()
         self._residual = self._out.add_channel(RESIDUAL_TOPIC, JOINT_STATE)
@@ -191,9 +191,9 @@ class McapSink:
             self._out.write(self._score, t, float64_block(frame["score"]))
             self._out.write(self._collision, t, bool_block(frame["flag"]))
         if events:
-            from twincd.io.cdr import TYPESTORE
+            from twincd.io.cdr import typestore
 
-            string = TYPESTORE.types["std_msgs/msg/String"]
+            string = typestore().types["std_msgs/msg/String"]
             payloads = [
                 serialize(string(data=json.dumps(e.to_dict())), "std_msgs/msg/String")
                 for e in events

@@ -28,14 +28,16 @@ import numpy as np
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import CalibrationError, DataError, JointMismatchError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage, prefetched
-from twincd.io.blocks import warn_ignored_joints
-from twincd.io.logs import JointStates, LogOptions
+from twincd.io.logs import JointStates
+from twincd.io.options import LogOptions
+from twincd.io.stream import iter_blocks, warn_ignored_joints
 from twincd.signal.checks import SignalChecks
+from twincd.signal.derivatives import differentiate
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
-    from twincd.io.blocks import LogStream
+    from twincd.io.stream import LogStream
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
@@ -305,7 +307,6 @@ class PreparedStream:
         return str(self.path)
 
     def __enter__(self) -> PreparedStream:
-        from twincd.io.blocks import iter_blocks
 
         known, known_from = self._known_joints()
         self._log = iter_blocks(
@@ -664,6 +665,47 @@ class Setup:
 def prepare_log(path: str | Path, setup: Setup) -> PreparedLog:
     """``setup.prepare(path)``: the per-log step of ``evaluate``, for any executor."""
     return setup.prepare(path)
+
+
+def read_log(path: str | Path, options: LogOptions | None = None) -> JointStates:
+    """Read one log's joint states, labels and (if present) simulated effort, unfiltered.
+
+    The whole log in memory: a concatenation of ``iter_blocks``' sample blocks (sorted by
+    stamp, duplicates and incomplete samples dropped), velocity differentiated from position
+    where the messages carry none.
+    """
+    options = options or LogOptions()
+    path = Path(path)
+    with iter_blocks(path, options, strict=True) as stream:
+        blocks = list(stream)
+        topic, names = stream.topic, stream.joint_names
+        has_labels, has_sim = stream.has_labels, stream.has_sim
+
+    def cat(field: str) -> Any:
+        return np.concatenate([getattr(b, field) for b in blocks])
+
+    stamp, log_time, position, velocity = (
+        cat(f) for f in ("stamp_ns", "log_time_ns", "position", "velocity")
+    )
+    effort = None if blocks[0].effort is None else cat("effort")
+    t_s = (stamp - stamp[0]).astype(np.float64) * 1e-9
+    from_position = not np.isfinite(velocity).all()
+    if from_position:
+        velocity = np.where(np.isfinite(velocity), velocity, differentiate(t_s, position))
+    has_effort = effort is not None and bool(np.isfinite(effort).all())
+    return JointStates(
+        source=str(path),
+        topic=topic,
+        joint_names=names,
+        stamp_ns=stamp,
+        log_time_ns=log_time,
+        position=position,
+        velocity=velocity,
+        effort=effort if has_effort else None,
+        velocity_from_position=from_position,
+        labels=cat("labels") if has_labels else None,
+        sim_effort=cat("sim_effort") if has_sim else None,
+    )
 
 
 # ------------------------------------------------------------------ joint order

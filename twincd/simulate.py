@@ -7,7 +7,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from twincd.errors import UsageError
-from twincd.io.logs import JOINT_STATE, TWIN_SUFFIX, LogOptions
+from twincd.io.cdr import JOINT_STATE
+from twincd.io.logs import TWIN_SUFFIX
+from twincd.io.options import LogOptions
 from twincd.pipeline import Setup
 
 
@@ -39,7 +41,7 @@ def simulate_log(
 ) -> SimulateResult:
     """Write ``output``: ``source`` copied losslessly plus ``options.sim_topic`` with τ̂."""
     from twincd.io.cdr import joint_state_block
-    from twincd.io.mcap_write import AugmentedMcap
+    from twincd.io.mcap import AugmentedMcap
 
     options = options or LogOptions()
     setup = setup or Setup(options=options, robot=robot)

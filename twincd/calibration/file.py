@@ -24,7 +24,7 @@ from twincd.calibration.models import (
     depth_order,
 )
 from twincd.errors import CalibrationError, NotFittedError
-from twincd.io.logs import LogOptions
+from twincd.io.options import LogOptions
 from twincd.signal.filters import LowPass
 from twincd.tail import TAIL_METHODS, TailFit
 from twincd.types import FloatArray
@@ -406,7 +406,7 @@ class Calibration:
 
     def save(self, path: str | Path) -> None:
         """Write atomically (a temporary file renamed into place)."""
-        from twincd.io.mcap_write import atomic_output
+        from twincd.io.atomic import atomic_output
 
         text = json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
         with atomic_output(Path(path)) as stream:

@@ -56,7 +56,7 @@ def detect_file_online(
     sinks: Sequence[FrameSink] = (),
 ) -> DetectionSummary:
     """``detect`` with a causal calibration: the log's blocks pushed into an OnlineDetector."""
-    from twincd.io.blocks import iter_blocks
+    from twincd.io.stream import iter_blocks
 
     with iter_blocks(
         path,

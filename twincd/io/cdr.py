@@ -21,6 +21,7 @@ from twincd.types import BoolArray, ByteArray, FloatArray, IntArray
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 BOOL = "std_msgs/msg/Bool"
+STRING = "std_msgs/msg/String"
 FLOAT64 = "std_msgs/msg/Float64"
 
 
@@ -35,12 +36,6 @@ def typestore() -> Any:
 
 def _type(name: str) -> Any:
     return typestore().types[name]
-
-
-def __getattr__(name: str) -> Any:  # ``TYPESTORE``, as the module offered it before
-    if name == "TYPESTORE":
-        return typestore()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 _NS = 1_000_000_000

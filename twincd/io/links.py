@@ -9,10 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from twincd.errors import LogReadError
-from twincd.io.batches import first_line, open_reader
+from twincd.io.cdr import STRING
+from twincd.io.sources import first_line, open_reader
 from twincd.types import IntArray
-
-STRING = "std_msgs/msg/String"
 
 
 def hold_links(message_ns: IntArray, links: list[str], log_time_ns: IntArray) -> tuple[str, ...]:

@@ -1,10 +1,9 @@
-"""Log I/O: find logs, read joint states, labels and simulated effort into arrays (contract:
-Inputs).
+"""Which files are logs, and one whole log's joint states as plain arrays (contract: Inputs).
 
-Logs are read by ``twincd.io.blocks`` (time-ordered sample blocks at flat memory) on top of
-``twincd.io.batches`` (every log form: rosbag2 sqlite3 or MCAP folders, bare ``.mcap`` files,
-ROS 1 ``.bag``). ``read_log`` gathers one log into a ``JointStates``: plain per-log arrays, no
-global state, so per-log work stays pure and can run anywhere.
+``expand_logs`` turns the paths a user gives (files, rosbag2 folders, folders of logs) into
+logs, leaving out twincd's own copies beside their source. ``JointStates`` holds one log's
+samples as per-log arrays, no global state, so per-log work stays pure and can run anywhere;
+``twincd.pipeline.read_log`` fills it from the block stream (``twincd.io.stream``).
 """
 
 from __future__ import annotations
@@ -13,24 +12,20 @@ import logging
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from twincd.errors import JointMismatchError, LogReadError
-from twincd.io.batches import open_reader as open_reader  # re-exported: older imports
-from twincd.io.blocks import OWN_PREFIX as OWN_PREFIX
-from twincd.io.blocks import choose_topic as choose_topic
-from twincd.io.blocks import iter_blocks
-from twincd.io.cdr import BOOL as BOOL
-from twincd.io.cdr import JOINT_STATE as JOINT_STATE
-from twincd.io.options import DEFAULT_LABEL_TOPIC as DEFAULT_LABEL_TOPIC
-from twincd.io.options import DEFAULT_SIM_TOPIC as DEFAULT_SIM_TOPIC
-from twincd.io.options import DEFAULT_TOPIC as DEFAULT_TOPIC
-from twincd.io.options import LogOptions as LogOptions
-from twincd.io.options import parse_joint_map as parse_joint_map
-from twincd.signal.derivatives import differentiate
 from twincd.types import BoolArray, FloatArray, IntArray
+
+__all__ = [
+    "COPY_SUFFIXES",
+    "DETECT_SUFFIX",
+    "TWIN_SUFFIX",
+    "JointStates",
+    "expand_logs",
+    "source_of_copy",
+]
 
 log = logging.getLogger("twincd")
 
@@ -152,47 +147,3 @@ def _without_copies(paths: list[Path]) -> list[Path]:
             continue
         kept.append(p)
     return kept
-
-
-# ---------------------------------------------------------------- reading
-
-
-def read_log(path: str | Path, options: LogOptions | None = None) -> JointStates:
-    """Read one log's joint states, labels and (if present) simulated effort.
-
-    The whole log in memory: a concatenation of ``iter_blocks``' sample blocks (sorted by
-    stamp, duplicates and incomplete samples dropped), velocity differentiated from position
-    where the messages carry none.
-    """
-    options = options or LogOptions()
-    path = Path(path)
-    with iter_blocks(path, options, strict=True) as stream:
-        blocks = list(stream)
-        topic, names = stream.topic, stream.joint_names
-        has_labels, has_sim = stream.has_labels, stream.has_sim
-
-    def cat(field: str) -> Any:
-        return np.concatenate([getattr(b, field) for b in blocks])
-
-    stamp, log_time, position, velocity = (
-        cat(f) for f in ("stamp_ns", "log_time_ns", "position", "velocity")
-    )
-    effort = None if blocks[0].effort is None else cat("effort")
-    t_s = (stamp - stamp[0]).astype(np.float64) * 1e-9
-    from_position = not np.isfinite(velocity).all()
-    if from_position:
-        velocity = np.where(np.isfinite(velocity), velocity, differentiate(t_s, position))
-    has_effort = effort is not None and bool(np.isfinite(effort).all())
-    return JointStates(
-        source=str(path),
-        topic=topic,
-        joint_names=names,
-        stamp_ns=stamp,
-        log_time_ns=log_time,
-        position=position,
-        velocity=velocity,
-        effort=effort if has_effort else None,
-        velocity_from_position=from_position,
-        labels=cat("labels") if has_labels else None,
-        sim_effort=cat("sim_effort") if has_sim else None,
-    )

@@ -90,7 +90,7 @@ from scipy.interpolate import make_interp_spline
 from twincd.defaults import SYNTH_SEGMENT_S
 from twincd.errors import DataError, OutputError, UsageError
 from twincd.executors import Executor, Progress
-from twincd.io.cdr import TYPESTORE, bool_cdr, header, joint_state_cdr, serialize
+from twincd.io.cdr import bool_cdr, header, joint_state_cdr, serialize, typestore
 from twincd.twin.dynamics import inverse_dynamics
 from twincd.twin.robot import RobotModel, load_robot
 from twincd.types import BoolArray, FloatArray, IntArray
@@ -110,12 +110,12 @@ POINT = "geometry_msgs/msg/PointStamped"
 # 2024-05-01T01:00:00Z: the first sample of path 0 of seed 0
 EPOCH_NS = 1_714_525_200_000_000_000
 
-_Wrench = TYPESTORE.types["geometry_msgs/msg/Wrench"]
-_WrenchStamped = TYPESTORE.types[WRENCH]
-_Vector3 = TYPESTORE.types["geometry_msgs/msg/Vector3"]
-_Point = TYPESTORE.types["geometry_msgs/msg/Point"]
-_PointStamped = TYPESTORE.types[POINT]
-_String = TYPESTORE.types[STRING]
+_Wrench = typestore().types["geometry_msgs/msg/Wrench"]
+_WrenchStamped = typestore().types[WRENCH]
+_Vector3 = typestore().types["geometry_msgs/msg/Vector3"]
+_Point = typestore().types["geometry_msgs/msg/Point"]
+_PointStamped = typestore().types[POINT]
+_String = typestore().types[STRING]
 
 
 # ---------------------------------------------------------------- configuration
@@ -886,7 +886,7 @@ def _stream(
 def _mcap_messages(
     segments: Iterable[SynthRun], path: Path, progress: SampleProgress | None = None
 ) -> int:
-    from twincd.io.mcap_write import McapLogWriter
+    from twincd.io.mcap import McapLogWriter
 
     with McapLogWriter(Path(path)) as out:
         return _stream(segments, out.add_topic, out.write, progress)
@@ -919,7 +919,7 @@ def write_rosbag2(run: SynthRun | Iterable[SynthRun], path: Path) -> Path:
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.metadata import parse_qos
 
-    from twincd.io.mcap_write import DEFAULT_QOS
+    from twincd.io.mcap import DEFAULT_QOS
 
     qos = parse_qos(DEFAULT_QOS)
     segments = [run] if isinstance(run, SynthRun) else run
@@ -935,7 +935,7 @@ def write_rosbag2(run: SynthRun | Iterable[SynthRun], path: Path) -> Path:
             _stream(
                 segments,
                 lambda topic, msgtype: writer.add_connection(
-                    topic, msgtype, typestore=TYPESTORE, offered_qos_profiles=qos
+                    topic, msgtype, typestore=typestore(), offered_qos_profiles=qos
                 ),
                 writer.write,
             )

@@ -1,7 +1,8 @@
-"""Time-ordered sample blocks of one log's joint states, with labels and the twin's effort.
+"""Time-ordered sample blocks of one log's joint states, with labels and the twin's effort (the
+sample layer of the block stream, on top of ``twincd.io.stream.topics``).
 
 ``iter_blocks(path, options)`` streams a log of any length at flat memory: topic batches
-(``twincd.io.batches``) go through a reorder buffer that sorts the newest samples by stamp and
+(``twincd.io.stream.topics``) go through a reorder buffer that sorts the newest samples by stamp and
 emits the older ones in blocks. Rules (contract: Inputs):
 
 - time is ``header.stamp``, the log time where the stamp is 0;
@@ -16,7 +17,7 @@ emits the older ones in blocks. Rules (contract: Inputs):
   duplicate stamps (the first read — earliest log time — is kept);
 - a sample older than one already emitted is *late*: dropped and counted. A log that fits in
   the reorder buffer is therefore sorted exactly like a whole-log sort;
-- a header clock that jumps back against the log time by more than ``CLOCK_JUMP_NS`` is not
+- a header clock that jumps back against the log time by more than ``parts.CLOCK_JUMP_NS`` is not
   reordering: the samples behind the jump are dropped and counted until their stamps pass the
   time reached before it, so two stretches of the recording are never interleaved;
 - ragged messages (filled arrays whose length differs from ``name``) are dropped and counted;
@@ -33,24 +34,40 @@ from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from twincd.errors import JointMismatchError, LogReadError, SplitJointsError, TopicError
-from twincd.io.batches import (
-    DEFAULT_BATCH,
-    Batch,
-    BoolBatch,
-    JointStateBatch,
-    TopicReader,
-)
 from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
+from twincd.io.stream.batch import DEFAULT_BATCH, END, Batch, BoolBatch, JointStateBatch
+from twincd.io.stream.parts import (
+    Clock,
+    Labels,
+    Rows,
+    Sim,
+    cat,
+    concat,
+    empty_rows,
+)
+from twincd.io.stream.topics import TopicReader
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.io.options import LogOptions
+
+__all__ = [
+    "DEFAULT_BLOCK",
+    "DEFAULT_REORDER",
+    "OWN_PREFIX",
+    "LogStream",
+    "SampleBlock",
+    "StreamCounts",
+    "choose_topic",
+    "iter_blocks",
+    "warn_ignored_joints",
+]
 
 log = logging.getLogger("twincd")
 
@@ -58,9 +75,6 @@ log = logging.getLogger("twincd")
 OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's joint states
 DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
-_END = 2**63 - 1
-CLOCK_JUMP_NS = 5_000_000_000  # stamps this much further behind the log time: the clock jumped back
-_T = TypeVar("_T", bound=np.generic)
 
 
 @dataclass(frozen=True)
@@ -151,175 +165,6 @@ def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
         source,
         "pick one with the topic option",
     )
-
-
-# ---------------------------------------------------------------- the parts
-
-
-@dataclass
-class _Rows:
-    """Samples, sorted by (stamp, log time, read order) and free of duplicate stamps."""
-
-    stamp: IntArray
-    log_time: IntArray
-    seq: IntArray
-    position: FloatArray
-    velocity: FloatArray
-    effort: FloatArray | None
-
-    def __len__(self) -> int:
-        return len(self.stamp)
-
-    def select(self, idx: NDArray[np.intp] | slice) -> _Rows:
-        eff = None if self.effort is None else self.effort[idx]
-        return _Rows(
-            self.stamp[idx],
-            self.log_time[idx],
-            self.seq[idx],
-            self.position[idx],
-            self.velocity[idx],
-            eff,
-        )
-
-    @staticmethod
-    def join(a: _Rows, b: _Rows) -> _Rows:
-        eff = None if a.effort is None or b.effort is None else np.concatenate([a.effort, b.effort])
-        return _Rows(
-            np.concatenate([a.stamp, b.stamp]),
-            np.concatenate([a.log_time, b.log_time]),
-            np.concatenate([a.seq, b.seq]),
-            np.concatenate([a.position, b.position]),
-            np.concatenate([a.velocity, b.velocity]),
-            eff,
-        )
-
-    def sorted_unique(self) -> tuple[_Rows, int]:
-        """These rows sorted, exact duplicate stamps dropped (first kept); (rows, dropped)."""
-        if len(self.stamp) < 2 or bool((self.stamp[1:] > self.stamp[:-1]).all()):
-            return self, 0  # already in order: the usual case
-        order = np.lexsort((self.seq, self.log_time, self.stamp))
-        stamp = self.stamp[order]
-        keep = np.ones(len(order), dtype=bool)
-        keep[1:] = stamp[1:] != stamp[:-1]
-        return self.select(order[keep]), int((~keep).sum())
-
-
-def _empty_rows(width: int, effort: bool) -> _Rows:
-    none = np.zeros(0, np.int64)
-    return _Rows(
-        none,
-        none,
-        none,
-        np.zeros((0, width)),
-        np.zeros((0, width)),
-        np.zeros((0, width)) if effort else None,
-    )
-
-
-class _Labels:
-    """Label messages as (log time, value), kept to the transitions once final."""
-
-    def __init__(self) -> None:
-        self.t = np.zeros(0, np.int64)
-        self.v = np.zeros(0, bool)
-
-    def add(self, batch: BoolBatch) -> None:
-        t = np.concatenate([self.t, batch.log_time_ns])
-        v = np.concatenate([self.v, batch.value])
-        order = np.argsort(t, kind="stable")  # equal times: the later read wins the hold
-        self.t, self.v = t[order], v[order]
-
-    def hold(self, times: IntArray) -> BoolArray:
-        """Each time takes the value of the latest message at or before it (False before any)."""
-        idx = np.searchsorted(self.t, times, side="right") - 1
-        held = np.zeros(len(times), dtype=bool)
-        ok = idx >= 0
-        held[ok] = self.v[idx[ok]]
-        return held
-
-    def settle(self, mark: int, needed_from: int) -> None:
-        """Keep only transitions among messages before ``mark`` (no more can come there), and
-        drop those that no sample at or after ``needed_from`` can see."""
-        final = int(np.searchsorted(self.t, mark, side="left"))
-        keep = np.ones(len(self.t), dtype=bool)
-        if final > 1:  # v[: final - 1] would wrap around at final = 0
-            keep[1:final] = self.v[1:final] != self.v[: final - 1]
-        self.t, self.v = self.t[keep], self.v[keep]
-        first = int(np.searchsorted(self.t, needed_from, side="right")) - 1
-        if first > 0:
-            self.t, self.v = self.t[first:], self.v[first:]
-
-
-class _Sim:
-    """The twin's effort by stamp, waiting for the samples it belongs to."""
-
-    def __init__(self, width: int) -> None:
-        self.stamp = np.zeros(0, np.int64)
-        self.effort = np.zeros((0, width))
-
-    def add(self, stamp: IntArray, effort: FloatArray) -> None:
-        stamp = np.concatenate([self.stamp, stamp])
-        effort = np.concatenate([self.effort, effort])
-        order = np.argsort(stamp, kind="stable")
-        stamp, effort = stamp[order], effort[order]
-        same = np.flatnonzero(stamp[1:] == stamp[:-1]) + 1
-        for i in same.tolist():  # rare: a later message on the same stamp fills in or wins
-            effort[i] = np.where(np.isnan(effort[i]), effort[i - 1], effort[i])
-        last = np.ones(len(stamp), dtype=bool)
-        last[:-1] = stamp[1:] != stamp[:-1]
-        self.stamp, self.effort = stamp[last], effort[last]
-
-    def take(self, stamps: IntArray) -> FloatArray:
-        out = np.full((len(stamps), self.effort.shape[1]), np.nan)
-        if len(self.stamp):
-            idx = np.minimum(np.searchsorted(self.stamp, stamps), len(self.stamp) - 1)
-            ok = self.stamp[idx] == stamps
-            out[ok] = self.effort[idx[ok]]
-        return out
-
-    def drop_through(self, stamp: int) -> None:
-        first = int(np.searchsorted(self.stamp, stamp, side="right"))
-        self.stamp, self.effort = self.stamp[first:], self.effort[first:]
-
-
-class _Clock:
-    """Backward jumps of a stream's header clock (see ``CLOCK_JUMP_NS``).
-
-    A jump shows as the stamp falling behind the log time (the recorder's clock) by
-    ``CLOCK_JUMP_NS`` more than it did before; reordering and jitter leave that offset alone.
-    Samples after a jump are behind while their stamps have not passed the latest stamp read
-    before it."""
-
-    def __init__(self) -> None:
-        low = np.iinfo(np.int64).min + CLOCK_JUMP_NS
-        self.offset = low  # the largest stamp − log time read so far
-        self.latest = low  # the latest stamp read so far
-        self.was_behind = False  # the last sample read was behind a jump
-        self.jumps = 0
-        self.largest_ns = 0
-
-    def behind(self, stamp: IntArray, log_time: IntArray) -> BoolArray:
-        """Per sample: behind a backward jump of the clock."""
-        if not len(stamp):
-            return np.zeros(0, dtype=bool)
-        offset = stamp - log_time
-        prior_offset = np.maximum.accumulate(np.concatenate(([self.offset], offset[:-1])))
-        prior_stamp = np.maximum.accumulate(np.concatenate(([self.latest], stamp[:-1])))
-        behind = (offset < prior_offset - CLOCK_JUMP_NS) & (stamp <= prior_stamp)
-        starts = behind & ~np.concatenate(([self.was_behind], behind[:-1]))
-        if starts.any():
-            self.jumps += int(starts.sum())
-            gap = prior_offset[starts] - offset[starts]
-            self.largest_ns = max(self.largest_ns, int(gap.max()))
-        ahead = ~behind
-        if ahead.any():
-            self.offset = max(self.offset, int(offset[ahead].max()))
-        self.latest = max(self.latest, int(stamp.max()))
-        self.was_behind = bool(behind[-1])
-        return behind
-
-
-# ---------------------------------------------------------------- the stream
 
 
 class LogStream:
@@ -416,15 +261,15 @@ class LogStream:
         with_effort = sum(len(b) for b in first if b.effort.shape[1] > 0)
         self.has_effort = 2 * with_effort > sum(len(b) for b in first)
         width = len(self.joint_names)
-        self._pending = _empty_rows(width, self.has_effort)
-        self._labels = _Labels() if self.has_labels else None
-        self._sim = _Sim(width) if self.has_sim else None
+        self._pending = empty_rows(width, self.has_effort)
+        self._labels = Labels() if self.has_labels else None
+        self._sim = Sim(width) if self.has_sim else None
         self._columns: dict[tuple[str, ...], NDArray[np.intp]] = {}
         self._seq = 0
-        self._clock = _Clock()
-        self._sim_clock = _Clock()
+        self._clock = Clock()
+        self._sim_clock = Clock()
         self._last: int | None = None  # stamp of the last emitted sample
-        self._out: list[_Rows] = []
+        self._out: list[Rows] = []
         self._out_n = 0
         self._labels_out: list[BoolArray] = []
         self._sim_out: list[FloatArray] = []
@@ -521,7 +366,7 @@ class LogStream:
             yield from self._take(topic, batch, mark)
         for topic, batch in self._items:
             yield from self._take(topic, batch, self._reader.watermark_ns)
-        yield from self._emit(_END, final=True)
+        yield from self._emit(END, final=True)
         if self.counts.samples == 0:
             raise LogReadError(
                 "no sample carries every joint",
@@ -609,7 +454,7 @@ class LogStream:
         self.counts.unstamped += int(np.count_nonzero(batch.stamp_ns == 0))
         seq = np.arange(self._seq, self._seq + n, dtype=np.int64)
         self._seq += n
-        rows = _Rows(stamp, batch.log_time_ns, seq, position, velocity, effort)
+        rows = Rows(stamp, batch.log_time_ns, seq, position, velocity, effort)
         self.counts.incomplete += int((~ok).sum())
         kept = np.flatnonzero(ok)
         behind = self._clock.behind(stamp[kept], batch.log_time_ns[kept])
@@ -628,9 +473,9 @@ class LogStream:
         if len(pending) == 0:
             self._pending = rows
         elif len(rows) and rows.stamp[0] > pending.stamp[-1]:
-            self._pending = _Rows.join(pending, rows)  # the usual case: no sort needed
+            self._pending = Rows.join(pending, rows)  # the usual case: no sort needed
         elif len(rows):
-            self._pending, dropped = _Rows.join(pending, rows).sorted_unique()
+            self._pending, dropped = Rows.join(pending, rows).sorted_unique()
             self.counts.duplicates += dropped
 
     def _add_sim(self, batch: JointStateBatch) -> None:
@@ -675,9 +520,9 @@ class LogStream:
             yield self._block(min(self.block_size, self._out_n))
 
     def _block(self, n: int) -> SampleBlock:
-        rows = self._out[0] if len(self._out) == 1 else _concat(self._out)
-        labels = _cat(self._labels_out)
-        sim = _cat(self._sim_out)
+        rows = self._out[0] if len(self._out) == 1 else concat(self._out)
+        labels = cat(self._labels_out)
+        sim = cat(self._sim_out)
         head, rest = rows.select(slice(0, n)), rows.select(slice(n, None))
         self._out = [rest] if len(rest) else []
         self._out_n = len(rest)
@@ -753,24 +598,6 @@ class LogStream:
             )
         if self.damage is not None:
             log.warning("%s: %s", self.source, self.damage)
-
-
-def _cat(parts: list[NDArray[_T]]) -> NDArray[_T] | None:
-    if not parts:
-        return None
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
-
-
-def _concat(parts: list[_Rows]) -> _Rows:
-    effort = [p.effort for p in parts if p.effort is not None]
-    return _Rows(
-        np.concatenate([p.stamp for p in parts]),
-        np.concatenate([p.log_time for p in parts]),
-        np.concatenate([p.seq for p in parts]),
-        np.concatenate([p.position for p in parts]),
-        np.concatenate([p.velocity for p in parts]),
-        np.concatenate(effort) if len(effort) == len(parts) else None,
-    )
 
 
 def iter_blocks(

@@ -1,6 +1,6 @@
-"""Time-ordered sample blocks (twincd.io.blocks): any block size, any arrival order within the
-reorder window and any batch size give the same samples; drops are counted; labels and the
-twin's effort are joined correctly while streaming; memory stays flat."""
+"""Time-ordered sample blocks (twincd.io.stream.samples): any block size, any arrival order
+within the reorder window and any batch size give the same samples; drops are counted; labels
+and the twin's effort are joined correctly while streaming; memory stays flat."""
 
 from __future__ import annotations
 
@@ -13,11 +13,13 @@ import pytest
 from builders import SUFFIX, XARM, Bool, Message, joint_recording, joint_state, write
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_io_batches import cut, write_mcap
+from test_io_topics import cut, write_mcap
 
 from twincd.errors import JointMismatchError, LogReadError
-from twincd.io.blocks import LogStream, SampleBlock, iter_blocks
-from twincd.io.logs import LogOptions, open_reader, read_log
+from twincd.io.options import LogOptions
+from twincd.io.sources import open_reader
+from twincd.io.stream import LogStream, SampleBlock, iter_blocks
+from twincd.pipeline import read_log
 
 OPTIONS = LogOptions()
 FIELDS = ("stamp_ns", "log_time_ns", "position", "velocity", "effort", "labels", "sim_effort")
@@ -312,7 +314,7 @@ def test_truncated_mcap_strict_and_not(tmp_path):
 def test_a_topic_without_messages(tmp_path):
     from mcap.writer import Writer
 
-    from twincd.io.cdr import JOINT_STATE, TYPESTORE, bool_cdr
+    from twincd.io.cdr import JOINT_STATE, bool_cdr, typestore
 
     path = tmp_path / "a.mcap"
     with open(path, "wb") as f:
@@ -320,7 +322,7 @@ def test_a_topic_without_messages(tmp_path):
         writer.start(profile="ros2", library="tests")
         ids = {}
         for msgtype in (JOINT_STATE, "std_msgs/msg/Bool"):
-            msgdef, _ = TYPESTORE.generate_msgdef(msgtype, ros_version=2)
+            msgdef, _ = typestore().generate_msgdef(msgtype, ros_version=2)
             schema = writer.register_schema(msgtype, "ros2msg", msgdef.encode())
             topic = "/joint_states" if msgtype == JOINT_STATE else "/collision_flag"
             ids[msgtype] = writer.register_channel(topic, "cdr", schema, {})
@@ -337,11 +339,11 @@ def long_log(path: Path, seconds: float, rate_hz: float = 1000.0) -> int:
     """A 7-joint JointState log at ``rate_hz`` (cf. benchmarks/bench_io.py), written fast."""
     from mcap.writer import Writer
 
-    from twincd.io.cdr import JOINT_STATE, TYPESTORE, joint_state_block
+    from twincd.io.cdr import JOINT_STATE, joint_state_block, typestore
 
     n = int(seconds * rate_hz)
     names = [f"joint{i}" for i in range(1, 8)]
-    msgdef, _ = TYPESTORE.generate_msgdef(JOINT_STATE, ros_version=2)
+    msgdef, _ = typestore().generate_msgdef(JOINT_STATE, ros_version=2)
     with open(path, "wb") as f:
         writer = Writer(f)
         writer.start(profile="ros2", library="tests")

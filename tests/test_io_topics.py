@@ -1,5 +1,6 @@
-"""Topic batches (twincd.io.batches): every log form gives the same arrays, in bounded batches,
-in log-time order, with an honest watermark; damaged MCAP files are read up to the damage."""
+"""Topic batches (twincd.io.stream.topics): every log form gives the same arrays, in bounded
+batches, in log-time order, with an honest watermark; damaged MCAP files are read up to the
+damage."""
 
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from hypothesis import strategies as st
 from mcap.writer import CompressionType, IndexType, Writer
 
 from twincd.errors import LogReadError, TopicError
-from twincd.io.batches import BoolBatch, JointStateBatch, StringBatch, TopicReader
+from twincd.io.stream import BoolBatch, JointStateBatch, StringBatch, TopicReader
 
 TOPICS = ("/joint_states", "/collision_flag", "/chatter")
 

@@ -1,4 +1,5 @@
-"""rosbag2 sqlite3 storage read in bulk: SQL in timestamp order, payloads as numpy arrays.
+"""The .db3 files of a rosbag2 sqlite3 folder read in bulk: SQL in timestamp order, payloads as
+numpy arrays.
 
 rosbags reads these files message by message; here ``fetchmany`` hands over thousands of rows
 at once and the payloads of equal length become one (n, L) array for the numpy decoders.
@@ -13,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from twincd.types import ByteArray, IntArray
+
+__all__ = ["FETCH", "Sqlite3Storage", "SqliteDamage"]
 
 FETCH = 16384  # rows per fetchmany
 
