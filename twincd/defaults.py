@@ -35,3 +35,6 @@ SYNTH_SEGMENT_S = 35.0
 # of delay on the real arm (70 → 120 ms median): not used.
 DEFAULT_EVENT_RELEASE = 0.5
 DEFAULT_EVENT_MERGE_MS = 300.0
+
+# `fit`'s calibration model when none is named (twincd.calibration.models.MODEL_KINDS)
+DEFAULT_MODEL = "affine"
