@@ -83,7 +83,7 @@ def fit(
             help="Calibration model: affine (the paper's a·twin + b), affine-whitened, "
             "friction (+ c·tanh(q̇/ε) + d·q̇), identified (+ the URDF's inertial parameters "
             "re-fitted through the joint-torque regressor; needs the URDF); *-whitened: the "
-            f"score weighted per joint. [default: {DEFAULT_MODEL}]",
+            f"score weighted per joint (default: {DEFAULT_MODEL}).",
         ),
     ] = None,
     jobs: Jobs = 0,
@@ -225,7 +225,7 @@ def threshold(
         strict=strict,
         allow_urdf_change=allow_urdf_change,
     ).resolve(cal)
-    work = Bound(score_log, setup, cal)
+    work = Bound(score_log, cal, setup)
     done = run_per_log(
         work, paths, "scoring", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
     )

@@ -24,6 +24,7 @@ from twincd.calibration.models import (
     uses_friction,
     uses_regressor,
 )
+from twincd.defaults import DEFAULT_MODEL
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedStream, Setup, same_joints
 
@@ -131,7 +132,7 @@ def setup_for_model(setup: Setup, model: str) -> Setup:
     )
 
 
-def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = AFFINE) -> Calibration:
+def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str = DEFAULT_MODEL) -> Calibration:
     """The calibration from per-log statistics, merged in any order (exact merges)."""
     check_model(model)
     parts = sorted(parts, key=lambda p: p.source)  # any completion order gives one answer
@@ -243,7 +244,11 @@ def _warn_about_fit(estimator: AffineCalibration, unlabelled: list[str]) -> None
         )
 
 
-def fit_calibration(paths: Iterable[str | Path], setup: Setup, model: str = AFFINE) -> Calibration:
-    """Fit ``model`` over ``paths`` log by log (memory flat in the number of logs and samples)."""
+def fit_calibration(
+    paths: Iterable[str | Path], setup: Setup, model: str | None = None
+) -> Calibration:
+    """Fit ``model`` (None: ``DEFAULT_MODEL``) over ``paths`` log by log (memory flat in the
+    number of logs and samples)."""
+    model = DEFAULT_MODEL if model is None else model
     setup = setup_for_model(setup, model)
     return merge_fits([fit_log(path, setup) for path in paths], setup, model)
