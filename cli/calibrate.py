@@ -1,8 +1,4 @@
-"""``twincd fit`` and ``twincd threshold``: the paper's regression and its μ + kσ threshold.
-
-Also the option handling that detect and evaluate share: a calibration's recorded settings are
-the defaults, and an explicit option that contradicts them is an error (contract: Inputs).
-"""
+"""``twincd fit`` and ``twincd threshold``: the paper's regression and its μ + kσ threshold."""
 
 from __future__ import annotations
 
@@ -14,18 +10,18 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
-from twincd.defaults import (
-    DEFAULT_CAUSAL_CUTOFF_HZ,
-    DEFAULT_CUTOFF_HZ,
-    DEFAULT_FALSE_ALARMS_PER_HOUR,
-    DEFAULT_K_SIGMA,
-    DEFAULT_ORDER,
-)
-from twincd.errors import UsageError
+from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
+from twincd.run import all_or_nothing
 
-from .common import (
+from .common import check_reports, command, exit_if_failed, run_per_log, stdout
+from .options import (
     AllowUrdfChange,
+    CalibrationIn,
+    Causal,
+    Cutoff,
     Debug,
+    FilterKind,
+    FilterOrder,
     Force,
     Jobs,
     JointMap,
@@ -39,133 +35,13 @@ from .common import (
     SimTopic,
     Strict,
     Topic,
-    all_or_nothing,
-    check_reports,
-    command,
-    log_options,
-    run_per_log,
-    stdout,
+    setup_options,
 )
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration, Threshold
-    from twincd.pipeline import Setup
 
 log = logging.getLogger("twincd")
-
-CalibrationIn = Annotated[
-    Path, typer.Option("--calibration", "-c", help="Calibration JSON written by `twincd fit`.")
-]
-Cutoff = Annotated[
-    float | None,
-    typer.Option(
-        "--cutoff",
-        help=f"Low-pass cut-off in Hz (default {DEFAULT_CUTOFF_HZ:g}; "
-        f"{DEFAULT_CAUSAL_CUTOFF_HZ:g} with --causal).",
-        min=0.0,
-    ),
-]
-FilterOrder = Annotated[
-    int | None,
-    typer.Option("--filter-order", help=f"Low-pass filter order (default {DEFAULT_ORDER}).", min=1),
-]
-FilterKind = Annotated[
-    str | None,
-    typer.Option(
-        "--filter-kind",
-        help="Low-pass kind: butterworth, or critical (no overshoot, no ringing around a "
-        "push). Default: butterworth; fit: critical for the identified models.",
-    ),
-]
-Causal = Annotated[
-    bool | None,
-    typer.Option(
-        "--causal/--zero-phase",
-        help="Filter forward only, as a live detector would (default: zero-phase).",
-        metavar="",
-    ),
-]
-
-
-def _contradiction(option: str, given: object, recorded: object, calibration: Calibration) -> None:
-    raise UsageError(
-        f"{option} {given} contradicts the calibration's {recorded}",
-        calibration.source or "calibration",
-        f"drop {option}, or re-run `twincd fit` with it",
-    )
-
-
-def resolve_setup(
-    calibration: Calibration | None,
-    robot: str | None,
-    topic: str | None,
-    label_topic: str | None,
-    sim_topic: str | None,
-    joint_map: str | None,
-    cutoff: float | None = None,
-    filter_order: int | None = None,
-    causal: bool | None = None,
-    strict: bool = False,
-    filter_kind: str | None = None,
-    allow_urdf_change: bool = False,
-) -> Setup:
-    """Settings for reading logs: explicit options over the calibration's, never against them
-    (``filter_kind`` None: Butterworth without a calibration)."""
-    from twincd.io.options import parse_joint_map
-    from twincd.pipeline import Setup
-    from twincd.signal.filters import LowPass
-
-    if calibration is None:
-        default_cutoff = DEFAULT_CAUSAL_CUTOFF_HZ if causal else DEFAULT_CUTOFF_HZ
-        lowpass = LowPass(
-            cutoff_hz=default_cutoff if cutoff is None else cutoff,
-            order=DEFAULT_ORDER if filter_order is None else filter_order,
-            causal=bool(causal),
-            kind="butterworth" if filter_kind is None else filter_kind,
-        )
-        options = log_options(topic, label_topic, sim_topic, joint_map)
-        return Setup(options, robot, lowpass, strict=strict)
-    cal = calibration
-    recorded = cal.options
-    for option, given, was in (
-        ("--topic", topic, recorded.topic),
-        ("--label-topic", label_topic, recorded.label_topic),
-        ("--sim-topic", sim_topic, recorded.sim_topic),
-    ):
-        if given is not None and given != was:
-            _contradiction(option, given, was, cal)
-    if joint_map is not None and parse_joint_map(joint_map) != dict(recorded.joint_map or {}):
-        was_map = ",".join(f"{k}={v}" for k, v in (recorded.joint_map or {}).items())
-        _contradiction("--joint-map", joint_map, was_map or "empty map", cal)
-    if robot is not None and cal.robot is not None and not _same_robot(robot, cal.robot):
-        _contradiction("--robot", robot, cal.robot, cal)
-    lp = cal.lowpass
-    if causal is not None and causal != lp.causal:
-        raise UsageError(
-            f"{'--causal' if causal else '--zero-phase'} contradicts the calibration's "
-            f"{'causal' if lp.causal else 'zero-phase'} filter",
-            cal.source or "calibration",
-            "drop the option, or re-run `twincd fit` with it",
-        )
-    for option, given_f, was_f in (
-        ("--cutoff", cutoff, lp.cutoff_hz),
-        ("--filter-order", filter_order, lp.order),
-    ):
-        if given_f is not None and given_f != was_f:
-            _contradiction(option, f"{given_f:g}", f"{was_f:g}", cal)
-    if filter_kind is not None and filter_kind != lp.kind:
-        _contradiction("--filter-kind", filter_kind, lp.kind, cal)
-    setup = replace(Setup.from_calibration(cal), strict=strict, allow_urdf_change=allow_urdf_change)
-    if robot is not None and cal.robot is None:
-        setup = replace(setup, robot=robot)
-    return setup
-
-
-def _same_robot(a: str, b: str) -> bool:
-    if a == b:
-        return True
-    pa, pb = Path(a), Path(b)
-    return pa.exists() and pb.exists() and pa.resolve() == pb.resolve()
 
 
 def fit_table(cal: Calibration) -> Table:
@@ -207,10 +83,9 @@ def fit(
             help="Calibration model: affine (the paper's a·twin + b), affine-whitened, "
             "friction (+ c·tanh(q̇/ε) + d·q̇), identified (+ the URDF's inertial parameters "
             "re-fitted through the joint-torque regressor; needs a robot model); *-whitened: "
-            "each joint's residual over its noise at its speed, scored by depth "
-            "[default: the best the logs allow: identified-whitened with a robot model, "
-            "friction-whitened with only a logged twin effort].",
-            show_default=False,
+            "each joint's residual over its noise at its speed, scored by depth (default: the "
+            "best the logs allow: identified-whitened with a robot model, friction-whitened "
+            "with only a logged twin effort).",
         ),
     ] = None,
     jobs: Jobs = 0,
@@ -230,22 +105,27 @@ def fit(
     Example: twincd fit logs/train/*.mcap -o calibration.json
     """
     from twincd.calibration import fit_log, merge_fits
-    from twincd.calibration.setup import setup_for_model
     from twincd.executors import Bound
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
+    from twincd.settings import fit_setup
 
     paths = expand_logs(logs)
     check_target(output, "calibration", force=force, inputs=paths)
     check_reports(report, None, force=force, inputs=paths)
-    from twincd.calibration.setup import filter_kind_for
-
-    kind = filter_kind_for(model) if filter_kind is None else filter_kind
-    setup = resolve_setup(
-        None, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal,
-        strict, kind,
-    )  # fmt: skip
-    setup = setup_for_model(setup, model)
+    asked = setup_options(
+        robot=robot,
+        topic=topic,
+        label_topic=label_topic,
+        sim_topic=sim_topic,
+        joint_map=joint_map,
+        cutoff_hz=cutoff,
+        filter_order=filter_order,
+        filter_kind=filter_kind,
+        causal=causal,
+        strict=strict,
+    )
+    setup, model = fit_setup(asked, model)
     figure = report is not None and report.suffix.lower() == ".html"
     if figure:
         from twincd.reports.traces import fit_log_with_pairs
@@ -254,7 +134,7 @@ def fit(
     else:
         work = Bound(fit_log, setup)
     done = run_per_log(
-        work, paths, paths, jobs, "fitting", quiet, keep_going=keep_going, scheduler=scheduler
+        work, paths, "fitting", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
     )
     parts = [part for part, _ in done.results] if figure else done.results
     cal = merge_fits(parts, setup, model)
@@ -270,7 +150,7 @@ def fit(
     if report is not None:
         log.info("wrote %s", report)
     log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
-    done.exit_if_failed()
+    exit_if_failed(done)
 
 
 @command
@@ -282,8 +162,8 @@ def threshold(
         typer.Option(
             "--sigma",
             "-k",
-            help="The paper's threshold μ + kσ, mean and standard deviation [default: "
-            f"μ + {DEFAULT_K_SIGMA:g}σ, robustly (median and MAD) for a whitened model].",
+            help="The paper's threshold μ + kσ, mean and standard deviation (default: "
+            f"μ + {DEFAULT_K_SIGMA:g}σ, with the median and MAD for a whitened model).",
             min=0,
         ),
     ] = None,
@@ -338,25 +218,24 @@ def threshold(
     target = output or calibration
     paths = expand_logs(logs)
     check_target(target, "calibration", force=force, inputs=paths)
-    setup = resolve_setup(
-        cal,
-        robot,
-        topic,
-        label_topic,
-        sim_topic,
-        joint_map,
+    setup = setup_options(
+        robot=robot,
+        topic=topic,
+        label_topic=label_topic,
+        sim_topic=sim_topic,
+        joint_map=joint_map,
         strict=strict,
         allow_urdf_change=allow_urdf_change,
-    )
-    work = Bound(score_log, setup, cal)
+    ).resolve(cal)
+    work = Bound(score_log, cal, setup)
     done = run_per_log(
-        work, paths, paths, jobs, "scoring", quiet, keep_going=keep_going, scheduler=scheduler
+        work, paths, "scoring", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
     )
     cal = with_threshold(done.results, cal, sigma, false_alarms_per_hour)
     cal.save(target)
     stdout.print(threshold_line(cal.require_threshold()), soft_wrap=True)
     log.info("wrote %s", target)
-    done.exit_if_failed()
+    exit_if_failed(done)
 
 
 def threshold_line(th: Threshold) -> str:

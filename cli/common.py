@@ -13,120 +13,20 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 import typer
 from rich.console import Console
 
-from twincd.defaults import DEFAULT_LABEL_TOPIC, DEFAULT_ROBOT, DEFAULT_SIM_TOPIC, DEFAULT_TOPIC
 from twincd.errors import InternalError, OutputError, Terminated, TwincdError, raise_terminated
 
 if TYPE_CHECKING:
     from twincd.executors import MapExecutor
-    from twincd.io.options import LogOptions
+    from twincd.run import LogRun
 
 T = TypeVar("T")
 log = logging.getLogger("twincd")
-
-Logs = Annotated[
-    list[Path],
-    typer.Argument(help="Logs: rosbag2 folders, .mcap or .bag files, or folders of logs."),
-]
-Robot = Annotated[
-    str | None,
-    typer.Option(
-        "--robot", "-r", help=f"example-robot-data name or URDF path [default: {DEFAULT_ROBOT}]"
-    ),
-]
-Topic = Annotated[
-    str | None, typer.Option("--topic", help=f"JointState topic [default: {DEFAULT_TOPIC}]")
-]
-LabelTopic = Annotated[
-    str | None,
-    typer.Option("--label-topic", help=f"Bool collision labels [default: {DEFAULT_LABEL_TOPIC}]"),
-]
-SimTopic = Annotated[
-    str | None,
-    typer.Option("--sim-topic", help=f"simulated effort topic [default: {DEFAULT_SIM_TOPIC}]"),
-]
-JointMap = Annotated[
-    str | None, typer.Option("--joint-map", help="rename log joints: old=new,old2=new2")
-]
-Json = Annotated[bool, typer.Option("--json", help="Print one JSON document.", metavar="")]
-Quiet = Annotated[
-    bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.", metavar="")
-]
-Jobs = Annotated[
-    int,
-    typer.Option(
-        "--jobs", "-j", help="Logs processed at once in local processes (0: every core).", min=0
-    ),
-]
-Scheduler = Annotated[
-    str | None,
-    typer.Option(
-        "--scheduler",
-        help="Run on a Dask cluster: a scheduler address (tcp://host:8786), or 'local' for a "
-        "LocalCluster of -j workers. Logs must be at the same path on every worker.",
-    ),
-]
-Report = Annotated[
-    Path | None,
-    typer.Option(
-        "--report",
-        help="Also write a report here: .md, or .html (one self-contained page with figures; "
-        "figures need the plot extra: without it, .html is refused before any work).",
-    ),
-]
-Junit = Annotated[
-    Path | None, typer.Option("--junit", help="Also write JUnit XML here (for CI systems).")
-]
-NoSummary = Annotated[
-    bool,
-    typer.Option(
-        "--no-summary",
-        help="Do not append the Markdown summary to $GITHUB_STEP_SUMMARY (appended when set).",
-        metavar="",
-    ),
-]
-Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.", metavar="")]
-Strict = Annotated[
-    bool,
-    typer.Option(
-        "--strict",
-        help="Refuse a truncated log instead of reading it up to the damage.",
-        metavar="",
-    ),
-]
-KeepGoing = Annotated[
-    bool,
-    typer.Option(
-        "--keep-going",
-        help="Process every log even if some fail; report each failure, exit 2 at the end (3 "
-        "when a failure was a defect in twincd).",
-        metavar="",
-    ),
-]
-AllowUrdfChange = Annotated[
-    bool,
-    typer.Option(
-        "--allow-urdf-change",
-        help="Use a robot URDF that changed since the calibration was fitted (its sha256 "
-        "differs) when the change does not affect dynamics; refused otherwise.",
-        metavar="",
-    ),
-]
-Force = Annotated[
-    bool,
-    typer.Option(
-        "--force",
-        help="Overwrite an output even if it is not twincd's own output of its kind (never an "
-        "input of the run, nor a read-only file).",
-        metavar="",
-    ),
-]
 
 stderr = Console(stderr=True, highlight=False)
 # not a terminal (a CI log, a pipe): no 80-column default that would cut tables
@@ -164,25 +64,6 @@ def setup_logging(quiet: bool, debug: bool) -> None:
     logger.setLevel(logging.WARNING if quiet else logging.DEBUG if debug else logging.INFO)
 
 
-def log_options(
-    topic: str | None,
-    label_topic: str | None,
-    sim_topic: str | None,
-    joint_map: str | None,
-    defaults: LogOptions | None = None,
-) -> LogOptions:
-    """Options from the command line; unset ones fall back to ``defaults`` (a calibration's)."""
-    from twincd.io.options import LogOptions, parse_joint_map
-
-    base = defaults or LogOptions()
-    return LogOptions(
-        topic=topic or base.topic,
-        label_topic=label_topic or base.label_topic,
-        sim_topic=sim_topic or base.sim_topic,
-        joint_map=parse_joint_map(joint_map) if joint_map else base.joint_map,
-    )
-
-
 # library setting names (TwincdError.option) → the flags that set them; library messages
 # never name a flag, so the CLI adds them here
 FLAGS: dict[str, str] = {
@@ -205,6 +86,9 @@ FLAGS: dict[str, str] = {
     "in_place": "--in-place",
     "output": "--output",
     "model": "--model",
+    "cutoff_hz": "--cutoff",
+    "filter_order": "--filter-order",
+    "causal": "--causal/--zero-phase",
     "sigma": "-k/--sigma",
     "filter_kind": "--filter-kind",
     "false_alarms_per_hour": "--false-alarms-per-hour",
@@ -420,89 +304,54 @@ def counter(
         yield advance
 
 
-@dataclass
-class LogRun:
-    """A multi-log run: the results of the logs that worked (in order) and the failures."""
-
-    results: list[Any]
-    errors: list[tuple[Path, TwincdError]]
-
-    def error_docs(self) -> list[dict[str, str]]:
-        """``"errors": [{"path", "error"}]`` of ``--json`` (contract: Exit codes and streams)."""
-        return [{"path": str(path), "error": error_line(exc)} for path, exc in self.errors]
-
-    @property
-    def exit_code(self) -> int:
-        """0 when every log worked; else 3 if any failure was a defect, 2 otherwise."""
-        return max((exc.exit_code for _, exc in self.errors), default=0)
-
-    def exit_if_failed(self) -> None:
-        """``--keep-going`` ends with exit 2 when any log failed (3 when a defect did)."""
-        if self.errors:
-            raise typer.Exit(self.exit_code)
-
-
 def run_per_log(
     func: Callable[[T], Any],
     items: Sequence[T],
-    paths: Sequence[Path],
-    jobs: int,
     description: str,
     quiet: bool,
     *,
-    keep_going: bool = False,
+    jobs: int = 0,
     scheduler: str | None = None,
-) -> LogRun:
-    """``func`` over ``items`` (one per log of ``paths``) on ``jobs`` processes or the Dask
-    cluster at ``scheduler``, with a progress bar. Each log's warnings are printed (one line
-    each) once the bar is gone; with ``keep_going`` a failing log is reported in one line and
-    the others go on."""
-    from twincd.cluster import open_executor
-
-    with open_executor(jobs, scheduler, paths) as executor:
-        run = run_on(executor, func, items, paths, description, quiet, keep_going)
-    if not run.results and run.errors:
-        raise typer.Exit(run.exit_code)  # nothing to go on with
-    return run
-
-
-def run_on(
-    executor: MapExecutor,
-    func: Callable[[T], Any],
-    items: Sequence[T],
-    paths: Sequence[Path],
-    description: str,
-    quiet: bool,
+    executor: MapExecutor | None = None,
     keep_going: bool = False,
-) -> LogRun:
-    """``run_per_log`` on an executor the caller holds (``evaluate`` reads three sets of logs
-    on one): each log's warnings printed, its failure reported in one line with
-    ``keep_going`` (else raised)."""
-    from twincd.executors import Captured
+) -> LogRun[Any]:
+    """``twincd.run_logs`` with a progress bar; with ``keep_going`` each failing log is
+    reported in one error line and the others go on, and when every log failed the command
+    ends (exit 2, or 3 for a defect). On an ``executor`` the caller holds (``evaluate`` reads
+    three sets of logs on one), the caller decides what a set without results means."""
+    from twincd.run import run_logs
 
-    outcomes = map_per_log(executor, Captured(func, keep_going), items, description, quiet)
-    run = LogRun([], [])
-    for path, outcome in zip(paths, outcomes, strict=True):
-        for line in outcome.warnings:
-            log.warning("%s", line)
-        if outcome.error is not None:
-            report_error(outcome.error)
-            run.errors.append((path, outcome.error))
-        else:
-            run.results.append(outcome.value)
+    with counter(len(items), description, quiet) as advance:
+        run = run_logs(
+            func,
+            items,
+            jobs=jobs,
+            scheduler=scheduler,
+            executor=executor,
+            keep_going=keep_going,
+            progress=advance,
+            on_failure=lambda failure: report_error(failure.error),
+        )
+    if executor is None:
+        exit_if_none_worked(run)
     return run
 
 
-def map_per_log(
-    executor: MapExecutor,
-    func: Callable[[T], Any],
-    items: Sequence[T],
-    description: str,
-    quiet: bool,
-) -> list[Any]:
-    """``executor.map(func, items)`` with a progress bar."""
-    with counter(len(items), description, quiet) as advance:
-        return executor.map(func, items, advance)
+def exit_if_none_worked(run: LogRun[Any]) -> None:
+    """With ``--keep-going``, every log failed: nothing to go on with."""
+    if not run.results and run.failures:
+        raise typer.Exit(run.exit_code)
+
+
+def exit_if_failed(run: LogRun[Any]) -> None:
+    """``--keep-going`` ends with exit 2 when any log failed (3 when a defect did)."""
+    if run.failures:
+        raise typer.Exit(run.exit_code)
+
+
+def error_docs(run: LogRun[Any]) -> list[dict[str, str]]:
+    """``"errors": [{"path", "error"}]`` of ``--json`` (contract: Exit codes and streams)."""
+    return [{"path": str(f.path), "error": error_line(f.error)} for f in run.failures]
 
 
 def check_reports(
@@ -522,26 +371,3 @@ def check_reports(
             pyplot()  # a missing plot extra is an error now, not after the work
     if junit is not None:
         check_target(junit, "junit", force=force, inputs=inputs)
-
-
-@contextlib.contextmanager
-def all_or_nothing() -> Iterator[list[Path]]:
-    """Collects the files a multi-log run may write; if the run fails, those it wrote are
-    removed again (files older than the run are left alone), so a failed run leaves nothing
-    behind (contract: Exit codes and streams)."""
-    from twincd.io.atomic import remove_stale_temporaries
-
-    started = time.time_ns()
-    written: list[Path] = []
-    try:
-        yield written
-    except BaseException:
-        for path in written:
-            with contextlib.suppress(OSError):
-                if path.stat().st_mtime_ns >= started:
-                    path.unlink()
-        raise
-    finally:
-        # what a worker killed mid-write left (its log was then written again elsewhere)
-        for folder in {path.parent for path in written}:
-            remove_stale_temporaries(folder, say=False)

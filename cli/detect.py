@@ -10,14 +10,25 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
+from twincd.run import all_or_nothing
+
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.detection import DetectionSummary
 
-from .calibrate import CalibrationIn, Causal, resolve_setup
 from .common import (
     WARNINGS,
+    check_reports,
+    command,
+    error_docs,
+    exit_if_failed,
+    run_per_log,
+    stdout,
+)
+from .options import (
     AllowUrdfChange,
+    CalibrationIn,
+    Causal,
     Debug,
     Force,
     Jobs,
@@ -35,11 +46,7 @@ from .common import (
     SimTopic,
     Strict,
     Topic,
-    all_or_nothing,
-    check_reports,
-    command,
-    run_per_log,
-    stdout,
+    setup_options,
 )
 
 log = logging.getLogger("twincd")
@@ -137,17 +144,16 @@ def detect(
     cal = Calibration.load(calibration)
     cal.require_threshold()
     paths = expand_logs(logs)
-    setup = resolve_setup(
-        cal,
-        robot,
-        topic,
-        label_topic,
-        sim_topic,
-        joint_map,
+    setup = setup_options(
+        robot=robot,
+        topic=topic,
+        label_topic=label_topic,
+        sim_topic=sim_topic,
+        joint_map=joint_map,
         causal=causal,
         strict=strict,
         allow_urdf_change=allow_urdf_change,
-    )
+    ).resolve(cal)
     targets = detect_targets(paths, output)
     inputs = [*paths, calibration]
     # one log at a time: only the small summaries are kept, so memory stays flat
@@ -162,7 +168,7 @@ def detect(
         written.extend(target for target in targets if target is not None)
         work = Bound(detect_and_write, cal, setup, trace)
         done = run_per_log(
-            work, items, paths, jobs, "detecting", quiet, keep_going=keep_going, scheduler=scheduler
+            work, items, "detecting", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
         )
         results = done.results
         written.extend(p for p in (report, junit) if p is not None)
@@ -185,10 +191,10 @@ def detect(
             "collision": found,
             "threshold": cal.require_threshold().value,
             "logs": summaries,
-            "errors": done.error_docs(),
+            "errors": error_docs(done),
             "warnings": list(WARNINGS),
         }
         stdout.out(json.dumps(doc, allow_nan=False), highlight=False)
-    done.exit_if_failed()
+    exit_if_failed(done)
     if found:
         raise typer.Exit(1)

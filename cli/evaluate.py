@@ -14,12 +14,25 @@ from rich import box
 from rich.table import Table
 
 from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
+from twincd.run import LogRun, all_or_nothing
 
-from .calibrate import Causal, Cutoff, FilterKind, FilterOrder, resolve_setup
 from .common import (
     WARNINGS,
+    check_reports,
+    command,
+    error_docs,
+    exit_if_failed,
+    progress,
+    run_per_log,
+    stdout,
+)
+from .options import (
     AllowUrdfChange,
+    Causal,
+    Cutoff,
     Debug,
+    FilterKind,
+    FilterOrder,
     Force,
     Jobs,
     JointMap,
@@ -27,7 +40,6 @@ from .common import (
     Junit,
     KeepGoing,
     LabelTopic,
-    LogRun,
     Logs,
     NoSummary,
     Quiet,
@@ -37,12 +49,7 @@ from .common import (
     SimTopic,
     Strict,
     Topic,
-    all_or_nothing,
-    check_reports,
-    command,
-    progress,
-    run_on,
-    stdout,
+    setup_options,
 )
 
 if TYPE_CHECKING:
@@ -195,21 +202,31 @@ def evaluate(
     val_paths = expand_logs(val) if val else []
     inputs = [*test_paths, *train_paths, *val_paths, *([calibration] if calibration else [])]
     check_reports(report, junit, force=force, inputs=inputs)
-    setup = resolve_setup(
-        cal, robot, topic, label_topic, sim_topic, joint_map, cutoff, filter_order, causal,
-        strict, filter_kind, allow_urdf_change,
-    )  # fmt: skip
+    setup = setup_options(
+        robot=robot,
+        topic=topic,
+        label_topic=label_topic,
+        sim_topic=sim_topic,
+        joint_map=joint_map,
+        cutoff_hz=cutoff,
+        filter_order=filter_order,
+        filter_kind=filter_kind,
+        causal=causal,
+        strict=strict,
+        allow_urdf_change=allow_urdf_change,
+    ).resolve(cal)
 
     def bar(items: Sequence[Any], desc: str) -> Iterable[Any]:
         return progress(items, desc, quiet)
 
     every_log = [*test_paths, *train_paths, *val_paths]
     with open_executor(jobs, scheduler, every_log) as executor:
-        failed = LogRun([], [])
+        failed: LogRun[PreparedLog] = LogRun()
 
         def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:
-            run = run_on(executor, Bound(prepare_log, setup), paths, paths, desc, quiet, keep_going)
-            failed.errors.extend(run.errors)  # with --keep-going: reported, the rest goes on
+            work = Bound(prepare_log, setup)
+            run = run_per_log(work, paths, desc, quiet, executor=executor, keep_going=keep_going)
+            failed.failures.extend(run.failures)  # with --keep-going: reported, the rest goes on
             return list(run.results)
 
         result = run_evaluation(
@@ -236,7 +253,7 @@ def evaluate(
         written.extend(p for p in (report, junit) if p is not None)
         _write_reports(result, missed, cal, report, junit, no_summary, (min_f1, min_auc))
     if json_:
-        doc = {**result.to_dict(), "errors": failed.error_docs(), "warnings": list(WARNINGS)}
+        doc = {**result.to_dict(), "errors": error_docs(failed), "warnings": list(WARNINGS)}
         stdout.out(json.dumps(doc), highlight=False)
     else:
         table = Table(
@@ -265,7 +282,7 @@ def evaluate(
     for m in result.methods:
         if m.skipped is not None:
             log.warning("method %s skipped: %s", m.name, m.skipped)
-    failed.exit_if_failed()  # --keep-going: a log that failed is exit 2, before any gate
+    exit_if_failed(failed)  # --keep-going: a log that failed is exit 2, before any gate
     if missed:
         for line in missed:
             log.warning("gate missed: %s", line)

@@ -9,9 +9,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
-from .calibrate import resolve_setup
-from .common import (
-    WARNINGS,
+from .common import WARNINGS, command, stdout
+from .options import (
     Debug,
     JointMap,
     Json,
@@ -22,8 +21,7 @@ from .common import (
     SimTopic,
     Strict,
     Topic,
-    command,
-    stdout,
+    setup_options,
 )
 
 if TYPE_CHECKING:
@@ -139,7 +137,15 @@ def inspect(
     from twincd.io.logs import expand_logs
 
     cal = Calibration.load(calibration) if calibration is not None else None
-    setup = resolve_setup(cal, robot, topic, label_topic, sim_topic, joint_map, strict=strict)
+    asked = setup_options(
+        robot=robot,
+        topic=topic,
+        label_topic=label_topic,
+        sim_topic=sim_topic,
+        joint_map=joint_map,
+        strict=strict,
+    )
+    setup = asked.resolve(cal)
     found = [
         inspect_log(path, setup.options, setup.robot, cal, strict) for path in expand_logs(logs)
     ]

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import signal
+import sys
+import threading
 from typing import Annotated, Any
 
 import typer
@@ -67,13 +70,21 @@ app.command("synth", cls=_Command)(synth.synth)
 app.command("inspect", cls=_Command)(inspect.inspect)
 
 
-def main() -> None:
-    """The ``twincd`` program: exit 3 with one line for a defect anywhere (never 1), and a
-    closed stdout (``| head``) ends quietly, even while typer prints help."""
-    import sys
+def _exit_terminated(signum: int, frame: object) -> None:
+    # SIGTERM before a command runs: nothing is written yet, so leave at once with 143, saying
+    # so as a running command does (it raises ``Terminated`` instead and cleans up first)
+    sys.stderr.write("twincd: terminated\n")
+    sys.exit(128 + signum)
 
+
+def main() -> None:
+    """The ``twincd`` program: SIGTERM before a command runs exits 143 at once; exit 3 with one
+    line for a defect anywhere (never 1), and a closed stdout (``| head``) ends quietly, even
+    while typer prints help."""
     from .common import closed_stdout_ends_quietly, internal_error_exit
 
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _exit_terminated)
     with closed_stdout_ends_quietly():
         try:
             app()

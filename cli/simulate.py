@@ -9,8 +9,10 @@ import typer
 
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import UsageError
+from twincd.run import all_or_nothing
 
-from .common import (
+from .common import command, exit_if_failed, run_per_log, stdout
+from .options import (
     Debug,
     Force,
     Jobs,
@@ -23,11 +25,7 @@ from .common import (
     SimTopic,
     Strict,
     Topic,
-    all_or_nothing,
-    command,
-    log_options,
-    run_per_log,
-    stdout,
+    setup_options,
 )
 
 
@@ -93,7 +91,10 @@ def simulate(
         if output.suffix == ".mcap":
             raise UsageError("several logs need an output folder", str(output), "give -o a folder")
         make_output_folder(output)
-    options = log_options(topic, label_topic, sim_topic, joint_map)
+    asked = setup_options(
+        topic=topic, label_topic=label_topic, sim_topic=sim_topic, joint_map=joint_map
+    )
+    options = asked.log_options()
     targets: list[Path | None] = [None] * len(paths)
     if not in_place:
         folder = output if several else None
@@ -109,15 +110,8 @@ def simulate(
         written.extend(t for t in targets if t is not None)
         work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place, strict)
         done = run_per_log(
-            work,
-            items,
-            paths,
-            jobs,
-            "simulating",
-            quiet,
-            keep_going=keep_going,
-            scheduler=scheduler,
+            work, items, "simulating", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
         )
     for result in done.results:
         stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")
-    done.exit_if_failed()
+    exit_if_failed(done)

@@ -12,7 +12,8 @@ import typer
 from twincd.defaults import SYNTH_SEGMENT_S
 from twincd.errors import UsageError
 
-from .common import Debug, Quiet, command, counter, stdout
+from .common import command, counter, stdout
+from .options import Debug, Quiet
 
 
 @command

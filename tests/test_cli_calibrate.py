@@ -64,7 +64,8 @@ def test_causal_defaults_and_is_recorded(twin_dataset, tmp_path):
 def test_contradicting_option_is_an_error(fitted, twin_dataset):
     cal, _ = fitted
     result = run("threshold", twin_dataset / "val", "-c", cal, "--topic", "/other")
-    assert_one_line_error(result, "--topic /other contradicts the calibration's /joint_states")
+    assert_one_line_error(result, "topic /other contradicts the calibration's /joint_states")
+    assert "(option --topic)" in result.stderr
     result = run("threshold", twin_dataset / "val", "-c", cal, "--topic", "/joint_states", "-q")
     assert result.exit_code == 0  # agreeing is fine
 

@@ -1,18 +1,36 @@
 """twincd: robot-arm collision detection in recorded ROS 2 logs with a digital twin.
 
-The public API, by stage (each name is imported on first use, so ``import twincd`` stays light):
+The public API, by stage (each name is imported on first use, so ``import twincd`` stays light;
+type checkers see the real types):
 
 - read: ``LogOptions``, ``read_log``, ``expand_logs``
-- prepare (read → twin → filter): ``Setup`` (``.open(path)`` streams, ``.prepare(path)`` whole)
+- prepare (read → twin → filter): ``Setup`` (``.open(path)`` streams, ``.prepare(path)`` whole),
+  resolved from ``SetupOptions`` (settings by name, checked against a calibration's)
 - calibrate: ``Calibration``, ``fit_calibration``, ``threshold_calibration``
 - detect: ``detect`` (a prepared log), ``detect_file`` (a log streamed), ``OnlineDetector`` (live)
+- many logs: ``run_logs`` (a per-log function over paths: local processes or Dask, keep-going)
+
+Arguments come in one order: inputs, calibration, settings
+(``detect_file(path, calibration, setup)``).
 """
 
 from __future__ import annotations
 
 from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration, fit_calibration
+    from twincd.detection import OnlineDetector, detect_file
+    from twincd.detection.detect import detect
+    from twincd.errors import TwincdError
+    from twincd.io.logs import expand_logs
+    from twincd.io.options import LogOptions
+    from twincd.pipeline import Setup, read_log
+    from twincd.run import LogFailure, LogRun, run_logs
+    from twincd.settings import SetupOptions
+    from twincd.threshold import threshold_calibration
 
 try:
     __version__ = version("twincd")
@@ -24,16 +42,37 @@ _EXPORTS = {
     "read_log": "twincd.pipeline",
     "expand_logs": "twincd.io.logs",
     "Setup": "twincd.pipeline",
+    "SetupOptions": "twincd.settings",
     "Calibration": "twincd.calibration",
     "fit_calibration": "twincd.calibration",
     "threshold_calibration": "twincd.threshold",
     "detect": "twincd.detection",
     "detect_file": "twincd.detection",
     "OnlineDetector": "twincd.detection",
+    "run_logs": "twincd.run",
+    "LogRun": "twincd.run",
+    "LogFailure": "twincd.run",
     "TwincdError": "twincd.errors",
 }
 
-__all__ = ["__version__", *_EXPORTS]
+__all__ = [
+    "Calibration",
+    "LogFailure",
+    "LogOptions",
+    "LogRun",
+    "OnlineDetector",
+    "Setup",
+    "SetupOptions",
+    "TwincdError",
+    "__version__",
+    "detect",
+    "detect_file",
+    "expand_logs",
+    "fit_calibration",
+    "read_log",
+    "run_logs",
+    "threshold_calibration",
+]
 
 
 def __getattr__(name: str) -> Any:

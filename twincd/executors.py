@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 
 from twincd.errors import InternalError, TwincdError
 from twincd.twin.dynamics import default_threads
+from twincd.twin.openmp import prefer_passive_wait
 
 T = TypeVar("T")
 # logs just finished, and the samples they held: what a progress display shows
@@ -99,6 +100,7 @@ def _pooled(
 ) -> Iterator[R]:
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
+    prefer_passive_wait()  # before a worker or this process loads Pinocchio's OpenMP
     method = start_method()
     context = multiprocessing.get_context(method)
     if method == "fork":

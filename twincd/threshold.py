@@ -271,7 +271,7 @@ class LogScores:
     excursions: Excursions | None = None
 
 
-def score_log(path: str | Path, setup: Setup, calibration: Calibration) -> LogScores:
+def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogScores:
     """Stream one log into statistics of its calibrated score on collision-free samples, its
     excursions, and its runs at every threshold of the alarm grid."""
     stats = ScoreStats()
@@ -358,7 +358,7 @@ def threshold_calibration(
     false_alarms_per_hour: float | None = None,
 ) -> Calibration:
     """The threshold from collision-free logs, each streamed (see ``with_threshold``)."""
-    parts = [score_log(p, setup, calibration) for p in paths]
+    parts = [score_log(p, calibration, setup) for p in paths]
     return with_threshold(parts, calibration, k_sigma, false_alarms_per_hour)
 
 

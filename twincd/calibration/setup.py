@@ -139,9 +139,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         total = total + p.stats
     if model is None:
         model = best_model(total)
-        log.info(
-            "fit: model %s, the best these logs allow (--model affine is the paper's)", model
-        )
+        log.info("fit: model %s, the best these logs allow (--model affine is the paper's)", model)
     start = time.perf_counter()
     # a friction model's slope a is conditioned by its other terms too: no affine warning
     estimator = AffineCalibration(names, not uses_friction(model)).fit_stats(total.affine)

@@ -21,6 +21,7 @@ from twincd.signal.derivatives import (
     DEFAULT_WINDOW,
     differentiate,
 )
+from twincd.twin.openmp import load_pinocchio
 from twincd.twin.robot import RobotModel
 from twincd.types import FloatArray
 
@@ -71,7 +72,7 @@ def inverse_dynamics(
     xArm 7 it is 2× faster on one thread and 4× on two (identical torques), and it releases
     the GIL so reading and writing can overlap with it.
     """
-    import pinocchio as pin
+    pin = load_pinocchio()
 
     n = len(position)
     if n == 0:
@@ -98,7 +99,7 @@ def inverse_dynamics(
 
 def gravity(robot: RobotModel, position: FloatArray) -> FloatArray:
     """g(q) per sample, from Pinocchio's computeGeneralizedGravity (an identity for tests)."""
-    import pinocchio as pin
+    pin = load_pinocchio()
 
     q = robot.configuration(position)
     data = robot.model.createData()
@@ -127,7 +128,7 @@ def torque_regressor(
     Pinocchio has no batched regressor: one call per sample (≈ 11 µs on xArm 7), which only the
     ``identified`` calibration models pay.
     """
-    import pinocchio as pin
+    pin = load_pinocchio()
 
     model = robot.model
     data = model.createData()

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import JointMismatchError, RobotModelError
+from twincd.twin.openmp import load_pinocchio
 from twincd.types import FloatArray
 
 log = logging.getLogger("twincd")
@@ -141,7 +142,7 @@ class RobotModel:
 
     @cached_property
     def neutral(self) -> FloatArray:
-        import pinocchio as pin
+        pin = load_pinocchio()
 
         neutral: FloatArray = pin.neutral(self.model)
         return neutral
@@ -153,7 +154,7 @@ class RobotModel:
 
     def pool(self, threads: int) -> Any:
         """A Pinocchio ModelPool of at least ``threads`` model/data pairs (built once)."""
-        import pinocchio as pin
+        pin = load_pinocchio()
 
         pools: dict[int, Any] = self.__dict__.setdefault("_pools", {})
         if threads not in pools:
@@ -243,7 +244,7 @@ def file_version(path: Path) -> tuple[int, int]:
 @lru_cache(maxsize=16)
 def _full_model(urdf_path: Path, version: tuple[int, int] = (0, 0)) -> pin.Model:
     """The whole model of ``urdf_path`` (``version``: ``file_version``, the cache key)."""
-    import pinocchio as pin
+    pin = load_pinocchio()
 
     try:
         ElementTree.parse(urdf_path)  # malformed XML: a clear message before Pinocchio sees it
@@ -277,7 +278,7 @@ def load_robot(name_or_path: str = DEFAULT_ROBOT, keep: Sequence[str] | None = N
 
     Raises JointMismatchError when ``keep`` shares no joint with the model.
     """
-    import pinocchio as pin
+    pin = load_pinocchio()
 
     urdf = resolve_urdf(name_or_path)
     full = _full_model(urdf, file_version(urdf))
@@ -329,7 +330,7 @@ def child_links(robot: RobotModel, names: Sequence[str]) -> tuple[tuple[str, ...
     A push on a link makes torque only on the joints between the base and that link, so the
     deepest joint whose residual is significant bounds the link that was touched.
     """
-    import pinocchio as pin
+    pin = load_pinocchio()
 
     model = robot.model
     links: list[str] = []

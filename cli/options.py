@@ -1,0 +1,159 @@
+"""The command-line options several subcommands share, declared once (typer ``Annotated``
+aliases), and the library settings they become."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from twincd.defaults import (
+    DEFAULT_CAUSAL_CUTOFF_HZ,
+    DEFAULT_CUTOFF_HZ,
+    DEFAULT_LABEL_TOPIC,
+    DEFAULT_ORDER,
+    DEFAULT_ROBOT,
+    DEFAULT_SIM_TOPIC,
+    DEFAULT_TOPIC,
+)
+from twincd.settings import SetupOptions
+
+Logs = Annotated[
+    list[Path],
+    typer.Argument(help="Logs: rosbag2 folders, .mcap or .bag files, or folders of logs."),
+]
+Robot = Annotated[
+    str | None,
+    typer.Option(
+        "--robot", "-r", help=f"example-robot-data name or URDF path [default: {DEFAULT_ROBOT}]"
+    ),
+]
+Topic = Annotated[
+    str | None, typer.Option("--topic", help=f"JointState topic [default: {DEFAULT_TOPIC}]")
+]
+LabelTopic = Annotated[
+    str | None,
+    typer.Option("--label-topic", help=f"Bool collision labels [default: {DEFAULT_LABEL_TOPIC}]"),
+]
+SimTopic = Annotated[
+    str | None,
+    typer.Option("--sim-topic", help=f"simulated effort topic [default: {DEFAULT_SIM_TOPIC}]"),
+]
+JointMap = Annotated[
+    str | None, typer.Option("--joint-map", help="rename log joints: old=new,old2=new2")
+]
+Json = Annotated[bool, typer.Option("--json", help="Print one JSON document.", metavar="")]
+Quiet = Annotated[
+    bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.", metavar="")
+]
+Jobs = Annotated[
+    int,
+    typer.Option(
+        "--jobs", "-j", help="Logs processed at once in local processes (0: every core).", min=0
+    ),
+]
+Scheduler = Annotated[
+    str | None,
+    typer.Option(
+        "--scheduler",
+        help="Run on a Dask cluster: a scheduler address (tcp://host:8786), or 'local' for a "
+        "LocalCluster of -j workers. Logs must be at the same path on every worker.",
+    ),
+]
+Report = Annotated[
+    Path | None,
+    typer.Option(
+        "--report",
+        help="Also write a report here: .md, or .html (one self-contained page with figures; "
+        "figures need the plot extra: without it, .html is refused before any work).",
+    ),
+]
+Junit = Annotated[
+    Path | None, typer.Option("--junit", help="Also write JUnit XML here (for CI systems).")
+]
+NoSummary = Annotated[
+    bool,
+    typer.Option(
+        "--no-summary",
+        help="Do not append the Markdown summary to $GITHUB_STEP_SUMMARY (appended when set).",
+        metavar="",
+    ),
+]
+Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.", metavar="")]
+Strict = Annotated[
+    bool,
+    typer.Option(
+        "--strict",
+        help="Refuse a truncated log instead of reading it up to the damage.",
+        metavar="",
+    ),
+]
+KeepGoing = Annotated[
+    bool,
+    typer.Option(
+        "--keep-going",
+        help="Process every log even if some fail; report each failure, exit 2 at the end (3 "
+        "when a failure was a defect in twincd).",
+        metavar="",
+    ),
+]
+AllowUrdfChange = Annotated[
+    bool,
+    typer.Option(
+        "--allow-urdf-change",
+        help="Use a robot URDF that changed since the calibration was fitted (its sha256 "
+        "differs) when the change does not affect dynamics; refused otherwise.",
+        metavar="",
+    ),
+]
+Force = Annotated[
+    bool,
+    typer.Option(
+        "--force",
+        help="Overwrite an output even if it is not twincd's own output of its kind (never an "
+        "input of the run, nor a read-only file).",
+        metavar="",
+    ),
+]
+
+CalibrationIn = Annotated[
+    Path, typer.Option("--calibration", "-c", help="Calibration JSON written by `twincd fit`.")
+]
+Cutoff = Annotated[
+    float | None,
+    typer.Option(
+        "--cutoff",
+        help=f"Low-pass cut-off in Hz (default {DEFAULT_CUTOFF_HZ:g}; "
+        f"{DEFAULT_CAUSAL_CUTOFF_HZ:g} with --causal).",
+        min=0.0,
+    ),
+]
+FilterOrder = Annotated[
+    int | None,
+    typer.Option("--filter-order", help=f"Low-pass filter order (default {DEFAULT_ORDER}).", min=1),
+]
+FilterKind = Annotated[
+    str | None,
+    typer.Option(
+        "--filter-kind",
+        help="Low-pass kind: butterworth, or critical (no overshoot, no ringing around a "
+        "push). Default: butterworth; fit: critical for the identified models.",
+    ),
+]
+Causal = Annotated[
+    bool | None,
+    typer.Option(
+        "--causal/--zero-phase",
+        help="Filter forward only, as a live detector would (default: zero-phase).",
+        metavar="",
+    ),
+]
+
+
+def setup_options(*, joint_map: str | None = None, **given: Any) -> SetupOptions:
+    """The library settings of the options given (``--joint-map`` parsed)."""
+    from twincd.io.options import parse_joint_map
+
+    parsed = None if joint_map is None else parse_joint_map(joint_map)
+    return SetupOptions(joint_map=parsed, **given)
