@@ -80,7 +80,7 @@ def _write_reports(
 
     settings = calibration_settings(cal) if cal is not None else []
     if report is not None:
-        evaluation_report(report, result, missed, settings)
+        evaluation_report(report, result, missed, settings, gates)
         log.info("wrote %s", report)
     if junit is not None:
         write_text(junit, evaluation_junit(result, *gates))

@@ -227,18 +227,25 @@ def test_evaluate_report_and_junit_per_gate(cal, twin_dataset, tmp_path):
     assert "| proposed |" in md.read_text()
 
 
-def test_evaluate_report_shows_event_metrics(cal, twin_dataset, tmp_path):
-    from twincd.evaluation.reports import evaluation_markdown
+@pytest.fixture(scope="module")
+def evaluation(twin_calibration, twin_dataset):
+    """``evaluate -m proposed`` on the twin dataset's test logs, as the library returns it."""
     from twincd.evaluation.runner import evaluate
-    from twincd.reports import evaluation_html
 
-    calibration = Calibration.load(cal)
-    result = evaluate(
+    calibration = Calibration.load(twin_calibration)
+    return evaluate(
         sorted((twin_dataset / "test").iterdir()),
         ["proposed"],
         Setup.from_calibration(calibration),
         calibration=calibration,
     )
+
+
+def test_evaluate_report_shows_event_metrics(evaluation, tmp_path):
+    from twincd.evaluation.reports import evaluation_markdown
+    from twincd.reports import evaluation_html
+
+    result = evaluation
     method = result.methods[0]
     assert method.roc and method.roc[0] == (0.0, 0.0) and method.roc[-1] == (1.0, 1.0)
     found = f"{method.events['events_detected']:g}/{method.events['events_total']:g}"
@@ -249,8 +256,48 @@ def test_evaluate_report_shows_event_metrics(cal, twin_dataset, tmp_path):
     from twincd.reports.figures import evaluation_figure
 
     fig = evaluation_figure(result)
-    assert len(fig.axes) == 3  # ROC, F1 against k, events
+    assert len(fig.axes) == 4  # ROC, F1 against k, event counts, delays
     assert_drawn(fig, tmp_path / "evaluate")
+
+
+def test_evaluate_event_charts_keep_one_unit_per_axis(evaluation):
+    """Counts and milliseconds never share an axis: each bar chart holds the metrics of one unit,
+    says it on its y axis, and its bars are those metrics' values."""
+    from twincd.reports.figures import evaluation_figure
+
+    events = evaluation.methods[0].to_dict()
+    counts = {"events detected": events["events_detected"], "false alarms": events["false_alarms"]}
+    delays = {"median": events["delay_ms_median"], "p95": events["delay_ms_p95"]}
+    fig = evaluation_figure(evaluation)
+    charts = {}
+    for ax in fig.axes:
+        bars = [p for p in ax.patches if p.get_width() > 0]
+        if bars:
+            ticks = [t.get_text() for t in ax.get_xticklabels()]
+            charts[ax.get_ylabel()] = dict(zip(ticks, [b.get_height() for b in bars], strict=True))
+    assert charts == {"count": pytest.approx(counts), "ms": pytest.approx(delays)}
+    fig.clf()
+
+
+def test_evaluate_html_shows_gates_only_when_given(evaluation):
+    from twincd.reports import evaluation_html
+
+    no_gates = evaluation_html(evaluation)
+    assert "Gates" not in no_gates and 'class="verdict' not in no_gates
+    passed = evaluation_html(evaluation, gates=(0.0, 0.25))
+    assert '<p class="verdict good">Gates passed: F1 ≥ 0, AUC ≥ 0.25</p>' in passed
+    missed = evaluation_html(evaluation, ["proposed: F1 0.500 < 0.9"], gates=(0.9, None))
+    assert '<p class="verdict bad">1 gate(s) missed</p>' in missed and "Gates passed" not in missed
+    assert "<li>proposed: F1 0.500 &lt; 0.9</li>" in missed
+
+
+def test_evaluate_cli_report_without_gates_claims_none(cal, twin_dataset, tmp_path):
+    html = tmp_path / "e.html"
+    args = ["evaluate", twin_dataset / "test", "-c", cal, "--no-summary", "--report", html]
+    assert run(*args).exit_code == 0
+    assert "Gates" not in html.read_text()
+    assert run(*args, "--min-auc", "0.0").exit_code == 0
+    assert "Gates passed: AUC ≥ 0" in html.read_text()
 
 
 def test_fit_report_has_one_scatter_per_joint(twin_dataset, tmp_path):

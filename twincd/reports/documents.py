@@ -173,13 +173,35 @@ def detection_report(
 # ------------------------------------------------------------------ evaluate
 
 
+Gates = tuple[float | None, float | None]
+"""The gates of ``evaluate`` as given: (``--min-f1``, ``--min-auc``), ``None`` when not given."""
+
+
+def gate_texts(gates: Gates) -> list[str]:
+    """The gates given, as people read them (``F1 ≥ 0.6``); empty when none was given."""
+    min_f1, min_auc = gates
+    texts = [] if min_f1 is None else [f"F1 ≥ {min_f1:g}"]
+    return texts + ([] if min_auc is None else [f"AUC ≥ {min_auc:g}"])
+
+
+def _gate_verdict(missed: Sequence[str], gates: Gates) -> list[str]:
+    """The gates' verdict: missed, passed (naming the gates), or nothing when none was given."""
+    if missed:
+        return [html.verdict(f"{len(missed)} gate(s) missed", True)]
+    given = gate_texts(gates)
+    return [html.verdict(f"Gates passed: {', '.join(given)}", False)] if given else []
+
+
 def evaluation_html(
-    result: Evaluation, missed: Sequence[str] = (), settings: Sequence[tuple[str, str]] = ()
+    result: Evaluation,
+    missed: Sequence[str] = (),
+    settings: Sequence[tuple[str, str]] = (),
+    gates: Gates = (None, None),
 ) -> str:
     from twincd.reports.figures import evaluation_figure, svg_text
 
     summary = [
-        html.verdict(f"{len(missed)} gate(s) missed" if missed else "Gates passed", bool(missed)),
+        *_gate_verdict(missed, gates),
         f"<p>{len(result.test_logs)} test log(s), {result.samples} samples, "
         f"{result.positives} labelled as collision.</p>",
         html.table(EVALUATION_COLUMNS, evaluation_rows(result)),
@@ -194,7 +216,7 @@ def evaluation_html(
         summary += [f"<li>{html.escape(m)}</li>" for m in missed] + ["</ul>"]
     if notes:
         summary += ["<ul>"] + [f"<li>{html.escape(n)}</li>" for n in notes] + ["</ul>"]
-    caption = "ROC curves and F1 against k" + (", events" if rows else "")
+    caption = "ROC curves and F1 against k" + (", event counts and delays" if rows else "")
     figures = [html.figure(svg_text(evaluation_figure(result)), caption)]
     all_settings = [
         *settings,
@@ -210,9 +232,10 @@ def evaluation_report(
     result: Evaluation,
     missed: Sequence[str] = (),
     settings: Sequence[tuple[str, str]] = (),
+    gates: Gates = (None, None),
 ) -> None:
     if Path(path).suffix.lower() == ".html":
-        write_text(path, evaluation_html(result, missed, settings))
+        write_text(path, evaluation_html(result, missed, settings, gates))
     else:
         write_text(path, evaluation_markdown(result, missed))
 

@@ -25,12 +25,20 @@ if TYPE_CHECKING:
 
 WIDTH_IN = 10.0
 DPI = 100  # 1000 pixels wide: one envelope column per pixel
-EVENT_METRICS = (
-    ("events_detected", "events detected"),
-    ("false_alarms", "false alarms"),
-    ("delay_ms_median", "median delay (ms)"),
-    ("delay_ms_p95", "p95 delay (ms)"),
+# the event metrics drawn, one chart per unit: (metrics as (key, label), title, unit)
+EVENT_CHARTS = (
+    (
+        (("events_detected", "events detected"), ("false_alarms", "false alarms")),
+        "events at the threshold",
+        "count",
+    ),
+    (
+        (("delay_ms_median", "median"), ("delay_ms_p95", "p95")),
+        "detection delay",
+        "ms",
+    ),
 )
+EVENT_METRICS = tuple(metric for metrics, _, _ in EVENT_CHARTS for metric in metrics)
 
 
 def pyplot() -> Any:
@@ -129,12 +137,12 @@ def detection_figure(summary: DetectionSummary, trace: DetectionTrace) -> Any:
 
 
 def evaluation_figure(result: Evaluation) -> Any:
-    """ROC curves of every method on one axis, F1 against k (μ + kσ) per method, and the
-    event-metrics comparison when the results carry it."""
+    """ROC curves of every method on one axis, F1 against k (μ + kσ) per method and, when the
+    results carry event metrics, below them one bar chart per unit: event counts, delays in ms."""
     ran = [m for m in result.methods if m.skipped is None]
-    with_events = [(m, event_metrics(m)) for m in ran if event_metrics(m)]
-    cols = 3 if with_events else 2
-    fig, axes = _figure(1, cols, 3.8)
+    with_events = [(m.name, event_metrics(m)) for m in ran if event_metrics(m)]
+    rows = 2 if with_events else 1
+    fig, axes = _figure(rows, 2, 3.8 * rows)
     roc, sweep = axes[0, 0], axes[0, 1]
     for m in ran:
         label = m.name if m.auc is None else f"{m.name} (AUC {m.auc:.3f})"
@@ -153,18 +161,28 @@ def evaluation_figure(result: Evaluation) -> Any:
     sweep.set_ylim(0, 1.01)
     sweep.legend(fontsize=7)
     if with_events:
-        bars = axes[0, 2]
-        names = [label for key, label in EVENT_METRICS]
-        width = 0.8 / len(with_events)
-        x = np.arange(len(names))
-        for i, (m, events) in enumerate(with_events):
-            heights = [float(events.get(key) or 0.0) for key, _ in EVENT_METRICS]
-            bars.bar(x + i * width, heights, width, label=m.name)
-        bars.set_xticks(x + 0.4 - width / 2, names, rotation=20, ha="right")
-        bars.set_title("events")
-        bars.legend(fontsize=7)
+        for ax, (metrics, title, unit) in zip(axes[1], EVENT_CHARTS, strict=True):
+            _event_bars(ax, with_events, metrics, title, unit)
     fig.tight_layout()
     return fig
+
+
+def _event_bars(
+    ax: Any,
+    methods: Sequence[tuple[str, dict[str, Any]]],
+    metrics: Sequence[tuple[str, str]],
+    title: str,
+    unit: str,
+) -> None:
+    """Grouped bars: one group per metric (all in ``unit``), one bar per method."""
+    width = 0.8 / len(methods)
+    x = np.arange(len(metrics))
+    for i, (name, values) in enumerate(methods):
+        heights = [float(values.get(key) or 0.0) for key, _ in metrics]
+        ax.bar(x + i * width, heights, width, label=name)
+    ax.set_xticks(x + 0.4 - width / 2, [label for _, label in metrics])
+    ax.set(title=title, ylabel=unit)
+    ax.legend(fontsize=7)
 
 
 def event_metrics(method: Any) -> dict[str, Any]:
