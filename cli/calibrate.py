@@ -240,14 +240,14 @@ def threshold(
 
 def threshold_line(th: Threshold) -> str:
     """What ``threshold`` prints: the method, the budget, the threshold and its interval."""
+    mu, sigma = ("μ (median)", "σ (MAD)") if th.estimator == "median-mad" else ("μ", "σ")
     line = (
-        f"μ = {th.mu:.6g}  σ = {th.sigma:.6g}  threshold = μ + {th.k_sigma:.4g}σ = {th.value:.6g}"
+        f"{mu} = {th.mu:.6g}  {sigma} = {th.sigma:.6g}  "
+        f"threshold = μ + {th.k_sigma:.4g}σ = {th.value:.6g}"
     )
     seen = f"{th.samples} samples, {len(th.logs)} log(s)"
     tail = th.tail
     if tail is None:
-        if th.estimator == "median-mad":
-            line = line.replace("μ =", "μ (median) =").replace("σ =", "σ (MAD) =")
         return f"k-sigma: {line}  ({seen})"
     high = "∞" if tail.high is None else f"{tail.high:.6g}"
     hours = (th.judged_s or 0.0) / 3600.0

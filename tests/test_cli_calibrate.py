@@ -11,7 +11,10 @@ from clitools import assert_one_line_error, run
 @pytest.fixture(scope="module")
 def fitted(twin_dataset, tmp_path_factory):
     cal = tmp_path_factory.mktemp("cal") / "cal.json"
-    result = run("fit", twin_dataset / "train", "-o", cal, "--cutoff", "2", "--filter-order", "3")
+    result = run(
+        "fit", twin_dataset / "train", "-o", cal, "--cutoff", "2", "--filter-order", "3",
+        "--model", "affine",
+    )  # fmt: skip
     assert result.exit_code == 0, result.output
     return cal, result
 

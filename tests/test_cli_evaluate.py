@@ -12,14 +12,14 @@ from clitools import assert_one_line_error, run
 @pytest.fixture(scope="module")
 def cal(twin_dataset, tmp_path_factory):
     path = tmp_path_factory.mktemp("evaluate") / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
+    assert run("fit", twin_dataset / "train", "-o", path, "-q", "--model", "affine").exit_code == 0
     assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
     return path
 
 
 def test_end_to_end_fit_threshold_detect_evaluate(twin_dataset, tmp_path):
     cal = tmp_path / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", cal).exit_code == 0
+    assert run("fit", twin_dataset / "train", "-o", cal, "--model", "affine").exit_code == 0
     assert run("threshold", twin_dataset / "val", "-c", cal).exit_code == 0
     assert run("detect", twin_dataset / "test" / "test_0.mcap", "-c", cal).exit_code == 1
     assert run("detect", twin_dataset / "val" / "val_0.mcap", "-c", cal).exit_code == 0
@@ -99,7 +99,10 @@ def test_errors(cal, twin_dataset, tmp_path, twin_log):
         run("evaluate", twin_dataset / "test", "-c", cal, "--cutoff", "7"), "contradicts"
     )
     fitted_only = tmp_path / "fit.json"
-    assert run("fit", twin_dataset / "train", "-o", fitted_only, "-q").exit_code == 0
+    assert (
+        run("fit", twin_dataset / "train", "-o", fitted_only, "-q", "--model", "affine").exit_code
+        == 0
+    )
     no_threshold = run("evaluate", twin_dataset / "test", "-c", fitted_only)
     assert_one_line_error(no_threshold, "no threshold")
     assert_one_line_error(no_threshold, "(option -c/--calibration)")

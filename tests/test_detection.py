@@ -70,7 +70,7 @@ def test_runs_and_events_from_a_flag_vector():
 @pytest.fixture(scope="module")
 def calibrated(twin_dataset):
     setup = Setup(lowpass=LowPass(2.0))
-    cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup)
+    cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup, "affine")
     val = setup.prepare_all(expand_logs([twin_dataset / "val"]))
     return calibrate_threshold(val, cal, 4.0)
 
@@ -207,7 +207,7 @@ def test_filter_edges_never_flag_but_the_middle_does(tmp_path, twin_dataset):
     from twincd.threshold import threshold_calibration
 
     setup = Setup(lowpass=LowPass(1.0))
-    cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup)
+    cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup, "affine")
     cal = threshold_calibration(expand_logs([twin_dataset / "val"]), cal, setup)
     at_end = build_twin_log(tmp_path / "end.mcap", seed=7, bumps=[(15.8, 0.2, 8.0)], labels=False)
     middle = build_twin_log(tmp_path / "mid.mcap", seed=7, bumps=[(8.0, 0.2, 8.0)], labels=False)

@@ -83,7 +83,7 @@ def split(twin_dataset):
 @pytest.fixture(scope="module")
 def calibration(split):
     setup = Setup(lowpass=LowPass(2.0))
-    cal = fit_calibration(split["train"], setup)
+    cal = fit_calibration(split["train"], setup, "affine")
     return calibrate_threshold(setup.prepare_all(split["val"]), cal, 4.0)
 
 

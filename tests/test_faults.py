@@ -24,6 +24,8 @@ from conftest import TWIN_JOINTS, build_twin_log
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from twincd.calibration import Calibration
+
 settings.register_profile(
     "ci", max_examples=40, deadline=None, suppress_health_check=list(HealthCheck)
 )
@@ -342,8 +344,9 @@ def test_short_logs_are_refused(world, tmp_path):
 
 def test_a_log_mostly_at_the_filter_edges_is_warned_about(world, tmp_path):
     # 1.5 s at 1 Hz: 1 s of edge spans, 0.5 s judged (all of it within them: too short to
-    # judge, tests/test_real_signals.py)
-    log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5)
+    # judge, tests/test_real_signals.py); as long in cut-off periods at another cut-off
+    cutoff = Calibration.load(world["cal"]).lowpass.cutoff_hz
+    log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5 / cutoff)
     result = run("detect", log, "-c", world["cal"], "--json")
     assert result.exit_code == 0 and "within the filter's edge spans" in result.stderr
     assert any("edge spans" in w for w in json.loads(result.stdout)["warnings"])

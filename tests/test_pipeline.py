@@ -195,7 +195,7 @@ def test_joint_order_comes_from_names_not_from_the_first_log(twin_log, tmp_path:
             prepared.effort[:, i], raw.effort[:, raw.joint_names.index(name)]
         )
     parts = [fit_log(p, setup) for p in (a, b)]
-    one, other = merge_fits(parts, setup), merge_fits(parts[::-1], setup)
+    one, other = merge_fits(parts, setup, "affine"), merge_fits(parts[::-1], setup, "affine")
     assert one.joint_names == other.joint_names == ("j1", "j2", "j3")
     np.testing.assert_array_equal(one.a, other.a)
     np.testing.assert_array_equal(one.b, other.b)

@@ -294,7 +294,7 @@ def test_a_panda_with_its_fingers_through_every_command(tmp_path):
     twin = read_log(tmp_path / "train.twin.mcap")
     assert twin.sim_effort is not None and np.isfinite(twin.select(PANDA_ARM).sim_effort).all()
     cal = tmp_path / "cal.json"
-    assert run("fit", train, "--robot", "panda", "-o", cal).exit_code == 0
+    assert run("fit", train, "--robot", "panda", "-o", cal, "--model", "affine").exit_code == 0
     assert json.loads(cal.read_text())["robot"]["joint_names"] == list(PANDA_ARM)
     assert run("threshold", val, "-c", cal).exit_code == 0
     found = run("detect", test, "-c", cal, "--json")

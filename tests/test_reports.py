@@ -81,7 +81,7 @@ def test_fit_figure_is_drawn(twin_dataset, tmp_path):
 
     setup = Setup()
     both = [fit_log_with_pairs(p, setup) for p in sorted((twin_dataset / "train").iterdir())]
-    cal = merge_fits([part for part, _ in both], setup)
+    cal = merge_fits([part for part, _ in both], setup, "affine")
     pairs = ThinnedPairs.merge([p for _, p in both])
     assert pairs.seen == cal.fit_samples
     assert_drawn(fit_figure(cal, pairs), tmp_path / "fit")

@@ -149,6 +149,7 @@ def detect(
             "stamp_ns": log.states.stamp_ns,
             "effort_f": log.effort_f,
             "sim_effort_f": log.sim_effort_f,
+            "velocity": log.states.velocity,
             "velocity_f": log.velocity_f,
             "coulomb_f": log.coulomb_f,
             "regressor_f": log.regressor_f,
