@@ -137,11 +137,25 @@ def twin_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def twin_calibration(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A calibration (fit on twin_dataset/train, threshold on val) shared by many tests
-    (read-only: copy it before changing it)."""
+    """The paper's calibration (``--model affine``, fit on twin_dataset/train, threshold on
+    val) shared by many tests (read-only: copy it before changing it)."""
     from clitools import run
 
     path = tmp_path_factory.mktemp("twin_calibration") / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
+    fit = run("fit", twin_dataset / "train", "-o", path, "-q", "--model", "affine")
+    assert fit.exit_code == 0
     assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
     return path
+
+
+@pytest.fixture(scope="session")
+def xarm_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small synthetic xArm 7 set (train 2, val 1, test 1 paths of 10–12 s), twin from the
+    robot model: what the identified models and the best model fit on."""
+    from clitools import run
+
+    root = tmp_path_factory.mktemp("xarm_dataset")
+    args = ["--seed", "3", "--train", "2", "--val", "1", "--test", "1"]
+    result = run("synth", root, *args, "--min-duration", "10", "--max-duration", "12", "-q")
+    assert result.exit_code == 0, result.output
+    return root

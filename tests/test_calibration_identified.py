@@ -174,15 +174,6 @@ def test_chunked_regressor_equals_the_whole_log(tmp_path: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def xarm_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("xarm_dataset")
-    args = ["--seed", "3", "--train", "2", "--val", "1", "--test", "1"]
-    result = run("synth", root, *args, "--min-duration", "10", "--max-duration", "12", "-q")
-    assert result.exit_code == 0, result.output
-    return root
-
-
-@pytest.fixture(scope="module")
 def identified_cal(xarm_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("identified") / "cal.json"
     model = ["--model", "identified-whitened"]

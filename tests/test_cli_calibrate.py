@@ -113,3 +113,30 @@ def test_a_process_pool_gives_the_same_calibration_in_any_log_order(twin_dataset
     assert pooled["model"] == serial["model"]
     for key in ("mu", "sigma", "value"):
         assert pooled["threshold"][key] == pytest.approx(serial["threshold"][key], rel=1e-12)
+
+
+@pytest.mark.parametrize("robot", [None, "xarm7"])
+def test_fit_without_a_model_fits_the_best_the_logs_allow(
+    robot, twin_dataset, xarm_dataset, tmp_path
+):
+    # logs with their own twin effort and no robot model: friction-whitened; with a robot
+    # model: identified-whitened. Said on stderr and in the calibration; the threshold is then
+    # μ + 4σ with the median and MAD; detect finds the bumps and passes the clean log.
+    data = twin_dataset if robot is None else xarm_dataset
+    cal = tmp_path / "cal.json"
+    args = [] if robot is None else ["--robot", robot]
+    fit = run("fit", data / "train", "-o", cal, *args)
+    assert fit.exit_code == 0, fit.output
+    kind = "friction-whitened" if robot is None else "identified-whitened"
+    assert f"model {kind}, the best these logs allow" in fit.stderr
+    doc = json.loads(cal.read_text())
+    assert doc["model"]["kind"] == kind and doc["model"]["statistic"] == "depth"
+    assert doc["filter"]["kind"] == "critical" and doc["filter"]["cutoff_hz"] == 1.5
+    threshold = run("threshold", data / "val", "-c", cal)
+    assert threshold.exit_code == 0, threshold.output
+    assert threshold.stdout.startswith("k-sigma: μ (median) = ")
+    assert json.loads(cal.read_text())["threshold"]["estimator"] == "median-mad"
+    tests = sorted((data / "test").glob("*.mcap"))
+    found = run("detect", *tests, "-c", cal, "--json")
+    assert found.exit_code == 1, found.output
+    assert sum(len(log["events"]) for log in json.loads(found.stdout)["logs"]) >= 1
