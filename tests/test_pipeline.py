@@ -216,13 +216,13 @@ def test_logs_with_other_joints_are_refused_together(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
     from twincd.errors import JointMismatchError
-    from twincd.pipeline import same_joints
+    from twincd.pipeline import agreed_joints
 
     logs: list[Any] = [
         SimpleNamespace(source="b", joint_names=("j1", "j2")),
         SimpleNamespace(source="a", joint_names=("j1", "j2")),
     ]
-    assert same_joints(logs) == ("j1", "j2")
+    assert agreed_joints(logs) == ("j1", "j2")
     logs.append(SimpleNamespace(source="c", joint_names=("j1", "k2")))
     with pytest.raises(JointMismatchError, match="different joints"):
-        same_joints(logs)
+        agreed_joints(logs)
