@@ -213,3 +213,16 @@ def test_filter_edges_never_flag_but_the_middle_does(tmp_path, twin_dataset):
     middle = build_twin_log(tmp_path / "mid.mcap", seed=7, bumps=[(8.0, 0.2, 8.0)], labels=False)
     assert detect_file(middle, cal, Setup.from_calibration(cal)).events
     assert not detect_file(at_end, cal, Setup.from_calibration(cal)).events
+
+
+def test_the_detect_module_is_not_shadowed_by_a_function():
+    """``twincd.detection.detect`` is the module whatever was imported before; the function
+    that scores a prepared log is ``detect_log``, and ``twincd.detect`` stays that function."""
+    import importlib
+
+    import twincd
+    import twincd.detection
+
+    module = importlib.import_module("twincd.detection.detect")
+    assert twincd.detection.detect is module
+    assert twincd.detect is twincd.detection.detect_log is module.detect_log
