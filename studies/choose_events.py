@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from twincd.calibration import Calibration
-from twincd.detection.detect import detect
+from twincd.detection.detect import detect_log
 from twincd.detection.events import RUNS, Event, EventRules, find_events
 from twincd.evaluation.metrics import EventCounts, event_counts
 from twincd.pipeline import PreparedLog, Setup
@@ -84,7 +84,7 @@ def scored(test: list[Path], cal_path: Path) -> Iterator[Scored]:
     setup = Setup.from_calibration(cal)
     for path in test:
         lg = setup.prepare(path)
-        det = detect(lg, cal, RUNS)
+        det = detect_log(lg, cal, RUNS)
         judged = np.ones(len(lg), dtype=bool) if lg.edge is None else ~lg.edge.astype(bool)
         yield Scored(lg, det.scores, det.flags, det.residual, judged, th.value, th.mu)
 

@@ -96,9 +96,11 @@ def main() -> int:
     print(f"{'test log':<16}{'found':>9}{'delay ms':>10}{'FA':>5}{'ev/push':>9}{'AUC':>7}")
     for r, m in zip(rotations, rows, strict=True):
         per = m["events_per_detected"] or float("nan")
+        delay = m["delay_ms_median"]
+        delay = float("nan") if delay is None else delay
         print(
             f"{r.test:<16}{m['events_detected']:>4.0f}/{m['events_total']:<4.0f}"
-            f"{m['delay_ms_median'] if m['delay_ms_median'] is not None else float('nan'):>10.0f}{m['false_alarms']:>5.0f}"
+            f"{delay:>10.0f}{m['false_alarms']:>5.0f}"
             f"{per:>9.2f}{m['auc']:>7.3f}"
         )
     print(

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from twincd.calibration import Calibration, Threshold, fit_calibration
-from twincd.detection import affine_score, detect, detect_file, find_events, residual, runs
+from twincd.detection import affine_score, detect_file, detect_log, find_events, residual, runs
 from twincd.errors import DataError, NotFittedError, OutputError
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.proposed import ProposedMethod
@@ -95,12 +95,12 @@ def test_threshold_streams_val_logs(calibrated, twin_dataset):
 
 def test_detect_finds_the_bumps_and_not_the_clean_log(calibrated, twin_dataset):
     setup = Setup.from_calibration(calibrated)
-    hit = detect(setup.prepare(twin_dataset / "test" / "test_0.mcap"), calibrated)
+    hit = detect_log(setup.prepare(twin_dataset / "test" / "test_0.mcap"), calibrated)
     assert len(hit.events) == len(DEFAULT_BUMPS)
     for event, (start, duration, _) in zip(hit.events, DEFAULT_BUMPS, strict=True):
         t = (event.start_ns - int(hit.log.states.stamp_ns[0])) * 1e-9
         assert start - 0.3 < t < start + duration
-    clean = detect(setup.prepare(twin_dataset / "val" / "val_0.mcap"), calibrated)
+    clean = detect_log(setup.prepare(twin_dataset / "val" / "val_0.mcap"), calibrated)
     assert clean.events == [] and not clean.flags.any()
     assert clean.to_dict()["collision_samples"] == 0
 
@@ -111,12 +111,12 @@ def test_detect_needs_a_threshold(calibrated, twin_dataset):
     bare: Calibration = replace(calibrated, threshold=None)
     log = Setup.from_calibration(bare).prepare(twin_dataset / "val" / "val_0.mcap")
     with pytest.raises(NotFittedError):
-        detect(log, bare)
+        detect_log(log, bare)
 
 
 def test_outputs_csv_jsonl_mcap(calibrated, twin_dataset, tmp_path):
     src = twin_dataset / "test" / "test_1.mcap"
-    result = detect(Setup.from_calibration(calibrated).prepare(src), calibrated)
+    result = detect_log(Setup.from_calibration(calibrated).prepare(src), calibrated)
     write_detection(result, src, tmp_path / "out.csv")
     rows = list(csv.DictReader((tmp_path / "out.csv").open()))
     assert len(rows) == 1600
@@ -213,3 +213,16 @@ def test_filter_edges_never_flag_but_the_middle_does(tmp_path, twin_dataset):
     middle = build_twin_log(tmp_path / "mid.mcap", seed=7, bumps=[(8.0, 0.2, 8.0)], labels=False)
     assert detect_file(middle, cal, Setup.from_calibration(cal)).events
     assert not detect_file(at_end, cal, Setup.from_calibration(cal)).events
+
+
+def test_the_detect_module_is_not_shadowed_by_a_function():
+    """``twincd.detection.detect`` is the module whatever was imported before; the function
+    that scores a prepared log is ``detect_log``, and ``twincd.detect`` stays that function."""
+    import importlib
+
+    import twincd
+    import twincd.detection
+
+    module = importlib.import_module("twincd.detection.detect")
+    assert twincd.detection.detect is module
+    assert twincd.detect is twincd.detection.detect_log is module.detect_log

@@ -216,13 +216,46 @@ def test_logs_with_other_joints_are_refused_together(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
     from twincd.errors import JointMismatchError
-    from twincd.pipeline import same_joints
+    from twincd.pipeline import agreed_joints
 
     logs: list[Any] = [
         SimpleNamespace(source="b", joint_names=("j1", "j2")),
         SimpleNamespace(source="a", joint_names=("j1", "j2")),
     ]
-    assert same_joints(logs) == ("j1", "j2")
+    assert agreed_joints(logs) == ("j1", "j2")
     logs.append(SimpleNamespace(source="c", joint_names=("j1", "k2")))
     with pytest.raises(JointMismatchError, match="different joints"):
-        same_joints(logs)
+        agreed_joints(logs)
+
+
+# ------------------------------------------------------------------ one chain
+
+
+@pytest.mark.parametrize("lowpass", [LowPass(), CAUSAL], ids=["zero-phase", "causal"])
+def test_the_chain_follows_joint_names_whatever_the_columns(lowpass: LowPass) -> None:
+    """``build_chain`` on frames whose columns are shuffled and carry a joint the twin does not
+    use gives, joint by joint, what it gives on frames in the twin's order."""
+    from types import SimpleNamespace
+
+    from twincd.chain import JointLayout, build_chain
+    from twincd.frames import Frame
+
+    rng = np.random.default_rng(3)
+    n, joints = 400, ("a", "b", "c")
+    stamps = 1_000_000_000 + np.arange(n, dtype=np.int64) * 10_000_000
+    arrays = {k: rng.normal(size=(n, 3)) for k in ("position", "velocity", "effort", "sim_effort")}
+    settings: Any = SimpleNamespace(lowpass=lowpass, coulomb_eps=(0.01,))
+
+    def run(columns: tuple[str, ...], output: tuple[str, ...]) -> Frame:
+        picked = [joints.index(c) if c in joints else 0 for c in columns]
+        frame = Frame({"stamp_ns": stamps, **{k: v[:, picked] for k, v in arrays.items()}})
+        built = build_chain(settings, JointLayout(columns, joints, output), 0.01, None, False)
+        assert built.joint_names == output
+        return Frame.concat([built.chain.push(frame), built.chain.finish()])
+
+    plain = run(joints, joints)
+    shuffled = run(("c", "extra", "a", "b"), ("b", "c", "a"))
+    for k in ("effort_f", "sim_effort_f", "velocity_f"):
+        np.testing.assert_array_equal(shuffled[k], plain[k][:, [1, 2, 0]])
+    np.testing.assert_array_equal(shuffled["coulomb_f"], plain["coulomb_f"][:, :, [1, 2, 0]])
+    assert ("edge" in plain) is not lowpass.causal  # edges only for the zero-phase filter

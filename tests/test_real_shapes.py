@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from twincd.calibration import Calibration
-from twincd.detection import detect
+from twincd.detection import detect_log
 from twincd.pipeline import Setup, read_log
 
 # an extra joint before, after and among the arm's (j1..j3)
@@ -253,7 +253,7 @@ def test_a_joint_named_twice_keeps_its_first_value_with_a_warning(plain, tmp_pat
 def panda_log(path: Path, seed: int, bump: bool) -> Path:
     """A Panda-shaped log: the arm's seven joints, then the two fingers (franka_ros), with
     effort = the Panda's inverse dynamics (+ a labelled push when ``bump``)."""
-    from twincd.pipeline import robot_for
+    from twincd.chain import robot_for
     from twincd.twin.dynamics import inverse_dynamics
 
     n, period, t0 = 1200, 10_000_000, 1_700_000_000_000_000_000
@@ -322,11 +322,11 @@ def test_a_panda_with_its_fingers_through_every_command(tmp_path):
 def test_joint_order_and_extra_joints_never_change_scores(plain, order, extras, at):
     calibration = Calibration.load(plain["cal"])
     setup = Setup.from_calibration(calibration)
-    reference = detect(setup.prepare(plain["logs"]["test"]), calibration).scores
+    reference = detect_log(setup.prepare(plain["logs"]["test"]), calibration).scores
     names = [*order[:at], *extras, *order[at:]]
     with tempfile.TemporaryDirectory() as tmp:
         path = build_twin_log(
             Path(tmp) / "t.mcap", seed=200, bumps=DEFAULT_BUMPS, state_joints=names
         )
-        scores = detect(setup.prepare(path), calibration).scores
+        scores = detect_log(setup.prepare(path), calibration).scores
     np.testing.assert_array_equal(scores, reference)

@@ -131,7 +131,7 @@ def test_flipped_effort_is_mostly_flagged(tmp_path: Path) -> None:
     assert code == 1
     (line,) = doubts(doc["warnings"], "judged samples are flagged", "does not fit this log")
     assert str(log) in line and "sign" in line
-    # the causal calibration streams through the live detector: it says the same
+    # the causal calibration (the chain live detection runs) says the same
     code, doc, _ = detect_json(log, "-c", SAMPLES / "calibration.causal.json")
     assert doubts(doc["warnings"], "does not fit this log")
 

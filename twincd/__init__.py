@@ -7,7 +7,8 @@ type checkers see the real types):
 - prepare (read → twin → filter): ``Setup`` (``.open(path)`` streams, ``.prepare(path)`` whole),
   resolved from ``SetupOptions`` (settings by name, checked against a calibration's)
 - calibrate: ``Calibration``, ``fit_calibration``, ``threshold_calibration``
-- detect: ``detect`` (a prepared log), ``detect_file`` (a log streamed), ``OnlineDetector`` (live)
+- detect: ``detect`` (a prepared log: ``twincd.detection.detect_log``), ``detect_file`` (a log
+  streamed), ``OnlineDetector`` (live)
 - many logs: ``run_logs`` (a per-log function over paths: local processes or Dask, keep-going)
 
 Arguments come in one order: inputs, calibration, settings
@@ -23,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from twincd.calibration import Calibration, fit_calibration
     from twincd.detection import OnlineDetector, detect_file
-    from twincd.detection.detect import detect
+    from twincd.detection.detect import detect_log as detect
     from twincd.errors import TwincdError
     from twincd.io.logs import expand_logs
     from twincd.io.options import LogOptions
@@ -37,6 +38,7 @@ try:
 except PackageNotFoundError:  # running from a source tree that was never installed
     __version__ = "0.0.0+unknown"
 
+# name → "module" or "module:attribute" (when the library names it otherwise)
 _EXPORTS = {
     "LogOptions": "twincd.io.options",
     "read_log": "twincd.pipeline",
@@ -46,7 +48,7 @@ _EXPORTS = {
     "Calibration": "twincd.calibration",
     "fit_calibration": "twincd.calibration",
     "threshold_calibration": "twincd.threshold",
-    "detect": "twincd.detection",
+    "detect": "twincd.detection:detect_log",
     "detect_file": "twincd.detection",
     "OnlineDetector": "twincd.detection",
     "run_logs": "twincd.run",
@@ -76,9 +78,10 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
+    target = _EXPORTS.get(name)
+    if target is None:
         raise AttributeError(f"module 'twincd' has no attribute {name!r}")
-    value = getattr(import_module(module), name)
+    module, _, attribute = target.partition(":")
+    value = getattr(import_module(module), attribute or name)
     globals()[name] = value
     return value

@@ -262,7 +262,7 @@ def _match_robot(
     found.ignored = tuple(j for j in in_log if j not in full.joint_names)
     found.locked = tuple(j for j in full.joint_names if j not in in_log)
     if calibration is not None and not has_own_twin:
-        from twincd.pipeline import check_urdf
+        from twincd.chain import check_urdf
 
         check_urdf(full, calibration.urdf_sha256, allow_urdf_change, found.path)
     return load_robot(name, keep=in_log)  # the model detect will use (its warnings too)

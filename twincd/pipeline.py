@@ -1,11 +1,12 @@
-"""From a log on disk to the arrays every method works on, block by block: read, twin (or the
-log's own ``/twincd/sim_effort``), low-pass filter.
+"""From a log on disk to the arrays every method works on: a log streamed block by block
+(``Setup.open``, a ``PreparedStream``) or whole (``Setup.prepare``, a ``PreparedLog``), read and
+sent down the chain of ``twincd.chain`` (twin, or the log's own ``/twincd/sim_effort``, then the
+low-pass filter).
 
-One chain of stages (twincd.frames) serves every use: ``Setup.open(path)`` streams a log of any
-length at flat memory (what ``fit``, ``threshold``, ``detect`` and ``simulate`` use),
-``Setup.prepare(path)`` concatenates the same blocks into one ``PreparedLog`` (what ``evaluate``
-and the baselines use on sample-sized logs), and ``twincd.detection.OnlineDetector`` feeds the
-same stages with live samples.
+``Setup.open(path)`` streams a log of any length at flat memory (what ``fit``, ``threshold``,
+``detect`` and ``simulate`` use); ``Setup.prepare(path)`` concatenates the same blocks into one
+``PreparedLog`` (what ``evaluate`` and the baselines use on sample-sized logs).
+``twincd.detection.OnlineDetector`` builds the same chain for live samples.
 
 Sampling rate and gaps: a log's nominal period is the calibration's (``Setup.period_s``) when
 there is one, so batch and live detection filter alike; otherwise the median interval of the
@@ -19,22 +20,22 @@ import logging
 import re
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from twincd.chain import JointLayout, TwinChain, build_chain, check_urdf, model_joints, robot_for
 from twincd.defaults import DEFAULT_ROBOT
-from twincd.errors import CalibrationError, DataError, JointMismatchError
-from twincd.frames import Chain, Derived, Frame, Mapped, Stage, prefetched
+from twincd.errors import DataError, JointMismatchError
+from twincd.frames import Frame, prefetched
 from twincd.io.logs import JointStates
 from twincd.io.options import LogOptions
 from twincd.io.stream import iter_blocks, warn_ignored_joints
 from twincd.signal.checks import SignalChecks
 from twincd.signal.derivatives import differentiate
 from twincd.signal.filters import LowPass
-from twincd.types import BoolArray, FloatArray, IndexArray
+from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.io.stream import LogStream
@@ -101,156 +102,6 @@ class PreparedLog:
     @property
     def samples(self) -> int:
         return len(self.states)
-
-
-@lru_cache(maxsize=32)
-def model_joints(robot: str) -> tuple[str, ...]:
-    """The joints a robot model drives (a gripper's are not the twin's)."""
-    from twincd.twin.robot import load_robot
-
-    return load_robot(robot).joint_names
-
-
-def robot_for(robot: str, joints: tuple[str, ...]) -> RobotModel:
-    """The robot model reduced to ``joints`` (cached: loading a URDF costs milliseconds; a
-    URDF edited since is loaded again)."""
-    from twincd.twin.robot import file_version, resolve_urdf
-
-    return _robot_for(robot, joints, file_version(resolve_urdf(robot)))
-
-
-@lru_cache(maxsize=32)
-def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) -> RobotModel:
-    from twincd.twin.robot import load_robot
-
-    return load_robot(robot, keep=joints)
-
-
-# ------------------------------------------------------------------ the stages
-
-
-def pick_columns(columns: IndexArray) -> Mapped:
-    """Select and reorder the joint columns of every per-joint array: the output has exactly
-    ``len(columns)`` joints, whatever the frames carry beyond them."""
-    n = len(columns)
-    keep: IndexArray | slice = slice(0, n) if np.array_equal(columns, np.arange(n)) else columns
-
-    def pick(frame: Frame) -> Frame:
-        # a leading run of columns is a view (no copy); any other selection a copy
-        return frame.with_columns(**{k: frame[k][:, keep] for k in _JOINT_COLUMNS if k in frame})
-
-    return Mapped(pick)
-
-
-# per-joint arrays: joints on axis 1 (the regressor has a third axis, its parameters)
-_JOINT_COLUMNS = ("position", "velocity", "effort", "sim_effort", "regressor")
-
-
-def _fill_velocity(frame: Frame) -> Frame:
-    velocity = frame["velocity"]
-    filled = np.where(np.isfinite(velocity), velocity, frame["dq"])
-    return Frame({k: v for k, v in frame.items() if k != "dq"}).with_columns(velocity=filled)
-
-
-def twin_stages(
-    robot: RobotModel | None,
-    period_s: float,
-    causal: bool,
-    fill_velocity: bool,
-    threads: int | None = None,
-    regressor: RobotModel | None = None,
-) -> list[Stage]:
-    """Velocity (from position where the log has none), acceleration, τ̂ = RNEA(q, q̇, q̈), and
-    with ``regressor`` the joint-torque regressor Y(q, q̇, q̈) (column ``regressor``, (N, D, P);
-    the ``identified`` models).
-
-    Columns must be in the robot's joint order. ``robot`` None: the frames carry
-    ``sim_effort`` already, only the velocity (and the regressor) is completed.
-    """
-    from twincd.signal.derivatives import StreamingDerivative
-    from twincd.twin.dynamics import inverse_dynamics, torque_regressor
-
-    stages: list[Stage] = []
-    if fill_velocity:
-        dq = StreamingDerivative(period_s=period_s, causal=causal)
-        stages += [Derived(dq, "position", "dq"), Mapped(_fill_velocity)]
-    if robot is None and regressor is None:
-        return stages
-    ddq = StreamingDerivative(period_s=period_s, causal=causal)
-
-    def twin(frame: Frame) -> Frame:
-        q, v, a = frame["position"], frame["velocity"], frame["ddq"]
-        out = Frame({k: x for k, x in frame.items() if k != "ddq"})
-        if robot is not None:
-            out = out.with_columns(sim_effort=inverse_dynamics(robot, q, v, a, threads=threads))
-        if regressor is not None:
-            out = out.with_columns(regressor=torque_regressor(regressor, q, v, a))
-        return out
-
-    return [*stages, Derived(ddq, "velocity", "ddq"), Mapped(twin)]
-
-
-def filter_stages(
-    lowpass: LowPass,
-    period_s: float,
-    coulomb_eps: Sequence[float] = (),
-    regressor: BoolArray | None = None,
-) -> list[Stage]:
-    """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
-
-    With ``coulomb_eps`` (friction models), also the velocity (``velocity_f``) and tanh(q̇/ε)
-    for each ε (``coulomb_f``, (N, E, joints)) through the same filter, so that they lag as the
-    efforts do: the Coulomb friction steps where a joint turns, and only the step itself
-    filtered matches the filtered effort (tanh of the filtered velocity steps too sharply
-    there). With ``regressor`` (identified models: the (D, P) mask of the regressor's entries
-    that can be non-zero, ``twincd.twin.dynamics.regressor_mask``, in the frames' joint order),
-    the joint-torque regressor too, as ``regressor_f`` (N, kept): only the masked entries,
-    in row-major order (``PreparedLog`` has it whole, (N, D, P)). Without either, nothing more
-    is filtered: the seed's model costs what it did."""
-    from twincd.signal.filters import StreamingLowPass
-
-    eps = tuple(float(e) for e in coulomb_eps)
-    extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
-    kept = 0 if regressor is None else int(np.count_nonzero(regressor))
-
-    def stack(frame: Frame) -> Frame:
-        v = frame["velocity"]
-        friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
-        columns = [frame["effort"], frame["sim_effort"], *friction]
-        if regressor is not None:
-            columns.append(frame["regressor"][:, regressor])
-        rest = {k: x for k, x in frame.items() if k != "regressor"}
-        return Frame(rest, frame.n).with_columns(both=np.hstack(columns))
-
-    def split(frame: Frame) -> Frame:
-        both = frame["both_f"]
-        d = (both.shape[1] - kept) // (2 + extra)
-        rest = {k: v for k, v in frame.items() if k not in ("both", "both_f")}
-        out = Frame(rest).with_columns(effort_f=both[:, :d], sim_effort_f=both[:, d : 2 * d])
-        if eps:
-            out = out.with_columns(
-                velocity_f=both[:, 2 * d : 3 * d],
-                coulomb_f=both[:, 3 * d : (3 + len(eps)) * d].reshape(len(both), len(eps), d),
-            )
-        if regressor is not None:  # only the masked entries, (N, kept): no zeros copied
-            out = out.with_columns(regressor_f=both[:, (2 + extra) * d :])
-        return out
-
-    return [
-        Mapped(stack),
-        Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f", keep=False),
-        Mapped(split),
-        *edge_stages(lowpass, period_s),
-    ]
-
-
-def edge_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
-    """An ``edge`` column (1.0 within the zero-phase filter's edge span of a segment's ends,
-    else 0.0): no stage at all for a causal filter."""
-    from twincd.signal.filters import EdgeMarker, edge_span
-
-    span = edge_span(lowpass, period_s)
-    return [Derived(EdgeMarker(span, period_s), "stamp_ns", "edge")] if span else []
 
 
 # ------------------------------------------------------------------ one log, streamed
@@ -352,12 +203,10 @@ class PreparedStream:
                 break
         return head
 
-    def _set_up(self, first: Frame) -> tuple[Chain, IndexArray]:
-        """Decide, from the first samples, the twin source, the joints and the period."""
-        from twincd.signal import nominal_period
-
+    def _set_up(self, first: Frame) -> TwinChain:
+        """Decide, from the first samples, the twin source, the joints and the period, and
+        build the chain."""
         assert self._log is not None
-        setup = self.setup
         names = tuple(self._log.joint_names)
         if self.need_effort and "effort" not in first:
             raise DataError(
@@ -365,94 +214,108 @@ class PreparedStream:
                 f"{self.source}, {self.topic}",
                 "record JointState.effort; twincd compares it with the twin",
             )
-        sim = first.get("sim_effort")
-        use_log_sim = sim is not None and not self.force_simulate
-        if use_log_sim:
-            assert sim is not None
+        twin_names, model = self._twin_source(first.get("sim_effort"), names)
+        regressor = self._regressor(twin_names)
+        self.joint_names = self._output_joints(twin_names)
+        self.period_s = self._period(first["stamp_ns"])
+        layout = JointLayout(names, twin_names, self.joint_names)
+        velocity = first["velocity"][:, layout.to_twin]
+        fill = not bool(np.isfinite(velocity).all())
+        if fill:
+            warn_velocity_from_position(self.source, velocity, twin_names)
+        self.velocity_from_position = fill
+        robot = self.robot
+        self.checks = SignalChecks(twin_names, robot.position_limits if robot else {})
+        setup = self.setup
+        built = build_chain(
+            setup, layout, self.period_s, model, fill, regressor, setup.twin_threads, self.filtered
+        )
+        self.regressor_mask = built.regressor_mask
+        return built
+
+    def _twin_source(
+        self, sim: FloatArray | None, names: tuple[str, ...]
+    ) -> tuple[tuple[str, ...], RobotModel | None]:
+        """The joints the twin runs on, and the robot model that computes τ̂ (None: the log's
+        own twin effort, used when the log carries it and no simulation was forced); sets
+        ``robot`` (the model of those joints, if any) and ``simulated``."""
+        setup = self.setup
+        twin_names: tuple[str, ...] = ()
+        if sim is not None and not self.force_simulate:
             # a joint has the log's twin effort when most samples carry it (a NaN here and
             # there is a bad sample, dropped later)
             have = np.flatnonzero(np.isfinite(sim).mean(axis=0) > 0.5)
             twin_names = tuple(names[i] for i in have.tolist())
-            use_log_sim = bool(twin_names)
-        robot: RobotModel | None
-        if use_log_sim:
+        if twin_names:
             self.simulated = False
-            robot = robot_for(setup.robot, twin_names) if setup.robot else None
-            model = None
-            twin_names = joint_order(twin_names, robot)
+            self.robot = robot_for(setup.robot, twin_names) if setup.robot else None
+            twin_names = joint_order(twin_names, self.robot)
             warn_ignored_joints(self.source, names, twin_names, "the log's twin effort")
+            model = None
         else:
-            robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
+            self.robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
             twin_names = model.joint_names
             warn_ignored_joints(self.source, names, twin_names, "the robot model")
-        self.robot = robot
-        if robot is not None and (model is not None or self.regressor):
-            check_urdf(robot, setup.urdf_sha256, setup.allow_urdf_change, self.source)
-        regressor = None
+        if self.robot is not None and (model is not None or self.regressor):
+            check_urdf(self.robot, setup.urdf_sha256, setup.allow_urdf_change, self.source)
+        return twin_names, model
+
+    def _regressor(self, twin_names: tuple[str, ...]) -> RobotModel | None:
+        """The robot model whose joint-torque regressor the identified models need (None when
+        none is asked for, or ``regressor_optional`` and no model of every joint is known)."""
+        robot = self.robot
         usable = robot is not None and robot.joint_names == twin_names
-        if self.regressor and not usable and setup.regressor_optional:
+        if self.regressor and not usable and self.setup.regressor_optional:
             self.regressor = False  # evaluate: the identified methods are then skipped
-        if self.regressor:
-            if robot is None or not usable:
-                raise DataError(
-                    "the identified model needs the robot model of every joint (its URDF)",
-                    self.source,
-                    "name the robot the log was recorded on, or fit a model that needs no URDF "
-                    "(friction-whitened)",
-                    option="robot",
-                )
-            regressor = robot
-        final = twin_names
-        if setup.joint_names is not None:
-            missing = [n for n in setup.joint_names if n not in twin_names]
-            if missing:
-                raise JointMismatchError(
-                    f"the log lacks calibrated joint(s) {', '.join(missing)}",
-                    self.source,
-                    "use a calibration made for this robot, or a joint map",
-                )
-            extra = [n for n in twin_names if n not in setup.joint_names]
-            if extra:
-                raise JointMismatchError(
-                    f"the log has joint(s) {', '.join(extra)} that the calibration lacks "
-                    f"({len(setup.joint_names)} joints calibrated, {len(twin_names)} in the log)",
-                    self.source,
-                    "use a calibration made for this robot, or a joint map",
-                )
-            final = tuple(setup.joint_names)
-        self.joint_names = final
-        own = nominal_period(first["stamp_ns"])
-        self.period_s = setup.period_s or own
-        if setup.period_s and own > 0 and abs(own / setup.period_s - 1) > 0.05:
+        if not self.regressor:
+            return None
+        if robot is None or not usable:
+            raise DataError(
+                "the identified model needs the robot model of every joint (its URDF)",
+                self.source,
+                "name the robot the log was recorded on, or fit a model that needs no URDF "
+                "(friction-whitened)",
+                option="robot",
+            )
+        return robot
+
+    def _output_joints(self, twin_names: tuple[str, ...]) -> tuple[str, ...]:
+        """The joints out, in the calibration's order: exactly the twin's."""
+        calibrated = self.setup.joint_names
+        if calibrated is None:
+            return twin_names
+        missing = [n for n in calibrated if n not in twin_names]
+        if missing:
+            raise JointMismatchError(
+                f"the log lacks calibrated joint(s) {', '.join(missing)}",
+                self.source,
+                "use a calibration made for this robot, or a joint map",
+            )
+        extra = [n for n in twin_names if n not in calibrated]
+        if extra:
+            raise JointMismatchError(
+                f"the log has joint(s) {', '.join(extra)} that the calibration lacks "
+                f"({len(calibrated)} joints calibrated, {len(twin_names)} in the log)",
+                self.source,
+                "use a calibration made for this robot, or a joint map",
+            )
+        return tuple(calibrated)
+
+    def _period(self, stamp_ns: IntArray) -> float:
+        """The calibration's sampling period (said when the log's differs), else the log's."""
+        from twincd.signal import nominal_period
+
+        own = nominal_period(stamp_ns)
+        calibrated = self.setup.period_s
+        if calibrated and own > 0 and abs(own / calibrated - 1) > 0.05:
             log.warning(
                 "%s is sampled every %.4g ms, the calibration every %.4g ms; its filter and "
                 "gap rule follow the calibration",
                 self.source,
                 own * 1e3,
-                setup.period_s * 1e3,
+                calibrated * 1e3,
             )
-        to_twin = np.array([names.index(n) for n in twin_names], dtype=np.intp)
-        to_final = np.array([twin_names.index(n) for n in final], dtype=np.intp)
-        fill = not bool(np.isfinite(first["velocity"][:, to_twin]).all())
-        if fill:
-            warn_velocity_from_position(self.source, first["velocity"][:, to_twin], twin_names)
-        self.checks = SignalChecks(twin_names, robot.position_limits if robot else {})
-        causal = setup.lowpass.causal
-        stages: list[Stage] = [
-            pick_columns(to_twin),
-            *twin_stages(model, self.period_s, causal, fill, setup.twin_threads, regressor),
-            pick_columns(to_final),
-        ]
-        if self.filtered:
-            mask = None
-            if regressor is not None:
-                from twincd.twin.dynamics import regressor_mask
-
-                mask = regressor_mask(regressor)[to_final]  # robot order → the final one
-                self.regressor_mask = mask
-            stages += filter_stages(setup.lowpass, self.period_s, setup.coulomb_eps, mask)
-        self.velocity_from_position = fill
-        return Chain(stages), to_twin
+        return calibrated or own
 
     def __iter__(self) -> Iterator[Frame]:
         assert self._log is not None, "use PreparedStream as a context manager"
@@ -463,7 +326,8 @@ class PreparedStream:
                 "the log has no joint-state samples", self.source, "record joint states"
             )
         first = Frame.concat([_frame(b) for b in head])
-        chain, used = self._set_up(first)
+        built = self._set_up(first)
+        used = built.layout.to_twin
         needed = ["position", "effort"] + ([] if self.velocity_from_position else ["velocity"])
         if not self.simulated:
             needed.append("sim_effort")
@@ -487,7 +351,7 @@ class PreparedStream:
                 yield frame
 
         first_ns = last_ns = None
-        for out in chain.run(clean(frames())):
+        for out in built.chain.run(clean(frames())):
             if out.n:
                 first_ns = int(out["stamp_ns"][0]) if first_ns is None else first_ns
                 last_ns = int(out["stamp_ns"][-1])
@@ -507,6 +371,38 @@ class PreparedStream:
             seconds = 0.0 if first_ns is None or last_ns is None else (last_ns - first_ns) * 1e-9
             warn_short(self.source, self.samples, self.at_edges, seconds, self.setup.lowpass,
                        self.period_s)  # fmt: skip
+
+    def read_whole(self) -> PreparedLog:
+        """Every remaining frame of the stream, concatenated into one ``PreparedLog``."""
+        whole = Frame.concat(list(self))
+        states = JointStates(
+            source=self.source,
+            topic=self.topic,
+            joint_names=self.joint_names,
+            stamp_ns=whole["stamp_ns"],
+            log_time_ns=whole["log_time_ns"],
+            position=whole["position"],
+            velocity=whole["velocity"],
+            effort=whole["effort"],
+            velocity_from_position=self.velocity_from_position,
+            labels=whole.get("labels"),
+            sim_effort=None if self.simulated else whole["sim_effort"],
+        )
+        return PreparedLog(
+            states=states,
+            sim_effort=whole["sim_effort"],
+            effort_f=whole["effort_f"],
+            sim_effort_f=whole["sim_effort_f"],
+            velocity_f=whole.get("velocity_f"),
+            coulomb_f=whole.get("coulomb_f"),
+            coulomb_eps=self.coulomb_eps,
+            regressor_f=_whole_regressor(whole.get("regressor_f"), self.regressor_mask),
+            robot=self.robot,
+            simulated=self.simulated,
+            lowpass=self.setup.lowpass,
+            period_s=self.period_s,
+            edge=None if "edge" not in whole else whole["edge"] > 0,
+        )
 
 
 def min_judged_s(lowpass: LowPass, period_s: float) -> float:
@@ -652,11 +548,10 @@ class Setup:
     def prepare(self, path: str | Path) -> PreparedLog:
         """One whole log in memory (for sample-sized logs: evaluate, baselines, studies)."""
         with self.open(path) as stream:
-            whole = Frame.concat(list(stream))
-            return prepared_log(stream, whole, self.lowpass)
+            return stream.read_whole()
 
     def prepare_all(self, paths: Iterable[str | Path]) -> Iterator[PreparedLog]:
-        """Prepare logs lazily, each on its own (see ``joint_order``; ``same_joints`` checks
+        """Prepare logs lazily, each on its own (see ``joint_order``; ``agreed_joints`` checks
         that they agree)."""
         for path in paths:
             yield self.prepare(path)
@@ -732,7 +627,7 @@ class HasJoints(Protocol):
     def joint_names(self) -> tuple[str, ...]: ...
 
 
-def same_joints(logs: Iterable[HasJoints]) -> tuple[str, ...]:
+def agreed_joints(logs: Iterable[HasJoints]) -> tuple[str, ...]:
     """The joints (in order) every log has; logs with other joints are an error. The order
     comes from the robot model or the calibration, so it does not depend on which log came
     first."""
@@ -747,59 +642,6 @@ def same_joints(logs: Iterable[HasJoints]) -> tuple[str, ...]:
             option="joint_map",
         )
     return orders[0] if orders else ()
-
-
-def check_urdf(robot: RobotModel, expected: str | None, allow: bool, source: str) -> None:
-    """The URDF a calibration was fitted with (its sha256, ``expected``) must be the one its
-    twin runs on: a changed file is refused, or with ``allow`` said once for the log.
-    Calibrations that record no sha256 (older files, or fitted on a log's own twin effort
-    without a model) are not checked."""
-    if not expected or robot.urdf_sha256 == expected:
-        return
-    what = (
-        f"the URDF {robot.urdf_path} changed since the calibration was fitted "
-        f"(sha256 {robot.urdf_sha256[:12]}…, the calibration's {expected[:12]}…)"
-    )
-    if allow:
-        log.warning("%s: %s; using it as allowed", source, what)
-        return
-    raise CalibrationError(
-        what,
-        source,
-        "re-fit the calibration, or allow the change if it does not affect dynamics",
-        option="allow_urdf_change",
-    )
-
-
-def prepared_log(stream: PreparedStream, whole: Frame, lowpass: LowPass) -> PreparedLog:
-    states = JointStates(
-        source=stream.source,
-        topic=stream.topic,
-        joint_names=stream.joint_names,
-        stamp_ns=whole["stamp_ns"],
-        log_time_ns=whole["log_time_ns"],
-        position=whole["position"],
-        velocity=whole["velocity"],
-        effort=whole["effort"],
-        velocity_from_position=stream.velocity_from_position,
-        labels=whole.get("labels"),
-        sim_effort=None if stream.simulated else whole["sim_effort"],
-    )
-    return PreparedLog(
-        states=states,
-        sim_effort=whole["sim_effort"],
-        effort_f=whole["effort_f"],
-        sim_effort_f=whole["sim_effort_f"],
-        velocity_f=whole.get("velocity_f"),
-        coulomb_f=whole.get("coulomb_f"),
-        coulomb_eps=stream.coulomb_eps,
-        regressor_f=_whole_regressor(whole.get("regressor_f"), stream.regressor_mask),
-        robot=stream.robot,
-        simulated=stream.simulated,
-        lowpass=lowpass,
-        period_s=stream.period_s,
-        edge=None if "edge" not in whole else whole["edge"] > 0,
-    )
 
 
 def _whole_regressor(compact: FloatArray | None, mask: BoolArray | None) -> FloatArray | None:

@@ -26,7 +26,7 @@ from twincd.calibration.models import (
     uses_regressor,
 )
 from twincd.errors import DataError, UsageError
-from twincd.pipeline import PreparedStream, Setup, same_joints
+from twincd.pipeline import PreparedStream, Setup, agreed_joints
 
 if TYPE_CHECKING:
     from twincd.frames import FrameSink
@@ -133,7 +133,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
     parts = sorted(parts, key=lambda p: p.source)  # any completion order gives one answer
     if not parts:
         raise DataError("no logs to fit", "fit", "give at least one collision-free log")
-    names = same_joints(parts)  # from the robot model (or by name), whichever log is first
+    names = agreed_joints(parts)  # from the robot model (or by name), whichever log is first
     total = parts[0].stats
     for p in parts[1:]:
         total = total + p.stats
@@ -184,8 +184,8 @@ def _chain(
 ) -> tuple[tuple[str, ...] | None, tuple[int, ...] | None]:
     """Each joint's child link and depth, when the robot model can be loaded (else None: logs
     with their own twin effort need no model, and isolation then names joints' links less)."""
+    from twincd.chain import robot_for
     from twincd.errors import TwincdError
-    from twincd.pipeline import robot_for
     from twincd.twin.robot import child_links
 
     if robot is None:

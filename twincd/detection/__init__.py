@@ -5,7 +5,7 @@ from twincd.detection.detect import (
     DetectionSummary,
     LogDetection,
     ScoringStage,
-    detect,
+    detect_log,
 )
 from twincd.detection.events import Event, EventRules, EventTracker, find_events, runs
 from twincd.detection.files import detect_file
@@ -24,8 +24,8 @@ __all__ = [
     "OnlineResult",
     "ScoringStage",
     "affine_score",
-    "detect",
     "detect_file",
+    "detect_log",
     "find_events",
     "residual",
     "runs",

@@ -139,7 +139,7 @@ class LogDetection:
         }
 
 
-def detect(
+def detect_log(
     log: PreparedLog, calibration: Calibration, rules: EventRules | None = None
 ) -> LogDetection:
     """Score and flag every sample of ``log`` with a calibration that has a threshold."""

@@ -1,10 +1,11 @@
 """Live detection (contract: Live detection): samples pushed one at a time or in blocks of any size.
 
-The detector runs the calibration's causal chain — causal Savitzky–Golay derivative (the window
-ends at the newest sample), RNEA, causal Butterworth filter — and the same scoring and event
-stages as batch detection, so pushing a log in any chunking gives the scores, flags and events
-of ``twincd detect`` with that (causal) calibration. Every stage keeps bounded state: a few
-samples of derivative context, the filter's second-order sections, one open event.
+The detector runs the calibration's causal chain, built by ``twincd.chain.build_chain`` as for
+a log on disk — causal Savitzky–Golay derivative (the window ends at the newest sample), RNEA,
+causal Butterworth filter — and the same scoring and event stages as batch detection, so
+pushing a log in any chunking gives the scores, flags and events of ``twincd detect`` with that
+(causal) calibration. Every stage keeps bounded state: a few samples of derivative context, the
+filter's second-order sections, one open event.
 
 Latency: no stage holds a sample back, so each push returns a score for every sample it
 carried. What delays a detection is the causal low-pass filter itself: a step in effort shows
@@ -23,12 +24,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from twincd.chain import JointLayout, TwinChain, build_chain, check_urdf, robot_for
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
 from twincd.detection.events import Event, EventRules
 from twincd.errors import CalibrationError, DataError, JointMismatchError
-from twincd.frames import Chain, Frame, Stage
-from twincd.pipeline import check_urdf, filter_stages, pick_columns, robot_for, twin_stages
+from twincd.frames import Frame
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
@@ -109,13 +110,12 @@ class OnlineDetector:
                     "detect with the log's own twin effort",
                 )
         self._threads = threads
-        self._chain: Chain | None = None
+        self._chain: TwinChain | None = None
         self._fill = False
         self._scoring = ScoringStage(calibration, rules=rules)
         self._last_stamp: int | None = None
         self.samples = 0
         self.skipped = 0
-        self.last_frame = Frame()  # the scored samples of the latest push (for file writers)
 
     @property
     def latency_s(self) -> float:
@@ -127,32 +127,18 @@ class OnlineDetector:
         _, delay = signal.group_delay((b, a), w=[1e-3], fs=1.0 / self.period_s)
         return float(delay[0]) * self.period_s
 
-    def _build(self, fill: bool) -> Chain:
+    def _build(self, fill: bool) -> TwinChain:
+        """The calibration's chain on pushed columns (the calibration's joints, in its order)."""
         names = self.joint_names
-        cal = self.calibration
-        stages: list[Stage]
         robot = self.robot
-        if robot is None:
-            stages = twin_stages(None, self.period_s, True, fill)
-        else:
-            to_model = np.array([names.index(n) for n in robot.joint_names], dtype=np.intp)
-            back = np.array([robot.joint_names.index(n) for n in names], dtype=np.intp)
-            twin = None if self.use_sim else robot
-            regressor = robot if cal.regressor else None
-            stages = [
-                pick_columns(to_model),
-                *twin_stages(twin, self.period_s, True, fill, self._threads, regressor),
-                pick_columns(back),
-            ]
-        mask = None
-        if cal.regressor:
-            from twincd.twin.dynamics import regressor_mask
-
-            assert robot is not None  # the identified models always load it
-            mask = regressor_mask(robot)[back]  # robot order → the calibration's
-            self._scoring.regressor_mask = mask
-        stages += filter_stages(cal.lowpass, self.period_s, cal.coulomb_eps, mask)
-        return Chain(stages)
+        layout = JointLayout(names, names if robot is None else robot.joint_names, names)
+        twin = None if self.use_sim else robot
+        regressor = robot if self.calibration.regressor else None
+        built = build_chain(
+            self.calibration, layout, self.period_s, twin, fill, regressor, self._threads
+        )
+        self._scoring.regressor_mask = built.regressor_mask
+        return built
 
     def _columns(self, values: object, n: int, what: str) -> FloatArray:
         arr = np.asarray(values, dtype=np.float64)
@@ -213,7 +199,7 @@ class OnlineDetector:
                 "sim_effort": None if sim is None else sim[rows],
             }
         )
-        out = self._chain.push(frame)
+        out = self._chain.chain.push(frame)
         if out.n != len(rows):  # every stage is causal: nothing may be held back
             raise RuntimeError(f"causal chain returned {out.n} of {len(rows)} samples")
         scored, events = self._scoring.push(out)
@@ -225,7 +211,6 @@ class OnlineDetector:
         flag = np.zeros(n, dtype=bool)
         resid = np.full((n, len(self.joint_names)), np.nan)
         score[rows], flag[rows], resid[rows] = scored["score"], scored["flag"], scored["residual"]
-        self.last_frame = scored
         return OnlineResult(score, flag, resid, events)
 
     @property

@@ -36,7 +36,7 @@ from twincd.evaluation.metrics import (
     roc_points,
 )
 from twincd.io.links import read_links
-from twincd.pipeline import PreparedLog, Setup, same_joints
+from twincd.pipeline import PreparedLog, Setup, agreed_joints
 from twincd.threshold import ScoreStats
 from twincd.types import BoolArray, FloatArray
 
@@ -526,7 +526,7 @@ def evaluate(
     val = _by_source(load(val_paths, setup, "reading val logs"))
     # every method must see the same columns: the order comes from the robot model or the
     # calibration, so logs of one robot agree whatever their message order
-    same_joints([*test, *train, *val])
+    agreed_joints([*test, *train, *val])
     results = [
         evaluate_method(name, train, val, test, calibration, k_sigma, repeats, links)
         for name in progress(list(methods), "evaluating")

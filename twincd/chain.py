@@ -1,0 +1,287 @@
+"""The chain of stages a calibration's samples go down, built in one place (``build_chain``):
+pick the twin's joint columns, twin them (velocity where the log has none, acceleration,
+τ̂ = RNEA(q, q̇, q̈), the joint-torque regressor for identified models), put the joints in the
+output order, low-pass filter τ, τ̂ and the model's other inputs alike.
+
+The same function builds the chain of a log streamed from disk (``twincd.pipeline``, which
+feeds ``fit``, ``threshold`` and ``detect`` with a zero-phase or a causal filter) and of live
+samples (``twincd.detection.OnlineDetector``): the filter's kind comes from the settings, the
+joints from a ``JointLayout``, so a causal calibration gives the same numbers in batch and live.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from twincd.errors import CalibrationError
+from twincd.frames import Chain, Derived, Frame, Mapped, Stage
+from twincd.signal.filters import LowPass
+from twincd.types import BoolArray, IndexArray
+
+if TYPE_CHECKING:
+    from twincd.twin.robot import RobotModel
+
+log = logging.getLogger("twincd")
+
+
+# ------------------------------------------------------------------ the robot model
+
+
+@lru_cache(maxsize=32)
+def model_joints(robot: str) -> tuple[str, ...]:
+    """The joints a robot model drives (a gripper's are not the twin's)."""
+    from twincd.twin.robot import load_robot
+
+    return load_robot(robot).joint_names
+
+
+def robot_for(robot: str, joints: tuple[str, ...]) -> RobotModel:
+    """The robot model reduced to ``joints`` (cached: loading a URDF costs milliseconds; a
+    URDF edited since is loaded again)."""
+    from twincd.twin.robot import file_version, resolve_urdf
+
+    return _robot_for(robot, joints, file_version(resolve_urdf(robot)))
+
+
+@lru_cache(maxsize=32)
+def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) -> RobotModel:
+    from twincd.twin.robot import load_robot
+
+    return load_robot(robot, keep=joints)
+
+
+def check_urdf(robot: RobotModel, expected: str | None, allow: bool, source: str) -> None:
+    """The URDF a calibration was fitted with (its sha256, ``expected``) must be the one its
+    twin runs on: a changed file is refused, or with ``allow`` said once for the log.
+    Calibrations that record no sha256 (older files, or fitted on a log's own twin effort
+    without a model) are not checked."""
+    if not expected or robot.urdf_sha256 == expected:
+        return
+    what = (
+        f"the URDF {robot.urdf_path} changed since the calibration was fitted "
+        f"(sha256 {robot.urdf_sha256[:12]}…, the calibration's {expected[:12]}…)"
+    )
+    if allow:
+        log.warning("%s: %s; using it as allowed", source, what)
+        return
+    raise CalibrationError(
+        what,
+        source,
+        "re-fit the calibration, or allow the change if it does not affect dynamics",
+        option="allow_urdf_change",
+    )
+
+
+# ------------------------------------------------------------------ the stages
+
+
+def pick_columns(columns: IndexArray) -> Mapped:
+    """Select and reorder the joint columns of every per-joint array: the output has exactly
+    ``len(columns)`` joints, whatever the frames carry beyond them."""
+    n = len(columns)
+    keep: IndexArray | slice = slice(0, n) if np.array_equal(columns, np.arange(n)) else columns
+
+    def pick(frame: Frame) -> Frame:
+        # a leading run of columns is a view (no copy); any other selection a copy
+        return frame.with_columns(**{k: frame[k][:, keep] for k in _JOINT_COLUMNS if k in frame})
+
+    return Mapped(pick)
+
+
+# per-joint arrays: joints on axis 1 (the regressor has a third axis, its parameters)
+_JOINT_COLUMNS = ("position", "velocity", "effort", "sim_effort", "regressor")
+
+
+def _fill_velocity(frame: Frame) -> Frame:
+    velocity = frame["velocity"]
+    filled = np.where(np.isfinite(velocity), velocity, frame["dq"])
+    return Frame({k: v for k, v in frame.items() if k != "dq"}).with_columns(velocity=filled)
+
+
+def twin_stages(
+    robot: RobotModel | None,
+    period_s: float,
+    causal: bool,
+    fill_velocity: bool,
+    threads: int | None = None,
+    regressor: RobotModel | None = None,
+) -> list[Stage]:
+    """Velocity (from position where the log has none), acceleration, τ̂ = RNEA(q, q̇, q̈), and
+    with ``regressor`` the joint-torque regressor Y(q, q̇, q̈) (column ``regressor``, (N, D, P);
+    the ``identified`` models).
+
+    Columns must be in the robot's joint order. ``robot`` None: the frames carry
+    ``sim_effort`` already, only the velocity (and the regressor) is completed.
+    """
+    from twincd.signal.derivatives import StreamingDerivative
+    from twincd.twin.dynamics import inverse_dynamics, torque_regressor
+
+    stages: list[Stage] = []
+    if fill_velocity:
+        dq = StreamingDerivative(period_s=period_s, causal=causal)
+        stages += [Derived(dq, "position", "dq"), Mapped(_fill_velocity)]
+    if robot is None and regressor is None:
+        return stages
+    ddq = StreamingDerivative(period_s=period_s, causal=causal)
+
+    def twin(frame: Frame) -> Frame:
+        q, v, a = frame["position"], frame["velocity"], frame["ddq"]
+        out = Frame({k: x for k, x in frame.items() if k != "ddq"})
+        if robot is not None:
+            out = out.with_columns(sim_effort=inverse_dynamics(robot, q, v, a, threads=threads))
+        if regressor is not None:
+            out = out.with_columns(regressor=torque_regressor(regressor, q, v, a))
+        return out
+
+    return [*stages, Derived(ddq, "velocity", "ddq"), Mapped(twin)]
+
+
+def filter_stages(
+    lowpass: LowPass,
+    period_s: float,
+    coulomb_eps: Sequence[float] = (),
+    regressor: BoolArray | None = None,
+) -> list[Stage]:
+    """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
+
+    With ``coulomb_eps`` (friction models), also the velocity (``velocity_f``) and tanh(q̇/ε)
+    for each ε (``coulomb_f``, (N, E, joints)) through the same filter, so that they lag as the
+    efforts do: the Coulomb friction steps where a joint turns, and only the step itself
+    filtered matches the filtered effort (tanh of the filtered velocity steps too sharply
+    there). With ``regressor`` (identified models: the (D, P) mask of the regressor's entries
+    that can be non-zero, ``twincd.twin.dynamics.regressor_mask``, in the frames' joint order),
+    the joint-torque regressor too, as ``regressor_f`` (N, kept): only the masked entries,
+    in row-major order (``PreparedLog`` has it whole, (N, D, P)). Without either, nothing more
+    is filtered: the seed's model costs what it did."""
+    from twincd.signal.filters import StreamingLowPass
+
+    eps = tuple(float(e) for e in coulomb_eps)
+    extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
+    kept = 0 if regressor is None else int(np.count_nonzero(regressor))
+
+    def stack(frame: Frame) -> Frame:
+        v = frame["velocity"]
+        friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
+        columns = [frame["effort"], frame["sim_effort"], *friction]
+        if regressor is not None:
+            columns.append(frame["regressor"][:, regressor])
+        rest = {k: x for k, x in frame.items() if k != "regressor"}
+        return Frame(rest, frame.n).with_columns(both=np.hstack(columns))
+
+    def split(frame: Frame) -> Frame:
+        both = frame["both_f"]
+        d = (both.shape[1] - kept) // (2 + extra)
+        rest = {k: v for k, v in frame.items() if k not in ("both", "both_f")}
+        out = Frame(rest).with_columns(effort_f=both[:, :d], sim_effort_f=both[:, d : 2 * d])
+        if eps:
+            out = out.with_columns(
+                velocity_f=both[:, 2 * d : 3 * d],
+                coulomb_f=both[:, 3 * d : (3 + len(eps)) * d].reshape(len(both), len(eps), d),
+            )
+        if regressor is not None:  # only the masked entries, (N, kept): no zeros copied
+            out = out.with_columns(regressor_f=both[:, (2 + extra) * d :])
+        return out
+
+    return [
+        Mapped(stack),
+        Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f", keep=False),
+        Mapped(split),
+        *edge_stages(lowpass, period_s),
+    ]
+
+
+def edge_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
+    """An ``edge`` column (1.0 within the zero-phase filter's edge span of a segment's ends,
+    else 0.0): no stage at all for a causal filter."""
+    from twincd.signal.filters import EdgeMarker, edge_span
+
+    span = edge_span(lowpass, period_s)
+    return [Derived(EdgeMarker(span, period_s), "stamp_ns", "edge")] if span else []
+
+
+# ------------------------------------------------------------------ one chain
+
+
+class ChainSettings(Protocol):
+    """What the chain takes from a calibration or a ``twincd.pipeline.Setup``."""
+
+    @property
+    def lowpass(self) -> LowPass: ...
+    @property
+    def coulomb_eps(self) -> tuple[float, ...]: ...
+
+
+@dataclass(frozen=True)
+class JointLayout:
+    """The joints of a chain: ``columns`` those of the frames pushed in, ``twin`` those the twin
+    runs on (the robot model's order, or the log's own twin effort's), ``output`` those that
+    come out (a calibration's order). Each of ``twin`` must be in ``columns``, each of
+    ``output`` in ``twin``."""
+
+    columns: tuple[str, ...]
+    twin: tuple[str, ...]
+    output: tuple[str, ...]
+
+    @property
+    def to_twin(self) -> IndexArray:
+        """The columns the twin reads, in its order."""
+        return np.array([self.columns.index(n) for n in self.twin], dtype=np.intp)
+
+    @property
+    def to_output(self) -> IndexArray:
+        """The twin's columns in the output order."""
+        return np.array([self.twin.index(n) for n in self.output], dtype=np.intp)
+
+
+@dataclass(frozen=True)
+class TwinChain:
+    """A built chain and what scoring its frames needs besides them."""
+
+    chain: Chain
+    layout: JointLayout
+    period_s: float
+    # (D, P) the regressor entries the frames' ``regressor_f`` (N, kept) holds, output order
+    regressor_mask: BoolArray | None = None
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.layout.output
+
+
+def build_chain(
+    settings: ChainSettings,
+    layout: JointLayout,
+    period_s: float,
+    twin: RobotModel | None,
+    fill_velocity: bool,
+    regressor: RobotModel | None = None,
+    threads: int | None = None,
+    filtered: bool = True,
+) -> TwinChain:
+    """The one chain for ``settings`` (its filter: zero-phase or causal; the friction models'
+    ε) on frames whose joints are laid out as ``layout``: pick the twin's columns, twin
+    (``twin`` None: the frames carry ``sim_effort``; ``regressor``: the robot model whose
+    joint-torque regressor the identified models need, ``layout.twin`` in its order), put the
+    joints in the output order, and with ``filtered`` low-pass filter (``filtered=False`` stops
+    after the twin: what ``simulate`` writes)."""
+    causal = settings.lowpass.causal
+    stages: list[Stage] = [
+        pick_columns(layout.to_twin),
+        *twin_stages(twin, period_s, causal, fill_velocity, threads, regressor),
+        pick_columns(layout.to_output),
+    ]
+    mask = None
+    if filtered:
+        if regressor is not None:
+            from twincd.twin.dynamics import regressor_mask
+
+            assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
+            mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
+        stages += filter_stages(settings.lowpass, period_s, settings.coulomb_eps, mask)
+    return TwinChain(Chain(stages), layout, period_s, mask)
