@@ -18,7 +18,6 @@ Arguments come in one order: inputs, calibration, settings
 from __future__ import annotations
 
 from importlib import import_module
-from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -33,10 +32,7 @@ if TYPE_CHECKING:
     from twincd.settings import SetupOptions
     from twincd.threshold import threshold_calibration
 
-try:
-    __version__ = version("twincd")
-except PackageNotFoundError:  # running from a source tree that was never installed
-    __version__ = "0.0.0+unknown"
+from twincd.version import __version__
 
 # name → "module" or "module:attribute" (when the library names it otherwise)
 _EXPORTS = {

@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from twincd import __version__
 from twincd.calibration.affine import AffineCalibration
 from twincd.calibration.models import (
     AFFINE,
@@ -28,6 +27,7 @@ from twincd.io.options import LogOptions
 from twincd.signal.filters import LowPass
 from twincd.tail import TAIL_METHODS, TailFit
 from twincd.types import FloatArray
+from twincd.version import __version__
 
 SCHEMA = "twincd.calibration/1"
 # what a threshold's μ and σ are (``Threshold.estimator``)

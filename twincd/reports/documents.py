@@ -9,7 +9,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from twincd import __version__
 from twincd.errors import OutputError
 from twincd.evaluation.reports import (
     EVALUATION_COLUMNS,
@@ -21,6 +20,7 @@ from twincd.evaluation.reports import (
 from twincd.evaluation.reports import event_rows as event_rows_of
 from twincd.reports import html
 from twincd.reports.tables import event_columns, event_rows
+from twincd.version import __version__
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration

@@ -39,7 +39,6 @@ from mcap.records import (
 )
 from numpy.typing import NDArray
 
-from twincd import __version__
 from twincd.io.atomic import output_error
 from twincd.io.cdr import typestore
 from twincd.io.mcap.channels import DEFAULT_QOS, QOS_KEY, ChannelTable
@@ -56,6 +55,7 @@ from twincd.io.mcap.records import (
     message_index,
     record_bytes,
 )
+from twincd.version import __version__
 
 __all__ = ["McapOutput"]
 

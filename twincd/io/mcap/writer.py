@@ -20,12 +20,12 @@ from types import TracebackType
 import numpy as np
 from mcap.records import Metadata
 
-from twincd import __version__
 from twincd.io.atomic import MARKER, atomic_output
 from twincd.io.mcap.copy import copy_log
 from twincd.io.mcap.messages import BATCH
 from twincd.io.mcap.output import McapOutput
 from twincd.io.mcap.records import Payloads, Times
+from twincd.version import __version__
 
 __all__ = ["AugmentedMcap", "McapLogWriter", "NewTopic", "write_augmented"]
 
