@@ -162,8 +162,9 @@ def threshold(
         typer.Option(
             "--sigma",
             "-k",
-            help="The paper's threshold μ + kσ, mean and standard deviation (default: "
-            f"μ + {DEFAULT_K_SIGMA:g}σ, with the median and MAD for a whitened model).",
+            help="The paper's threshold μ + kσ, mean and standard deviation (default: a "
+            f"budget of {DEFAULT_FALSE_ALARMS_PER_HOUR:g} false alarm per hour for the whitened "
+            f"models, μ + {DEFAULT_K_SIGMA:g}σ for the others).",
             min=0,
         ),
     ] = None,
@@ -251,9 +252,11 @@ def threshold_line(th: Threshold) -> str:
         return f"k-sigma: {line}  ({seen})"
     high = "∞" if tail.high is None else f"{tail.high:.6g}"
     hours = (th.judged_s or 0.0) / 3600.0
+    shape = "" if tail.method == "rice-gaussian" else f", ξ = {tail.shape:.3g}"
+    above = "excursions" if tail.method == "rice-gaussian" else "peaks"
     return (
         f"{tail.method}: budget {tail.per_hour:g} false alarm(s)/h → {line}, "
         f"{100 * tail.confidence:.0f} % interval [{tail.low:.6g}, {high}]  "
-        f"(u = {tail.level:.4g}, {tail.peaks} peaks, λ = {tail.rate_per_hour:.4g}/h, "
-        f"ξ = {tail.shape:.3g}; {th.false_alarms} false alarm(s) counted in {hours:.3g} h; {seen})"
+        f"(u = {tail.level:.4g}, {tail.peaks} {above} above u, λ = {tail.rate_per_hour:.4g}/h"
+        f"{shape}; {th.false_alarms} false alarm(s) counted in {hours:.3g} h; {seen})"
     )

@@ -134,8 +134,11 @@ def test_fit_without_a_model_fits_the_best_the_logs_allow(
     assert doc["filter"]["kind"] == "critical" and doc["filter"]["cutoff_hz"] == 1.5
     threshold = run("threshold", data / "val", "-c", cal)
     assert threshold.exit_code == 0, threshold.output
-    assert threshold.stdout.startswith("k-sigma: μ (median) = ")
-    assert json.loads(cal.read_text())["threshold"]["estimator"] == "median-mad"
+    assert threshold.stdout.startswith("rice-gaussian: budget 1 false alarm(s)/h → μ (median) = ")
+    th = json.loads(cal.read_text())["threshold"]
+    budget = th["false_alarm_budget"]
+    assert th["estimator"] == "median-mad" and budget["method"] == "rice-gaussian"
+    assert budget["interval"][0] <= th["value"] == budget["estimate"] <= budget["interval"][1]
     tests = sorted((data / "test").glob("*.mcap"))
     found = run("detect", *tests, "-c", cal, "--json")
     assert found.exit_code == 1, found.output

@@ -362,3 +362,34 @@ def test_older_thresholds_keep_loading(twin_calibration: Path, tmp_path: Path) -
     del data["threshold"]["false_alarm_budget"]
     older.write_text(json.dumps(data))
     assert Calibration.load(older).require_threshold().budget_per_hour is None
+
+
+def test_the_gaussian_budget_holds_on_a_smooth_gaussian_score():
+    # a score that is a smooth standard-normal process (white noise through a 1 Hz low-pass,
+    # at 100 Hz, as the depth statistic is without collisions): the 1/h threshold from ten
+    # minutes is passed about once an hour on ten other hours
+    from scipy import signal
+
+    from twincd.tail import fit_gaussian_tail
+
+    rng = np.random.default_rng(7)
+    sos = signal.butter(2, 1.0, fs=100.0, output="sos")
+
+    def process(hours: float) -> np.ndarray:
+        x = signal.sosfilt(sos, rng.standard_normal(int(hours * 360_000)))
+        return 1.5 + 2.0 * x / x.std()  # shifted and scaled: the fit must find both
+
+    short = process(1 / 6)
+    counter = ExcursionCounter(0.01)
+    counter.push(short, np.ones(len(short), bool))
+    median = float(np.median(short))
+    sigma = 1.4826 * float(np.median(np.abs(short - median)))
+    tail = fit_gaussian_tail(counter.excursions, 1.0, median, sigma)
+    assert tail is not None and tail.method == "rice-gaussian"
+    assert tail.low <= tail.estimate <= (tail.high or np.inf)
+    assert 1.5 + 2.0 * 3.5 < tail.estimate < 1.5 + 2.0 * 5.0  # ≈ 4.1 σ above the mean
+    long = process(10.0)
+    runs_above = runs(long >= tail.estimate)
+    # declustered as the budget counts: a run within 0.2 s of the previous one continues it
+    starts = [a for i, (a, _) in enumerate(runs_above) if i == 0 or a - runs_above[i - 1][1] > 20]
+    assert 1 <= len(starts) <= 40  # 10 expected at the budget; far off means a wrong formula

@@ -20,9 +20,9 @@ DEFAULT_CRITICAL_CUTOFF_HZ = 1.5
 DEFAULT_CAUSAL_CUTOFF_HZ = 3.0
 
 DEFAULT_K_SIGMA = 4.0  # the paper's μ + 4σ
-# `threshold --false-alarms-per-hour`'s example budget: false alarms per hour of collision-free
-# time, extrapolated from the tail of the score's excursions on the validation logs
-# (studies/choose_threshold.py). Not the default rule: see twincd.threshold.default_threshold.
+# `threshold`'s budget for the default models (scored by the depth statistic): false alarms per
+# hour of collision-free time, extrapolated from the score's excursions on the validation logs
+# (twincd.threshold.with_threshold; studies/real_arm_statistics.py, studies/choose_threshold.py)
 DEFAULT_FALSE_ALARMS_PER_HOUR = 1.0
 DEFAULT_REPEATS = 5  # the paper's Table II: deep methods as mean ± std over five runs
 DEFAULT_LINK_TOPIC = "/collision_link"

@@ -34,7 +34,10 @@ MAX_PEAKS = 400  # a level with more excursions in one log (or merged) keeps no 
 TARGET_PEAKS = 50  # u: the highest level with at least this many peaks
 MIN_PEAKS = 10  # fewer peaks: the exponential tail instead of the GPD fit
 CONFIDENCE = 0.90  # of the threshold's interval
-TAIL_METHODS = ("pot-gpd", "pot-exponential")
+TAIL_METHODS = ("pot-gpd", "pot-exponential", "rice-gaussian")
+# rice-gaussian: the level, in robust σ above the median, where the excursions' rate is counted
+# (many excursions, below any contact's peaks) before Rice's formula carries it to the budget
+RICE_LEVEL_SIGMA = 2.0
 # the GPD shapes ξ fitted: ξ ≥ 0, since a score that sums squared residuals has an exponential
 # tail or a heavier one; a bounded tail (ξ < 0) fitted to a few minutes' peaks put the threshold
 # below what an hour reaches (studies/choose_threshold.py)
@@ -173,7 +176,9 @@ class ExcursionCounter:
 class TailFit:
     """The threshold of a false-alarm budget from excursions: what was fitted and its result."""
 
-    method: str  # "pot-gpd", or "pot-exponential" with too few peaks for the GPD
+    # "pot-gpd", "pot-exponential" with too few peaks for the GPD, or "rice-gaussian" (a score
+    # that is a standard-normal z without collisions: ``fit_gaussian_tail``, shape 0, scale σ)
+    method: str
     per_hour: float  # the budget
     level: float  # u
     peaks: int  # excursions above u
@@ -213,6 +218,46 @@ def fit_tail(excursions: Excursions, per_hour: float) -> TailFit | None:
     x = return_level(u, shape, scale, ratio)
     low, high = _profile_interval(excess, u, ratio, shape, scale, x)
     return TailFit("pot-gpd", per_hour, u, len(peaks), rate, shape, scale, x, low, high)
+
+
+def fit_gaussian_tail(
+    excursions: Excursions, per_hour: float, mu: float, sigma: float
+) -> TailFit | None:
+    """The budget's threshold for a score that is a standard-normal z where nothing touches the
+    arm (the depth statistic), from its median ``mu`` and robust ``sigma``: the rate λ of the
+    excursions above a level u ≈ μ + 2σ (the grid level at or below it) is counted, and Rice's
+    formula for a smooth Gaussian process, λ(x) = λ(u)·exp(−(z_x² − z_u²)/2) with
+    z = (x − μ)/σ, gives x = μ + σ·√(z_u² + 2·ln(λ(u)/budget)). The interval is the exact
+    Poisson interval of the count at u carried through the same formula. None when no level at
+    or above the median was crossed.
+
+    The peaks' own tail (``fit_tail``) is not used for such a score: a few minutes hold too few
+    peaks above a high u, and an exponential or GPD fit at a low u extrapolates the
+    near-Gaussian tail far too heavily (on the real arm's rotations it put a 1/h budget at
+    z = 7–18, where the clean test logs never passed 3.6)."""
+    from scipy import stats
+
+    hours = excursions.seconds / 3600.0
+    if sigma <= 0 or hours <= 0:
+        return None
+    top = int(np.searchsorted(LEVELS, mu + RICE_LEVEL_SIGMA * sigma, side="right")) - 1
+    crossed = [j for j in range(top, -1, -1) if LEVELS[j] >= mu and excursions.counts[j] > 0]
+    if not crossed:
+        return None
+    j = crossed[0]
+    u, count = float(LEVELS[j]), excursions.counts[j]
+    z_u = (u - mu) / sigma
+    alpha = 1.0 - CONFIDENCE
+
+    def level(rate: float) -> float:
+        return mu + sigma * math.sqrt(z_u * z_u + 2.0 * max(math.log(rate / per_hour), 0.0))
+
+    rate = count / hours
+    low = float(stats.chi2.ppf(alpha / 2, 2 * count)) / 2 / hours
+    high = float(stats.chi2.ppf(1 - alpha / 2, 2 * count + 2)) / 2 / hours
+    return TailFit(
+        "rice-gaussian", per_hour, u, count, rate, 0.0, sigma, level(rate), level(low), level(high)
+    )
 
 
 def _fit_gpd(excess: FloatArray) -> tuple[float, float]:

@@ -1,7 +1,7 @@
-"""The detection threshold from the score on collision-free logs: μ + kσ (by default k = 4,
-with the median and MAD for a model scored by the depth statistic, ``default_threshold``), or
-the threshold of a false-alarm budget per hour of collision-free time extrapolated from the
-score's excursions (peaks over threshold and a generalised Pareto tail, ``twincd.tail``).
+"""The detection threshold from the score on collision-free logs: the threshold of a false-alarm
+budget per hour of collision-free time extrapolated from the score's excursions (``twincd.tail``:
+Rice's formula for the depth statistic, the default models' score; peaks over threshold and a
+generalised Pareto tail for other scores), or the paper's μ + kσ (``with_threshold``).
 
 Everything a log contributes merges exactly in any order: μ and σ from mergeable sums, the
 median and MAD from a fixed histogram, the excursions' peaks per level, and, as a check recorded
@@ -26,7 +26,7 @@ from twincd.calibration.models import model_inputs
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedLog, Setup
-from twincd.tail import MIN_PEAKS, ExcursionCounter, Excursions, fit_tail
+from twincd.tail import MIN_PEAKS, ExcursionCounter, Excursions, fit_gaussian_tail, fit_tail
 from twincd.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger("twincd")
@@ -116,14 +116,6 @@ class ScoreStats:
     def threshold(self, k_sigma: float = DEFAULT_K_SIGMA, logs: Sequence[str] = ()) -> Threshold:
         """μ + kσ with the mean and standard deviation (the paper's)."""
         return Threshold(k_sigma, self.mu, self.sigma, tuple(logs), self.n)
-
-    def robust_threshold(
-        self, k_sigma: float = DEFAULT_K_SIGMA, logs: Sequence[str] = ()
-    ) -> Threshold:
-        """μ + kσ with the median and the MAD's σ: what a few minutes of unlabelled contact in
-        the validation logs cannot move."""
-        mu, sigma = self.robust()
-        return Threshold(k_sigma, mu, sigma, tuple(logs), self.n, estimator="median-mad")
 
 
 def _weighted_median(values: FloatArray, counts: IntArray) -> float:
@@ -219,14 +211,26 @@ def budget_threshold(
     stats: ScoreStats,
     per_hour: float = DEFAULT_FALSE_ALARMS_PER_HOUR,
     logs: Sequence[str] = (),
+    gaussian: bool = False,
 ) -> Threshold:
     """The threshold x of a false-alarm budget extrapolated from the score's excursions (see
     ``twincd.tail``), never below μ, as μ + kσ with its k; with it the tail fit and the runs the
-    validation logs gave at the grid value just below x (at least the alarms at x)."""
+    validation logs gave at the grid value just below x (at least the alarms at x).
+
+    ``gaussian``: the score is a standard-normal z without collisions (the depth statistic):
+    μ and σ are the median and MAD, and Rice's formula carries the excursions' rate at μ + 2σ
+    to the budget (``fit_gaussian_tail``); else the peaks' tail (``fit_tail``), μ and σ the mean
+    and standard deviation."""
     check_threshold_settings(0.0, per_hour)
-    mu, sigma = stats.mu, stats.sigma  # no collision-free samples: a clear error here
-    tail = fit_tail(excursions, per_hour)
     minutes = excursions.seconds / 60.0
+    if gaussian:
+        mu, sigma = stats.robust()
+        estimator = "median-mad"
+        tail = fit_gaussian_tail(excursions, per_hour, mu, sigma)
+    else:
+        mu, sigma = stats.mu, stats.sigma  # no collision-free samples: a clear error here
+        estimator = "mean-sd"
+        tail = fit_tail(excursions, per_hour)
     if tail is None:
         log.warning(
             "the score has no excursions to fit a tail to in %.3g min of collision-free "
@@ -234,8 +238,8 @@ def budget_threshold(
             minutes,
             DEFAULT_K_SIGMA,
         )
-        return stats.threshold(DEFAULT_K_SIGMA, logs)
-    if tail.method != "pot-gpd":
+        return Threshold(DEFAULT_K_SIGMA, mu, sigma, tuple(logs), stats.n, estimator=estimator)
+    if tail.method == "pot-exponential":
         log.warning(
             "only %d score excursion(s) in %.3g min of collision-free data, fewer than the %d "
             "a tail shape needs: the threshold assumes an exponential tail, which heavy tails "
@@ -257,6 +261,7 @@ def budget_threshold(
         false_alarms=int(counts.runs[below]),
         judged_s=counts.seconds,
         tail=tail,
+        estimator=estimator,
     )
 
 
@@ -303,9 +308,17 @@ def with_threshold(
     k_sigma: float | None = None,
     false_alarms_per_hour: float | None = None,
 ) -> Calibration:
-    """The calibration with a threshold from per-log parts merged in any order: the threshold
-    of a false-alarm budget when ``false_alarms_per_hour`` is given, μ + kσ when ``k_sigma``
-    is, else ``default_threshold``."""
+    """The calibration with a threshold from per-log parts merged in any order: μ + kσ (mean
+    and standard deviation) when ``k_sigma`` is given; else the threshold of a false-alarm
+    budget (``false_alarms_per_hour``, by default ``DEFAULT_FALSE_ALARMS_PER_HOUR``) for a model
+    scored by the depth statistic (Rice's formula on its robust z: ``budget_threshold``), or
+    when a budget is asked for; else the paper's μ + 4σ (the affine and unwhitened models).
+
+    Chosen in studies/real_arm_statistics.py on the real arm's six rotations (threshold on one
+    log, test on another): a validation log holding 23 s of unlabelled contact put the paper's
+    μ + 4σ at z = 21 in its rotation (2 of 32 pushes found there); the 1/h budget by Rice's
+    formula put it at z = 4.6–6.8 (161/169 found over the rotations, 1 false alarm in 9.9 min);
+    the peaks' GPD tail at 1/h put it at z = 7–18 (120/169)."""
     parts = sorted(parts, key=lambda p: p.source)
     total = ScoreStats()
     alarms = AlarmCounts.zeros()
@@ -326,28 +339,17 @@ def with_threshold(
             reused[0],
         )
     check_threshold_choice(k_sigma, false_alarms_per_hour)
-    if false_alarms_per_hour is not None:
-        budget = budget_threshold(excursions, alarms, total, false_alarms_per_hour, seen)
-        return calibration.with_threshold(budget)
     if k_sigma is not None:
         return calibration.with_threshold(total.threshold(k_sigma, seen))
-    return calibration.with_threshold(default_threshold(total, calibration, seen))
-
-
-def default_threshold(
-    total: ScoreStats, calibration: Calibration, logs: Sequence[str] = ()
-) -> Threshold:
-    """The threshold when none is asked for: μ + 4σ, robustly (median and MAD) for a model
-    scored by the depth statistic, as the paper (mean and standard deviation) otherwise.
-
-    Chosen in studies/real_arm_statistics.py on the real arm's six rotations: a validation log
-    holding 23 s of unlabelled contact put the paper's μ + 4σ at z = 21 (2 pushes of 32 found
-    in that rotation); median and MAD put it at 5.9 (161/169 found over the rotations, 1 false
-    alarm, as a fixed z = 4). A false-alarm budget of 1/h from the excursions' tail put it at
-    z = 7–18 (120/169 found): a few minutes of clean data do not carry an hour's tail."""
-    if calibration.model.statistic == "depth":
-        return total.robust_threshold(DEFAULT_K_SIGMA, logs)
-    return total.threshold(DEFAULT_K_SIGMA, logs)
+    gaussian = calibration.model.statistic == "depth"
+    if false_alarms_per_hour is None and not gaussian:
+        # the paper's model and its sum-of-squares scores: the paper's μ + 4σ
+        return calibration.with_threshold(total.threshold(DEFAULT_K_SIGMA, seen))
+    budget = (
+        DEFAULT_FALSE_ALARMS_PER_HOUR if false_alarms_per_hour is None else false_alarms_per_hour
+    )
+    threshold = budget_threshold(excursions, alarms, total, budget, seen, gaussian)
+    return calibration.with_threshold(threshold)
 
 
 def threshold_calibration(
@@ -365,16 +367,16 @@ def threshold_calibration(
 def calibrate_threshold(
     logs: Iterable[PreparedLog], calibration: Calibration, k_sigma: float | None = None
 ) -> Calibration:
-    """μ + kσ from logs already prepared in memory (as evaluate uses); without ``k_sigma``
-    the default threshold (``default_threshold``)."""
-    parts = (
-        LogScores(
-            lg.source,
-            ScoreStats.from_scores(
-                calibration.model.scores(model_inputs(lg)),
-                clean_mask(lg),
-            ),
-        )
-        for lg in logs
-    )
+    """The threshold from logs already prepared in memory (as evaluate uses), by the rules of
+    ``with_threshold``."""
+    parts = []
+    for lg in logs:
+        scores = calibration.model.scores(model_inputs(lg))
+        usable = clean_mask(lg)
+        period = lg.period_s or float(np.median(np.diff(lg.states.stamp_ns))) * 1e-9
+        counter, peaks = AlarmCounter(period), ExcursionCounter(period)
+        counter.push(scores, usable)
+        peaks.push(scores, usable)
+        stats = ScoreStats.from_scores(scores, usable)
+        parts.append(LogScores(lg.source, stats, len(lg), counter.counts, peaks.excursions))
     return with_threshold(parts, calibration, k_sigma)
