@@ -14,6 +14,8 @@ import pytest
 from chromium import Browser, find_chromium
 from clitools import run
 
+from twincd.evaluation.runner import method_for
+
 SAMPLE_LOGS = Path(__file__).resolve().parent.parent / "sample_logs"
 
 
@@ -105,6 +107,6 @@ def test_evaluate_report_in_a_browser(browser, twin_dataset, twin_calibration, t
     assert result.exit_code == 0, result.output
     open_clean(browser, report)
     kind = json.loads(cal.read_text())["model"]["kind"]  # evaluate runs the calibration's model
-    method = "proposed" if kind == "affine" else kind  # the paper's method, by its name
-    assert method in browser.evaluate("document.querySelector('table').textContent")
+    # under its method name ("proposed" for the paper's affine model)
+    assert method_for(kind) in browser.evaluate("document.querySelector('table').textContent")
     not_blank(browser.screenshot(tmp_path / "e.png"))
