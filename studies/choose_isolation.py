@@ -15,6 +15,7 @@ with the default event rules, and for every found press whose ground-truth link 
 from __future__ import annotations
 
 import argparse
+import itertools
 import shlex
 import sys
 import tempfile
@@ -31,18 +32,24 @@ from twincd.detection.isolation import LinkIsolator, kappa_for
 from twincd.io.links import read_links
 from twincd.twin.robot import child_links
 
-MARGINS = (1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.75, 2.0)
+MARGINS = (1.0, 1.2, 1.5)
+KAPPAS = (2.0, 3.0, 3.25, 4.0, 5.0, 6.0, 8.0)
 
 
 def presses(folder: Path, work: Path, fit_args: list[str]) -> list[tuple[str, np.ndarray]]:
-    """(true link, per-joint largest |residual| of the detect event holding the first flag)."""
+    """(true link, per-joint largest |evidence| of the detect event holding the first flag): the
+    evidence is the residual, over each joint's noise at its speed for a model with speed bins
+    (as detect weighs joints)."""
     out = []
     for s in synth(folder, work, fit_args):
         lg = s.log
         stamps = lg.states.stamp_ns
+        cal = Calibration.load(work / f"{folder.name}.json")
+        white = cal.model.whitened(s.residual, lg.states.velocity)
+        evidence = s.residual if white is None else white
         hold = (s.scores >= EventRules().release_level(s.threshold, s.mu)) & s.judged
         events = find_events(
-            s.flags, s.scores, s.residual, stamps, lg.joint_names, None, EventRules(), hold
+            s.flags, s.scores, evidence, stamps, lg.joint_names, None, EventRules(), hold
         )
         truth = read_links(lg.source, DEFAULT_LINK_TOPIC, lg.states.log_time_ns)
         if truth is None or lg.labels is None:
@@ -58,7 +65,7 @@ def presses(folder: Path, work: Path, fit_args: list[str]) -> list[tuple[str, np
             ]
             if hit:
                 e = hit[0]
-                peak = np.abs(s.residual[e.first : e.last + 1]).max(axis=0)
+                peak = np.abs(evidence[e.first : e.last + 1]).max(axis=0)
                 out.append((Counter(named).most_common(1)[0][0], peak))
     return out
 
@@ -77,18 +84,21 @@ def main() -> int:
 
     robot = load_robot(cal.robot or "xarm7")
     links, depths = child_links(robot, cal.joint_names)
-    scale = cal.scale if cal.scale is not None else cal.rmse
+    scale = cal.joint_scale
     assert scale is not None
     print(f"{len(found)} found presses with a known link; held-out seeds {HELD_OUT_SEEDS} unused")
-    print(f"{'ρ':>5}{'named':>8}{'right|named':>13}{'right overall':>15}  misses (truth→named)")
-    for margin in MARGINS:
-        iso = LinkIsolator(links, depths, scale, kappa_for(cal.kind), margin)
+    print(
+        f"{cal.kind}: κ {kappa_for(cal.kind, cal.model.statistic):g} (the model's); κ × ρ scanned"
+    )
+    print(f"{'κ':>5}{'ρ':>5}{'named':>8}{'right|named':>13}{'right overall':>15}  misses")
+    for kappa, margin in itertools.product(KAPPAS, MARGINS):
+        iso = LinkIsolator(links, depths, scale, kappa, margin)
         named = [(t, iso.link(p)) for t, p in found]
         shown = [(t, n) for t, n in named if n is not None]
         right = sum(t == n for t, n in shown)
         misses = Counter(f"{t}→{n}" for t, n in shown if t != n).most_common(3)
         print(
-            f"{margin:>5.2f}{len(shown) / max(len(found), 1):>8.1%}"
+            f"{kappa:>5.2f}{margin:>5.2f}{len(shown) / max(len(found), 1):>8.1%}"
             f"{right / max(len(shown), 1):>13.1%}{right / max(len(found), 1):>15.1%}  {misses}"
         )
     return 0

@@ -186,7 +186,8 @@ def test_the_calibration_file_keeps_the_binned_scale_and_old_files_keep_their_su
     assert back.scale is not None and np.array_equal(back.scale, binned.scale)
     r, v = np.array([[0.2, -0.3]]), np.array([[0.05, 0.0]])
     assert back.model.score(r, v) == binned.model.score(r, v)
-    assert back.joint_scale is not None and np.array_equal(back.joint_scale, [0.3, 0.4])
+    # isolation weighs the whitened residual itself: no second scale
+    assert back.joint_scale is not None and np.array_equal(back.joint_scale, [1.0, 1.0])
     # a file written before the bins: one scale per joint, scored by the sum
     old = json.loads(json.dumps(_calibration(np.array([0.5, 2.0])).to_dict()))
     assert "statistic" not in old["model"]

@@ -688,6 +688,18 @@ class ResidualModel:
             r = residual if self.scale is None else residual / np.maximum(self.scale, _MIN_SCALE)
             out: FloatArray = np.einsum("ij,ij->i", r, r)
             return out
+        order = None if self.order is None else np.asarray(self.order, dtype=np.intp)
+        return depth_score(self._by_speed(residual, velocity), order)
+
+    def whitened(self, residual: FloatArray, velocity: FloatArray | None) -> FloatArray | None:
+        """(N, D) each joint's residual over its noise scale at its speed, the evidence the
+        depth statistic weighs (None for models without speed bins)."""
+        if self.scale is None or self.scale.ndim == 1:
+            return None
+        return self._by_speed(residual, velocity)
+
+    def _by_speed(self, residual: FloatArray, velocity: FloatArray | None) -> FloatArray:
+        assert self.scale is not None
         if velocity is None:
             raise DataError(
                 f"the {self.kind} model scores with the joints' speeds",
@@ -696,9 +708,8 @@ class ResidualModel:
             )
         bins = speed_bin(np.asarray(velocity, dtype=np.float64), self.speed_bins)
         joints = np.arange(residual.shape[1])
-        scale = np.maximum(self.scale, _MIN_SCALE)[joints[None, :], bins]
-        order = None if self.order is None else np.asarray(self.order, dtype=np.intp)
-        return depth_score(residual / scale, order)
+        out: FloatArray = residual / np.maximum(self.scale, _MIN_SCALE)[joints[None, :], bins]
+        return out
 
     def scores(self, inputs: Mapping[str, Any]) -> FloatArray:
         """Per-sample scores of prepared samples (``predict``'s inputs, ``effort_f``, and the raw
@@ -706,10 +717,11 @@ class ResidualModel:
         return self.score(self.residual(inputs), inputs.get("velocity"))
 
     def joint_scale(self, rmse: FloatArray | None) -> FloatArray | None:
-        """One noise scale per joint (what isolation compares joints by): the flat whitening
-        scale, else ``rmse`` (the training residual RMS)."""
-        if self.scale is not None and self.scale.ndim == 1:
-            return self.scale
+        """The per-joint scale isolation divides an event's residual peaks by: ones for a model
+        with speed bins (its evidence is already ``whitened``), the flat whitening scale, else
+        ``rmse`` (the training residual RMS)."""
+        if self.scale is not None:
+            return self.scale if self.scale.ndim == 1 else np.ones(len(self.scale))
         return rmse
 
 

@@ -83,7 +83,7 @@ class ScoringStage:
             calibration.links,
             calibration.depths,
             calibration.joint_scale,
-            kappa_for(calibration.kind),
+            kappa_for(calibration.kind, calibration.model.statistic),
         )
         self.events = EventTracker(joint_names or calibration.joint_names, isolator, self.rules)
         self.counts = FlagCount()
@@ -105,7 +105,10 @@ class ScoringStage:
             flags &= judged
             hold &= judged
         self.counts.add(flags, judged, frame.get("labels"))
-        closed = self.events.push(flags, scores, r, frame["stamp_ns"], hold)
+        # the events weigh joints as the score does: by their noise at their speed, if known
+        evidence = self.model.whitened(r, frame.get("velocity"))
+        evidence = r if evidence is None else evidence
+        closed = self.events.push(flags, scores, evidence, frame["stamp_ns"], hold)
         return frame.with_columns(residual=r, score=scores, flag=flags), closed
 
     def finish(self) -> list[Event]:

@@ -46,8 +46,18 @@ KAPPA_BY_MODEL = {"identified": 3.25, "identified-whitened": 3.25}
 DEFAULT_MARGIN = 1.2
 
 
-def kappa_for(kind: str) -> float:
-    """The significance factor κ of the isolation rule for a calibration model."""
+# κ for a model with speed bins, whose evidence is each joint's residual over its noise at its
+# speed (``ResidualModel.whitened``): studies/choose_isolation.py, synth seed 2, 96 found presses,
+# ρ = 1.2: κ = 3.25 named 75 % (94.4 % right), 4: 91.7 % (94.3 %), 5: 96.9 % (92.5 %), 6: 92.7 %
+# (91.0 %); the flat scale of before named 80 % (92.2 % right)
+KAPPA_BY_SPEED = 4.0
+
+
+def kappa_for(kind: str, statistic: str = "sum") -> float:
+    """The significance factor κ of the isolation rule for a calibration model (``statistic``:
+    the model's, "depth" for the models with speed bins)."""
+    if statistic == "depth":
+        return KAPPA_BY_SPEED
     return KAPPA_BY_MODEL.get(kind, DEFAULT_KAPPA)
 
 

@@ -89,7 +89,11 @@ class ModelMethod(ScoringMethod):
         links, depths = child_links(log.robot, log.joint_names)
         scale = self._model().joint_scale(self.rmse_)
         assert scale is not None
-        kappa = kappa_for(self.model_kind) if self.kappa is None else self.kappa
+        kappa = (
+            kappa_for(self.model_kind, self._model().statistic)
+            if self.kappa is None
+            else self.kappa
+        )
         return LinkIsolator(links, depths, scale, kappa)
 
     def events(
@@ -98,8 +102,12 @@ class ModelMethod(ScoringMethod):
         """Detect's events, with the joint and the link each names."""
         stamps = log.states.stamp_ns
         r = self.residual(log)
+        evidence = self._model().whitened(r, log.states.velocity)  # as detect weighs joints
+        evidence = r if evidence is None else evidence
         iso = self.isolator(log)
-        return find_events(flags, scores, r, stamps, log.joint_names, iso, EventRules(), hold)
+        return find_events(
+            flags, scores, evidence, stamps, log.joint_names, iso, EventRules(), hold
+        )
 
 
 class AffineWhitened(ModelMethod):
