@@ -169,6 +169,11 @@ class Calibration:
         return self.theta is not None
 
     @property
+    def regressor_weights(self) -> FloatArray | None:
+        """θ, with which the chain filters Ỹθ per joint rather than Ỹ (``twincd.chain``)."""
+        return self.theta
+
+    @property
     def model(self) -> ResidualModel:
         """The map and score that detection applies."""
         return ResidualModel(

@@ -513,7 +513,8 @@ def evaluate(
     if any(uses_friction(name) for name in methods):
         setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
     if any(uses_regressor(name) for name in methods):
-        setup = replace(setup, regressor=True, regressor_optional=True)
+        # the whole regressor, which the identified methods fit on (not a calibration's Ỹθ)
+        setup = replace(setup, regressor=True, regressor_optional=True, regressor_weights=None)
     if load is None:
 
         def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:
