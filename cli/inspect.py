@@ -158,6 +158,10 @@ def inspect(
             render(f)
     bad = [f for f in found if not f.usable]
     for f in bad:
+        if debug and f.error is not None:  # --debug: where the log's problem was raised
+            import traceback
+
+            typer.echo("".join(traceback.format_exception(f.error)).rstrip(), err=True)
         typer.echo(f"twincd: error: {f.problem}", err=True)
     if bad:
         raise typer.Exit(2)

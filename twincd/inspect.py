@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -95,13 +95,16 @@ class Inspection:
     twin_source: str | None = None
     warnings: list[str] = field(default_factory=list)
     problem: str | None = None
+    # the error behind ``problem`` (its traceback is what ``--debug`` shows); not in to_dict
+    error: TwincdError | None = field(default=None, repr=False, compare=False)
 
     @property
     def usable(self) -> bool:
         return self.problem is None
 
     def to_dict(self) -> dict[str, Any]:
-        doc = asdict(self)
+        doc = asdict(replace(self, error=None))
+        del doc["error"]
         doc["usable"] = self.usable
         finite: dict[str, Any] = _finite(doc)
         return finite
@@ -161,7 +164,7 @@ def inspect_log(
         except TwincdError as exc:
             if not found.topics:  # nothing could be read at all
                 raise
-            found.problem = exc.message
+            found.problem, found.error = exc.message, exc
         found.warnings = list(dict.fromkeys(warnings))
     return found
 

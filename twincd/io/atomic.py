@@ -51,7 +51,18 @@ def _alive(pid: int) -> bool:
         return False
     except PermissionError:  # someone else's live process
         return True
-    return True
+    return not _zombie(pid)
+
+
+def _zombie(pid: int) -> bool:
+    """A killed process that its parent has not reaped yet (Linux: state Z in /proc) is dead:
+    a Dask worker killed mid-write stays one for a while on a busy machine, and its temporary
+    must not block the log's retry."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rfind(")") + 2 :].startswith("Z")
 
 
 def remove_stale_temporaries(folder: Path, say: bool = True) -> list[Path]:
