@@ -9,7 +9,7 @@ from twincd.calibration.affine import (
     solve,
 )
 from twincd.calibration.file import SCHEMA, Calibration, Threshold, calibration_from_fit
-from twincd.calibration.setup import LogFit, fit_calibration, fit_log, merge_fits
+from twincd.calibration.fitting import LogFit, fit_calibration, fit_log, merge_fits
 
 __all__ = [
     "SCHEMA",
