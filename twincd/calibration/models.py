@@ -1,5 +1,6 @@
-"""Calibration models beyond the paper's affine map (contract: The calibration file ``model``), and
-their scores.
+"""The calibration models (contract: The calibration file ``model``): one class per kind with
+one interface (``ResidualModel``: ``stats`` → ``merge`` → ``solve``, then ``predict``,
+``residual`` and ``score``), the mergeable statistics they fit from, and their scores.
 
 - ``affine``: τ̃ ≈ a⊙τ̂̃ + b, score ‖r‖² (the seed paper, eq. 3–5).
 - ``friction``: per joint τ̃ ≈ a·τ̂̃ + b + c·LP[tanh(q̇/ε)] + d·q̇̃, the joint friction (Coulomb
@@ -14,8 +15,10 @@ their scores.
   cannot (a payload or a heavier link changes the torque differently along each path). It
   needs the robot's URDF; ε is chosen as for ``friction``. Least squares with a small ridge on
   standardised columns, because most of θ is not identifiable from joint torques.
-- ``…-whitened``: the same map, score Σ_j (r_j / s_j)² with s_j the joint's residual RMS on the
-  collision-free training samples, so that one noisy joint does not drown a push on a quiet one.
+- ``…-whitened`` (``whitened=True``, a property of the score, not of the map): the same map,
+  each joint's residual over its RMS s_j on the collision-free training samples (per bin of the
+  joint's speed: the depth statistic), so that one noisy joint does not drown a push on a quiet
+  one.
 
 Fitting is a pure per-log step (``FrictionStats.from_arrays``) and an exact merge (``+``, Chan
 et al.'s pairwise update of means and centred cross-products), like ``AffineStats``.
@@ -826,8 +829,11 @@ class FrictionModel(ResidualModel):
                 "prepare logs with the calibration's settings (Setup.from_calibration)",
             )
         coulomb = coulomb_columns(inputs["coulomb_f"], inputs["coulomb_eps"], self.epsilon_)
-        friction: FloatArray = self.c_ * coulomb + self.d_ * np.asarray(inputs["velocity_f"])
-        return out + friction
+        # (τ̂ term + Coulomb) + viscous, in that order: the bits of every file scored before
+        with_friction: FloatArray = (
+            out + self.c_ * coulomb + self.d_ * np.asarray(inputs["velocity_f"])
+        )
+        return with_friction
 
     def residual_weights(self, params: int, coulomb: int) -> FloatArray:
         if coulomb != len(EPSILON_GRID):
