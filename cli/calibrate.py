@@ -174,7 +174,7 @@ def threshold(
             "--false-alarms-per-hour",
             help="The false-alarm budget per hour of collision-free time that the threshold "
             "keeps, extrapolated from the tail of the score's excursions on the validation "
-            f"logs (e.g. {DEFAULT_FALSE_ALARMS_PER_HOUR:g}).",
+            f"logs (default {DEFAULT_FALSE_ALARMS_PER_HOUR:g} for the whitened models).",
         ),
     ] = None,
     output: Annotated[
@@ -195,10 +195,11 @@ def threshold(
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
-    """Set the detection threshold from the score on collision-free logs: the paper's μ + kσ
-    (k = 4), or with --false-alarms-per-hour the threshold that keeps a false-alarm budget per
-    hour of collision-free time, extrapolated from the peaks of the score's excursions with a
-    generalised Pareto tail (its interval is printed and stored).
+    """Set the detection threshold from the score on collision-free logs: by default, for the
+    whitened models, the threshold that keeps a budget of 1 false alarm per hour of
+    collision-free time (--false-alarms-per-hour sets another), extrapolated from the score's
+    excursions (its interval is printed and stored); the paper's μ + kσ with -k, and by default
+    for the affine model.
 
     Give validation logs other than those given to fit.
 

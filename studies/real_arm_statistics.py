@@ -16,6 +16,8 @@ Threshold rules, each set on the validation log's collision-free samples only:
   default for the depth statistic);
 - ``k4-guard``: the same without the samples within ``GUARD_S`` of a labelled push (the
   filtered efforts carry a push's force that long before and after its labels);
+- ``rice-1/h``: the 1/h budget by Rice's formula on the robust z (``twincd threshold``'s
+  default for the depth statistic);
 - ``budget``: the false-alarm budget of ``twincd threshold --false-alarms-per-hour 1`` (peaks
   over threshold, generalised Pareto tail) on the guarded samples;
 - ``z``: a fixed level of the score (for the depth statistic, a z).
@@ -153,6 +155,25 @@ def robust(k: float) -> Rule:
     return rule
 
 
+def rice(per_hour: float) -> Rule:
+    """``twincd threshold``'s default for the depth statistic: the budget by Rice's formula on
+    the robust z (``twincd.tail.fit_gaussian_tail``)."""
+
+    def rule(val: Scored, score: str) -> float:
+        from twincd.tail import ExcursionCounter, fit_gaussian_tail
+
+        clean = val.clean(0.0)
+        s = val.scores[score][clean]
+        med = float(np.median(s))
+        sigma = 1.4826 * float(np.median(np.abs(s - med)))
+        counter = ExcursionCounter(val.period_s)
+        counter.push(val.scores[score], clean)
+        tail = fit_gaussian_tail(counter.excursions, per_hour, med, sigma)
+        return float("nan") if tail is None else tail.estimate
+
+    return rule
+
+
 def fixed(level: float) -> Rule:
     return lambda val, score: level
 
@@ -162,6 +183,7 @@ RULES: dict[str, Rule] = {
     "k4-guard": k_sigma(4.0, GUARD_S),
     "robust4": robust(4.0),
     "budget-guard": budget(1.0, GUARD_S),
+    "rice-1/h": rice(1.0),
     "z4": fixed(4.0),
     "z5": fixed(5.0),
 }

@@ -22,7 +22,7 @@ import numpy as np
 from twincd.errors import CalibrationError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage
 from twincd.signal.filters import LowPass
-from twincd.types import BoolArray, IndexArray
+from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
     from twincd.twin.robot import RobotModel
@@ -147,6 +147,7 @@ def filter_stages(
     period_s: float,
     coulomb_eps: Sequence[float] = (),
     regressor: BoolArray | None = None,
+    theta: FloatArray | None = None,
 ) -> list[Stage]:
     """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
 
@@ -157,20 +158,27 @@ def filter_stages(
     there). With ``regressor`` (identified models: the (D, P) mask of the regressor's entries
     that can be non-zero, ``twincd.twin.dynamics.regressor_mask``, in the frames' joint order),
     the joint-torque regressor too, as ``regressor_f`` (N, kept): only the masked entries,
-    in row-major order (``PreparedLog`` has it whole, (N, D, P)). Without either, nothing more
-    is filtered: the seed's model costs what it did."""
+    in row-major order (``PreparedLog`` has it whole, (N, D, P)). With ``theta`` too (scoring
+    with a fitted identified model: its (D, P) weights), only each joint's Y_j θ_j goes through
+    the filter, as ``regressor_effort_f`` (N, D): the filter is linear, so LP(Y) θ = LP(Y θ),
+    and D channels are filtered instead of hundreds. Without either, nothing more is filtered:
+    the seed's model costs what it did."""
     from twincd.signal.filters import StreamingLowPass
+    from twincd.twin.dynamics import regressor_effort
 
     eps = tuple(float(e) for e in coulomb_eps)
     extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
     kept = 0 if regressor is None else int(np.count_nonzero(regressor))
+    if regressor is not None and theta is not None:
+        kept = len(theta)  # Y_j θ_j: one channel per joint
 
     def stack(frame: Frame) -> Frame:
         v = frame["velocity"]
         friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
         columns = [frame["effort"], frame["sim_effort"], *friction]
         if regressor is not None:
-            columns.append(frame["regressor"][:, regressor])
+            y = frame["regressor"][:, regressor]
+            columns.append(y if theta is None else regressor_effort(y, theta, regressor))
         rest = {k: x for k, x in frame.items() if k != "regressor"}
         return Frame(rest, frame.n).with_columns(both=np.hstack(columns))
 
@@ -184,7 +192,9 @@ def filter_stages(
                 velocity_f=both[:, 2 * d : 3 * d],
                 coulomb_f=both[:, 3 * d : (3 + len(eps)) * d].reshape(len(both), len(eps), d),
             )
-        if regressor is not None:  # only the masked entries, (N, kept): no zeros copied
+        if regressor is not None and theta is not None:
+            out = out.with_columns(regressor_effort_f=both[:, (2 + extra) * d :])
+        elif regressor is not None:  # only the masked entries, (N, kept): no zeros copied
             out = out.with_columns(regressor_f=both[:, (2 + extra) * d :])
         return out
 
@@ -215,6 +225,8 @@ class ChainSettings(Protocol):
     def lowpass(self) -> LowPass: ...
     @property
     def coulomb_eps(self) -> tuple[float, ...]: ...
+    @property
+    def regressor_weights(self) -> FloatArray | None: ...
 
 
 @dataclass(frozen=True)
@@ -283,5 +295,6 @@ def build_chain(
 
             assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
             mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
-        stages += filter_stages(settings.lowpass, period_s, settings.coulomb_eps, mask)
+        theta = None if mask is None else settings.regressor_weights
+        stages += filter_stages(settings.lowpass, period_s, settings.coulomb_eps, mask, theta)
     return TwinChain(Chain(stages), layout, period_s, mask)

@@ -76,6 +76,9 @@ class PreparedLog:
     coulomb_eps: tuple[float, ...] = ()
     # Y(q, q̇, q̈) through the same filter, (N, joints, parameters) (identified models)
     regressor_f: FloatArray | None = None
+    # Ỹθ per joint, (N, D), instead of ``regressor_f`` when prepared to score a fitted
+    # identified model (``Setup.regressor_weights``)
+    regressor_effort_f: FloatArray | None = None
     # True within the zero-phase filter's edge span of a segment's ends (None: no such span)
     edge: BoolArray | None = None
 
@@ -397,6 +400,7 @@ class PreparedStream:
             coulomb_f=whole.get("coulomb_f"),
             coulomb_eps=self.coulomb_eps,
             regressor_f=_whole_regressor(whole.get("regressor_f"), self.regressor_mask),
+            regressor_effort_f=whole.get("regressor_effort_f"),
             robot=self.robot,
             simulated=self.simulated,
             lowpass=self.setup.lowpass,
@@ -496,6 +500,8 @@ class CalibrationSettings(Protocol):
     @property
     def regressor(self) -> bool: ...
     @property
+    def regressor_weights(self) -> FloatArray | None: ...
+    @property
     def period_s(self) -> float | None: ...
 
 
@@ -523,6 +529,9 @@ class Setup:
     regressor: bool = False  # the filtered joint-torque regressor too (identified models)
     # with ``regressor``: leave it out, rather than refuse a log, where no robot model is known
     regressor_optional: bool = False
+    # with ``regressor``, to score a fitted identified model: its (D, P) weights θ, so that only
+    # Ỹθ is filtered (``regressor_effort_f``, D channels) instead of Ỹ's entries
+    regressor_weights: FloatArray | None = field(default=None, compare=False)
 
     def block_size_for(self, regressor: bool) -> int:
         """Samples per block read: fewer when the regressor is filtered (``REGRESSOR_BLOCK``)."""
@@ -539,6 +548,7 @@ class Setup:
             period_s=calibration.period_s,
             coulomb_eps=calibration.coulomb_eps,
             regressor=calibration.regressor,
+            regressor_weights=calibration.regressor_weights,
         )
 
     def open(self, path: str | Path, **kwargs: Any) -> PreparedStream:

@@ -171,6 +171,11 @@ class Calibration:
         return self.theta is not None
 
     @property
+    def regressor_weights(self) -> FloatArray | None:
+        """θ, with which the chain filters Ỹθ per joint rather than Ỹ (``twincd.chain``)."""
+        return self.theta
+
+    @property
     def model(self) -> ResidualModel:
         """The fitted model that detection applies (one of ``MODEL_KINDS``)."""
         model = make_model(

@@ -163,18 +163,6 @@ def _blas_threads() -> Any:
     return ThreadpoolController()
 
 
-def regressor_effort(y: FloatArray, theta: FloatArray, regressor_mask: BoolArray) -> FloatArray:
-    """Ỹ_j θ_j per joint, (N, D), from the masked regressor (N, kept). einsum's own loop, not
-    BLAS: each sample's sum runs in one order whatever the block's length (live detection
-    pushes one sample at a time, a file thousands), so batch and live agree to the bit."""
-    out = np.empty((len(y), len(theta)))
-    end = 0
-    for j, kept in enumerate(regressor_mask):
-        start, end = end, end + int(np.count_nonzero(kept))
-        out[:, j] = np.einsum("nk,k->n", y[:, start:end], theta[j, kept])
-    return out
-
-
 @dataclass(frozen=True)
 class FrictionStats:
     """Mergeable statistics of the friction-aware regression for every ε of ``EPSILON_GRID``.
@@ -874,6 +862,10 @@ class IdentifiedModel(FrictionModel):
 
     def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
         out = super().predict(inputs)
+        effort = inputs.get("regressor_effort_f")
+        if effort is not None:  # Ỹθ filtered as one channel per joint (twincd.chain)
+            summed: FloatArray = out + np.asarray(effort, dtype=np.float64)
+            return summed
         regressor = inputs.get("regressor_f")
         regressor_mask = inputs.get("regressor_mask")
         if regressor is None:
@@ -885,6 +877,8 @@ class IdentifiedModel(FrictionModel):
         if regressor_mask is not None and np.ndim(regressor) == 2:
             if np.shape(regressor_mask) != self.theta_.shape:
                 raise self._theta_mismatch(np.shape(regressor_mask)[1])
+            from twincd.twin.dynamics import regressor_effort
+
             y = np.asarray(regressor, dtype=np.float64)
             return out + regressor_effort(y, self.theta_, np.asarray(regressor_mask, dtype=bool))
         if np.shape(regressor)[1:] != self.theta_.shape:
@@ -944,6 +938,7 @@ def model_inputs(log: PreparedLog) -> dict[str, Any]:
         "coulomb_f": log.coulomb_f,
         "coulomb_eps": log.coulomb_eps,
         "regressor_f": log.regressor_f,
+        "regressor_effort_f": log.regressor_effort_f,
         "velocity": log.states.velocity,
     }
 

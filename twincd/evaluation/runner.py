@@ -514,7 +514,8 @@ def evaluate(
     if any(m.needs_coulomb for m in models):
         setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
     if any(m.needs_regressor for m in models):
-        setup = replace(setup, regressor=True, regressor_optional=True)
+        # the whole regressor, which the identified methods fit on (not a calibration's Ỹθ)
+        setup = replace(setup, regressor=True, regressor_optional=True, regressor_weights=None)
     if load is None:
 
         def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:

@@ -23,7 +23,7 @@ from twincd.signal.derivatives import (
 )
 from twincd.twin.openmp import load_pinocchio
 from twincd.twin.robot import RobotModel
-from twincd.types import FloatArray
+from twincd.types import BoolArray, FloatArray
 
 # whether an OpenMP team of more than one thread has run in this process: a process forked after
 # that hangs at its own first parallel region, so a pool must then start its workers afresh
@@ -169,3 +169,17 @@ def inertial_parameters(robot: RobotModel) -> FloatArray:
     return np.concatenate(
         [np.asarray(model.inertias[i].toDynamicParameters()) for i in range(1, model.njoints)]
     )
+
+
+def regressor_effort(y: FloatArray, theta: FloatArray, regressor_mask: BoolArray) -> FloatArray:
+    """Y_j θ_j per joint, (N, D), from the masked regressor (N, kept). Summed entry by entry in
+    one fixed order, not by einsum or BLAS (whose kernels change with the block's length and
+    strides): each sample's sum is the same whatever the block's length (live detection pushes
+    one sample at a time, a file thousands), so batch and live agree to the bit."""
+    out = np.zeros((len(y), len(theta)))
+    end = 0
+    for j, kept in enumerate(regressor_mask):
+        start, end = end, end + int(np.count_nonzero(kept))
+        for column, weight in zip(range(start, end), theta[j, kept], strict=True):
+            out[:, j] += y[:, column] * weight
+    return out
