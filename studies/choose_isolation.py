@@ -45,7 +45,7 @@ def presses(folder: Path, work: Path, fit_args: list[str]) -> list[tuple[str, np
         lg = s.log
         stamps = lg.states.stamp_ns
         cal = Calibration.load(work / f"{folder.name}.json")
-        white = cal.model.whitened(s.residual, lg.states.velocity)
+        white = cal.model.whitened_residual(s.residual, lg.states.velocity)
         evidence = s.residual if white is None else white
         hold = (s.scores >= EventRules().release_level(s.threshold, s.mu)) & s.judged
         events = find_events(

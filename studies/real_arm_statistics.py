@@ -101,7 +101,7 @@ def rotations(
     cutoff: float = 1.0,
 ) -> list[Rotation]:
     """Fit once per (test, val) pair of ``plan`` on the other logs, through the library."""
-    from twincd.calibration.setup import fit_log, merge_fits, setup_for_model
+    from twincd.calibration.fitting import fit_log, merge_fits, setup_for_model
     from twincd.pipeline import Setup
     from twincd.signal.filters import LowPass
 

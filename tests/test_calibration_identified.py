@@ -22,6 +22,7 @@ from twincd.calibration.affine import AffineStats
 from twincd.calibration.models import (
     EPSILON_GRID,
     FrictionStats,
+    IdentifiedModel,
     IdentifiedStats,
     fit_model,
     solve_identified,
@@ -122,8 +123,8 @@ def test_identified_model_recovers_a_plant_the_affine_map_cannot(xarm) -> None: 
     unseen.update(coulomb_f=coulomb2, regressor_f=y2)
     rms = {}
     for kind in ("friction", "identified", "identified-whitened"):
-        model = fit_model(kind, affine, friction, stats).model
-        assert (model.theta is not None) == kind.startswith("identified")
+        model = fit_model(kind, affine, friction, stats)
+        assert (getattr(model, "theta_", None) is not None) == kind.startswith("identified")
         rms[kind] = np.sqrt(np.mean(model.residual(unseen) ** 2, axis=0))
     assert np.all(rms["identified"] < 0.04), rms["identified"]
     assert np.max(rms["friction"]) > 4 * np.max(rms["identified"]), rms
@@ -300,8 +301,8 @@ def test_filter_kind_is_a_choice_and_the_calibration_keeps_it(
 
 
 def test_identified_fit_in_blocks_equals_one_block(tmp_path: Path) -> None:
+    from twincd.calibration.fitting import fit_log, merge_fits, setup_for_model
     from twincd.calibration.models import model_inputs
-    from twincd.calibration.setup import fit_log, merge_fits, setup_for_model
 
     log = jittered_xarm_log(tmp_path / "run.mcap")
     one = setup_for_model(Setup(robot="xarm7", block_size=1 << 20), "identified")
@@ -331,8 +332,9 @@ def test_masked_regressor_statistics_and_prediction_equal_the_whole_ones(xarm) -
     assert np.array_equal(kept.mean, whole.mean) and np.array_equal(kept.cross, whole.cross)
     affine = AffineStats.from_arrays(twin, effort)
     friction = FrictionStats.from_arrays(twin, qd, coulomb, effort)
-    model = fit_model("identified", affine, friction, whole).model
-    assert model.theta is not None and not np.any(model.theta[~mask])  # θ lives on the mask
+    model = fit_model("identified", affine, friction, whole)
+    # θ lives on the mask
+    assert isinstance(model, IdentifiedModel) and not np.any(model.theta_[~mask])
     inputs = {"effort_f": effort, "sim_effort_f": twin, "velocity_f": qd, "coulomb_f": coulomb}
     inputs["coulomb_eps"] = EPSILON_GRID
     full = model.predict({**inputs, "regressor_f": y})

@@ -18,9 +18,9 @@ from twincd.calibration.affine import AffineStats
 from twincd.calibration.models import (
     EPSILON_GRID,
     FrictionStats,
-    ResidualModel,
     coulomb_columns,
     fit_model,
+    make_model,
     solve_friction,
 )
 from twincd.errors import CalibrationError, DataError
@@ -80,8 +80,10 @@ def test_friction_statistics_refuse_features_off_the_grid():
 
 def test_whitened_score_weighs_joints_by_their_training_scale():
     r = np.array([[1.0, 0.1], [0.0, 0.2]])
-    plain = ResidualModel("affine", np.ones(2), np.zeros(2))
-    white = ResidualModel("affine-whitened", np.ones(2), np.zeros(2), scale=np.array([1.0, 0.1]))
+    plain = make_model("affine").with_coefficients({"a": np.ones(2), "b": np.zeros(2)})
+    white = make_model("affine-whitened").with_coefficients(
+        {"a": np.ones(2), "b": np.zeros(2), "scale": np.array([1.0, 0.1])}
+    )
     np.testing.assert_allclose(plain.score(r), [1.01, 0.04])
     np.testing.assert_allclose(white.score(r), [2.0, 4.0])
 
@@ -102,10 +104,10 @@ def test_fit_model_kinds_and_the_coulomb_columns_they_read():
     rms = {}
     for kind in ("affine", "affine-whitened", "friction", "friction-whitened"):
         fitted = fit_model(kind, affine, friction)
-        assert fitted.model.kind == kind
-        assert (fitted.model.scale is not None) == kind.endswith("whitened")
-        assert (fitted.model.c is not None) == kind.startswith("friction")
-        rms[kind] = float(np.sqrt(np.mean(fitted.model.residual(inputs) ** 2)))
+        assert fitted.kind == kind
+        assert (fitted.scale_ is not None) == kind.endswith("whitened")
+        assert (getattr(fitted, "c_", None) is not None) == kind.startswith("friction")
+        rms[kind] = float(np.sqrt(np.mean(fitted.residual(inputs) ** 2)))
     assert rms["friction"] < 0.2 * rms["affine"]
     eps = np.array([0.05, 0.02, 0.05])
     picked = coulomb_columns(feats, EPSILON_GRID, eps)

@@ -21,10 +21,10 @@ from twincd.calibration.models import (
     SPEED_BINS,
     FitStats,
     IdentifiedStats,
-    ResidualModel,
     SpeedStats,
     depth_order,
     depth_score,
+    make_model,
     speed_bin,
     wilson_hilferty,
 )
@@ -55,17 +55,16 @@ def _samples(n: int, seed: int, joints: int = 3) -> dict[str, np.ndarray]:
 def test_the_speed_scale_is_the_fitted_residual_rms_in_each_bin():
     inputs = _samples(6000, 0)
     clean = np.random.default_rng(1).uniform(size=6000) < 0.95
-    fitted = FitStats.from_inputs(inputs, clean).fit("friction-whitened")
-    model = fitted.model
-    assert model.scale is not None and model.scale.shape == (3, len(SPEED_BINS) + 1)
+    model = make_model("friction-whitened").solve(FitStats.from_inputs(inputs, clean))
+    assert model.scale_ is not None and model.scale_.shape == (3, len(SPEED_BINS) + 1)
     r = model.residual(inputs)[clean]
     bins = speed_bin(inputs["velocity"][clean])
     for j, b in itertools.product(range(3), range(len(SPEED_BINS) + 1)):
         at = bins[:, j] == b
-        want = np.sqrt(np.mean(r[at, j] ** 2)) if at.sum() >= MIN_BIN_SAMPLES else fitted.rmse[j]
-        np.testing.assert_allclose(model.scale[j, b], want, rtol=1e-7)
+        want = np.sqrt(np.mean(r[at, j] ** 2)) if at.sum() >= MIN_BIN_SAMPLES else model.rmse_[j]
+        np.testing.assert_allclose(model.scale_[j, b], want, rtol=1e-7)
     # at rest the stiction band is ten times wider than in motion, and the scale says so
-    assert np.all(model.scale[:, 0] > 5 * model.scale[:, -1])
+    assert np.all(model.scale_[:, 0] > 5 * model.scale_[:, -1])
 
 
 @settings(max_examples=20, deadline=None)
@@ -153,7 +152,9 @@ def test_depth_order_puts_the_base_first():
 
 def test_a_binned_model_scores_by_the_sample_speed_and_needs_it():
     scale = np.array([[1.0, 0.1, 0.1, 0.1, 0.1, 0.1], [1.0] * 6])
-    model = ResidualModel("affine-whitened", np.ones(2), np.zeros(2), scale=scale)
+    model = make_model("affine-whitened").with_coefficients(
+        {"a": np.ones(2), "b": np.zeros(2), "scale": scale}
+    )
     r = np.array([[0.5, 0.0], [0.5, 0.0]])
     v = np.array([[0.0, 0.0], [1.0, 0.0]])  # the first at rest, the second fast
     at_rest, moving = model.score(r, v)

@@ -355,3 +355,30 @@ def test_report_figures_come_back_from_worker_processes(cal, twin_dataset, tmp_p
     assert page.count("<svg") == len(logs)
     for log in logs:
         assert str(log) in page
+
+
+def test_the_drawn_twin_is_what_the_model_predicts(sample_detection):
+    """The figure's twin line is the calibration model's prediction (the identified model of the
+    shipped calibration), not the affine part a⊙τ̂̃ + b of its coefficients."""
+    from twincd.calibration.models import model_inputs
+    from twincd.reports.envelope import Envelope
+
+    cal, summary = sample_detection
+    trace = summary.trace
+    assert cal.kind == "identified-whitened" and trace is not None
+    log = Setup.from_calibration(cal).prepare(SAMPLE_LOGS / "test" / "test_000.mcap")
+    d = len(cal.joint_names)
+    lines = {}
+    for name, values in (
+        ("predicted", cal.model.predict(model_inputs(log))),
+        ("affine", cal.a * log.sim_effort_f + cal.b),
+    ):
+        envelope = Envelope(d, trace.envelope.columns)
+        envelope.push(log.states.stamp_ns, values)
+        lines[name] = [envelope.line(j)[1] for j in range(d)]
+    farthest = 0.0
+    for j in range(d):
+        drawn = trace.twin(j)[1]
+        np.testing.assert_allclose(drawn, lines["predicted"][j], rtol=0, atol=1e-9)
+        farthest = max(farthest, float(np.max(np.abs(drawn - lines["affine"][j]))))
+    assert farthest > 1.0  # N·m: the identified model's other terms are visible

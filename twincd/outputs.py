@@ -266,12 +266,8 @@ def detect_and_write(
         if trace:
             from twincd.reports.traces import DetectionTrace
 
-            figure_data = DetectionTrace(
-                calibration.joint_names,
-                calibration.a,
-                calibration.b,
-                calibration.require_threshold().value,
-            )
+            threshold = calibration.require_threshold().value
+            figure_data = DetectionTrace(calibration.joint_names, threshold)
             sinks.append(figure_data)
         summary = detect_file(path, calibration, setup, sinks)
         summary.trace = figure_data

@@ -122,13 +122,13 @@ class SetupOptions:
 
 def fit_setup(options: SetupOptions, model: str | None = None) -> tuple[Setup, str | None]:
     """What fitting ``model`` reads logs with, and the model (None: the best the logs allow,
-    ``twincd.calibration.setup.best_model``).
+    ``twincd.calibration.fitting.best_model``).
 
     Unless a filter is given, the identified models (and the best model, identified when it
     can be) filter without overshoot (``critical``) at ``DEFAULT_CRITICAL_CUTOFF_HZ``: their
     residual is at the noise floor, where a Butterworth filter's ringing around a push shows
     as alarms before and after it (``filter_kind_for``)."""
-    from twincd.calibration.setup import filter_kind_for, setup_for_model
+    from twincd.calibration.fitting import filter_kind_for, setup_for_model
 
     if options.filter_kind is None:
         kind = filter_kind_for(model)

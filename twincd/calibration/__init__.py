@@ -1,4 +1,5 @@
-"""Calibrate: the per-joint map a⊙τ̂ + b fitted on collision-free logs, and its JSON file."""
+"""Calibrate: a model of the measured effort from the twin's, fitted on collision-free logs, and
+its JSON file."""
 
 from twincd.calibration.affine import (
     AffineCalibration,
@@ -9,21 +10,35 @@ from twincd.calibration.affine import (
     solve,
 )
 from twincd.calibration.file import SCHEMA, Calibration, Threshold, calibration_from_fit
-from twincd.calibration.setup import LogFit, fit_calibration, fit_log, merge_fits
+from twincd.calibration.fitting import LogFit, fit_calibration, fit_log, merge_fits
+from twincd.calibration.models import (
+    AffineModel,
+    FitStats,
+    FrictionModel,
+    IdentifiedModel,
+    ResidualModel,
+    make_model,
+)
 
 __all__ = [
     "SCHEMA",
     "AffineCalibration",
+    "AffineModel",
     "AffineSolution",
     "AffineStats",
     "Calibration",
+    "FitStats",
+    "FrictionModel",
+    "IdentifiedModel",
     "LogFit",
+    "ResidualModel",
     "Threshold",
     "calibration_from_fit",
     "clean_mask",
     "clean_rows",
     "fit_calibration",
     "fit_log",
+    "make_model",
     "merge_fits",
     "solve",
 ]

@@ -1,4 +1,4 @@
-"""The paper's regression τ̃ ≈ a⊙τ̂̃ + b (eq. 3–4) as mergeable statistics and an estimator.
+"""The paper's regression τ̃ ≈ a⊙τ̂̃ + b (eq. 3–4): its mergeable statistics and solution.
 
 Fitting is split into a pure per-log step (``AffineStats.from_arrays``: sufficient statistics of
 one log or block) and a merge (``+``), so memory stays flat for any number of logs and the
@@ -9,17 +9,18 @@ from __future__ import annotations
 
 import logging
 import math
-import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from twincd.errors import DataError, NotFittedError
+from twincd.calibration.models import AffineModel
+from twincd.errors import DataError
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
+    from twincd.calibration.models import FitStats
     from twincd.pipeline import PreparedLog
 
 log = logging.getLogger("twincd")
@@ -168,37 +169,33 @@ def solve(stats: AffineStats) -> AffineSolution:
     return AffineSolution(a, b, r2, rmse, ill)
 
 
-class AffineCalibration:
-    """Estimator of the paper's a, b (scikit-learn style: ``fit`` returns self).
+def warn_ill_conditioned(
+    names: Sequence[str] | None, stats: AffineStats, ill_conditioned: BoolArray, a: FloatArray
+) -> None:
+    """One warning per joint whose slope ``a`` mostly amplifies noise (``CONDITION_RATIO``)."""
+    names = list(names or [f"#{i}" for i in range(len(a))])
+    for i in np.flatnonzero(ill_conditioned):
+        log.warning(
+            "joint %s is badly conditioned: its twin effort barely varies "
+            "(std %.3g vs measured %.3g), so a = %.3g is unreliable",
+            names[i],
+            math.sqrt(float(stats.var_x[i])),
+            math.sqrt(float(stats.var_y[i])),
+            float(a[i]),
+        )
 
-    Learned attributes: ``a_``, ``b_``, ``r2_``, ``rmse_`` (per joint), ``n_samples_``,
-    ``stats_`` (the merged AffineStats, for further merging) and ``fit_s_`` (fit time).
-    """
+
+class AffineCalibration(AffineModel):
+    """The paper's a, b as an estimator on its own (the affine model, unwhitened), which also
+    warns about joints whose slope is badly conditioned and predicts from the twin's effort
+    alone. Learned attributes as ``AffineModel``'s, and ``stats_`` (the merged AffineStats)."""
 
     def __init__(
         self, joint_names: Sequence[str] | None = None, warn_ill_conditioned: bool = True
     ) -> None:
+        super().__init__()
         self.joint_names = joint_names
         self.warn_ill_conditioned = warn_ill_conditioned
-
-    def fit(self, logs: Iterable[PreparedLog]) -> AffineCalibration:
-        """Fit on collision-free samples of ``logs``, consumed one at a time (may be lazy)."""
-        # timed like the paper's training time: the regression, not reading or simulating logs
-        elapsed = 0.0
-        total: AffineStats | None = None
-        for log_ in logs:
-            start = time.perf_counter()
-            part = AffineStats.from_log(log_)
-            total = part if total is None else total + part
-            elapsed += time.perf_counter() - start
-            if self.joint_names is None:
-                self.joint_names = log_.joint_names
-        if total is None:
-            raise DataError("no logs to fit", "fit", "give at least one collision-free log")
-        start = time.perf_counter()
-        self.fit_stats(total)
-        self.fit_s_ = elapsed + time.perf_counter() - start
-        return self
 
     def fit_arrays(
         self, effort_f: FloatArray, sim_effort_f: FloatArray, mask: BoolArray | None = None
@@ -207,29 +204,23 @@ class AffineCalibration:
 
     def fit_stats(self, stats: AffineStats) -> AffineCalibration:
         """Fit from statistics merged elsewhere (e.g. computed per log on workers)."""
-        sol = solve(stats)
-        self.stats_ = stats
-        self.a_, self.b_, self.r2_, self.rmse_ = sol.a, sol.b, sol.r2, sol.rmse
-        self.n_samples_ = stats.n
+        from twincd.calibration.models import FitStats
+
         self.fit_s_ = 0.0
-        names = list(self.joint_names or [f"#{i}" for i in range(len(sol.a))])
-        for i in np.flatnonzero(sol.ill_conditioned & self.warn_ill_conditioned):
-            log.warning(
-                "joint %s is badly conditioned: its twin effort barely varies "
-                "(std %.3g vs measured %.3g), so a = %.3g is unreliable",
-                names[i],
-                math.sqrt(float(stats.var_x[i])),
-                math.sqrt(float(stats.var_y[i])),
-                float(sol.a[i]),
-            )
+        return self.solve(FitStats(stats))
+
+    def solve(self, stats: FitStats) -> AffineCalibration:
+        super().solve(stats)
+        self.stats_ = stats.affine
+        if self.warn_ill_conditioned:
+            sol = solve(stats.affine)
+            names = self.joint_names or getattr(self, "joint_names_", None)
+            warn_ill_conditioned(names, stats.affine, sol.ill_conditioned, sol.a)
         return self
 
-    def _check(self) -> None:
-        if not hasattr(self, "a_"):
-            raise NotFittedError("the calibration is not fitted", "AffineCalibration", "call fit()")
-
-    def predict(self, sim_effort_f: FloatArray) -> FloatArray:
-        """a⊙τ̂̃ + b: the twin's effort adjusted to the real robot."""
-        self._check()
-        out: FloatArray = self.a_ * sim_effort_f + self.b_
-        return out
+    def predict(self, inputs: Mapping[str, Any] | FloatArray) -> FloatArray:
+        """a⊙τ̂̃ + b: the twin's effort adjusted to the real robot (``inputs``: prepared
+        samples, or the twin's effort τ̂̃ alone)."""
+        if isinstance(inputs, Mapping):
+            return super().predict(inputs)
+        return super().predict({"sim_effort_f": inputs})

@@ -13,14 +13,16 @@ from typing import Any
 
 import numpy as np
 
-from twincd.calibration.affine import AffineCalibration
 from twincd.calibration.models import (
     AFFINE,
+    COEFFICIENTS,
     MODEL_KINDS,
     SPEED_BINS,
     STATISTICS,
     ResidualModel,
     depth_order,
+    make_model,
+    model_class,
 )
 from twincd.errors import CalibrationError, NotFittedError
 from twincd.io.options import LogOptions
@@ -175,24 +177,17 @@ class Calibration:
 
     @property
     def model(self) -> ResidualModel:
-        """The map and score that detection applies."""
-        return ResidualModel(
-            self.kind,
-            self.a,
-            self.b,
-            self.c,
-            self.d,
-            self.epsilon,
-            self.scale,
-            self.theta,
-            self.speed_bins,
-            depth_order(self.depths, len(self.joint_names)),
+        """The fitted model that detection applies (one of ``MODEL_KINDS``)."""
+        model = make_model(
+            self.kind, depth_order(self.depths, len(self.joint_names)), self.speed_bins
         )
+        coefficients = {key: getattr(self, key) for key in COEFFICIENTS}
+        return model.with_coefficients(coefficients, self.r2, self.rmse)
 
     @property
     def joint_scale(self) -> FloatArray | None:
         """One noise scale per joint, what isolation compares joints by (``ResidualModel``)."""
-        return self.model.joint_scale(self.rmse)
+        return self.model.joint_scale
 
     def require_threshold(self) -> Threshold:
         if self.threshold is None:
@@ -671,14 +666,13 @@ def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatA
 
 
 def _require_coefficients(kind: str, extra: Mapping[str, FloatArray | None], where: str) -> None:
-    from twincd.calibration.models import is_whitened, uses_friction, uses_regressor
-
+    cls, whitened = model_class(kind)
     needed = (
-        (["c", "d", "epsilon"] if uses_friction(kind) else [])
-        + (["scale"] if is_whitened(kind) else [])
-        + (["theta"] if uses_regressor(kind) else [])
+        (["c", "d", "epsilon"] if cls.needs_coulomb else [])
+        + (["scale"] if whitened else [])
+        + (["theta"] if cls.needs_regressor else [])
     )
-    if extra.get("theta") is not None and not uses_regressor(kind):
+    if extra.get("theta") is not None and not cls.needs_regressor:
         raise CalibrationError(
             f"the {kind} model has regressor weights (theta), which only identified models use",
             where,
@@ -701,7 +695,8 @@ def _now() -> str:
 
 
 def calibration_from_fit(
-    estimator: AffineCalibration,
+    model: ResidualModel,
+    joint_names: Sequence[str],
     lowpass: LowPass,
     options: LogOptions,
     robot: str | None,
@@ -710,23 +705,28 @@ def calibration_from_fit(
     logs: Sequence[str],
     period_s: float | None = None,
 ) -> Calibration:
-    """The calibration file's content from a fitted estimator."""
-    estimator._check()
-    assert estimator.joint_names is not None
+    """The calibration file's content from a fitted model (``fit_s_``: its training time)."""
+    coefficients = model.coefficients()
     return Calibration(
-        joint_names=tuple(estimator.joint_names),
-        a=estimator.a_,
-        b=estimator.b_,
+        joint_names=tuple(joint_names),
+        a=model.a_,
+        b=model.b_,
         lowpass=lowpass,
         options=options,
         robot=robot,
         urdf_sha256=urdf_sha256,
         simulated=simulated,
         fit_logs=tuple(logs),
-        fit_samples=estimator.n_samples_,
-        r2=estimator.r2_,
-        rmse=estimator.rmse_,
-        fit_s=estimator.fit_s_,
+        fit_samples=model.n_samples_,
+        r2=model.r2_,
+        rmse=model.rmse_,
+        fit_s=model.fit_s_,
         created=_now(),
         period_s=period_s,
+        kind=model.kind,
+        c=coefficients["c"],
+        d=coefficients["d"],
+        epsilon=coefficients["epsilon"],
+        scale=coefficients["scale"],
+        theta=coefficients["theta"],
     )

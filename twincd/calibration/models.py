@@ -1,5 +1,6 @@
-"""Calibration models beyond the paper's affine map (contract: The calibration file ``model``), and
-their scores.
+"""The calibration models (contract: The calibration file ``model``): one class per kind with
+one interface (``ResidualModel``: ``stats`` → ``merge`` → ``solve``, then ``predict``,
+``residual`` and ``score``), the mergeable statistics they fit from, and their scores.
 
 - ``affine``: τ̃ ≈ a⊙τ̂̃ + b, score ‖r‖² (the seed paper, eq. 3–5).
 - ``friction``: per joint τ̃ ≈ a·τ̂̃ + b + c·LP[tanh(q̇/ε)] + d·q̇̃, the joint friction (Coulomb
@@ -14,8 +15,10 @@ their scores.
   cannot (a payload or a heavier link changes the torque differently along each path). It
   needs the robot's URDF; ε is chosen as for ``friction``. Least squares with a small ridge on
   standardised columns, because most of θ is not identifiable from joint torques.
-- ``…-whitened``: the same map, score Σ_j (r_j / s_j)² with s_j the joint's residual RMS on the
-  collision-free training samples, so that one noisy joint does not drown a push on a quiet one.
+- ``…-whitened`` (``whitened=True``, a property of the score, not of the map): the same map,
+  each joint's residual over its RMS s_j on the collision-free training samples (per bin of the
+  joint's speed: the depth statistic), so that one noisy joint does not drown a push on a quiet
+  one.
 
 Fitting is a pure per-log step (``FrictionStats.from_arrays``) and an exact merge (``+``, Chan
 et al.'s pairwise update of means and centred cross-products), like ``AffineStats``.
@@ -23,15 +26,17 @@ et al.'s pairwise update of means and centred cross-products), like ``AffineStat
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+import operator
+import time
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
-from functools import lru_cache
-from typing import TYPE_CHECKING, Any, Protocol
+from dataclasses import dataclass
+from functools import lru_cache, reduce
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
 
-from twincd.errors import DataError, JointMismatchError
+from twincd.errors import DataError, JointMismatchError, NotFittedError, UsageError
 from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
@@ -68,20 +73,6 @@ STATISTICS = ("sum", "depth")
 # ridge of the identified model's least squares, relative to each (standardised) column's own
 # spread: enough to pin θ's unidentifiable combinations at zero, far below any real signal
 IDENTIFIED_RIDGE = 1e-6
-
-
-def uses_friction(kind: str) -> bool:
-    """The model has the Coulomb and viscous terms (and so needs their features)."""
-    return kind.startswith(("friction", "identified"))
-
-
-def uses_regressor(kind: str) -> bool:
-    """The model corrects the inertial parameters (and so needs the URDF's regressor)."""
-    return kind.startswith("identified")
-
-
-def is_whitened(kind: str) -> bool:
-    return kind.endswith("-whitened")
 
 
 def coulomb_columns(
@@ -449,27 +440,9 @@ def _merge_counted(
 def speed_scale(stats: SpeedStats, model: ResidualModel, overall: FloatArray) -> FloatArray:
     """(D, B) each joint's residual RMS under ``model`` in each bin of its own speed, exact
     from ``stats``; a bin with fewer than ``MIN_BIN_SAMPLES`` samples takes ``overall`` (D,)."""
-    joints = len(model.a)
-    p, e = stats.params, stats.coulomb
-    w = np.zeros((joints, p + 3 + e))  # the residual τ̃ − f(…) as weights on the columns
-    w[:, 0] = -model.a
-    w[:, -1] = 1.0
-    if model.theta is not None:
-        if model.theta.shape[1] != p:
-            raise model._theta_mismatch(p)
-        w[:, 1 : p + 1] = -model.theta
-    if model.c is not None and model.d is not None and model.epsilon is not None:
-        if e != len(EPSILON_GRID):
-            raise DataError(
-                f"the {model.kind} model's whitening needs every ε candidate's Coulomb feature",
-                "fit",
-                "prepare the logs with setup_for_model(setup, model)",
-            )
-        w[:, p + 1] = -model.d
-        at = [EPSILON_GRID.index(float(x)) for x in model.epsilon]
-        w[np.arange(joints), p + 2 + np.array(at, dtype=np.intp)] = -model.c
+    w = model.residual_weights(stats.params, stats.coulomb)
     spread = np.einsum("dk,bdkl,dl->bd", w, stats.cross, w)
-    offset = np.einsum("bdk,dk->bd", stats.mean, w) - model.b
+    offset = np.einsum("bdk,dk->bd", stats.mean, w) - model.b_
     sse = np.maximum(spread, 0.0) + stats.n * offset**2
     rms = np.sqrt(sse / np.maximum(stats.n, 1))
     enough = stats.n >= MIN_BIN_SAMPLES
@@ -591,109 +564,187 @@ def solve_identified(stats: IdentifiedStats) -> IdentifiedSolution:
     return IdentifiedSolution(friction, coef[:, 1 : p + 1])
 
 
-@dataclass(frozen=True)
-class ResidualModel:
-    """What scoring needs of a calibration: the map from twin to measured effort and the score.
+M = TypeVar("M", bound="ResidualModel")
+# the per-joint coefficients a calibration file may hold (``ResidualModel.coefficients``)
+COEFFICIENTS = ("a", "b", "c", "d", "epsilon", "scale", "theta")
 
-    ``c``, ``d``, ``epsilon`` are set for friction and identified models, ``theta`` (D, P) for
-    identified ones, ``scale`` for whitened ones: (D, B) per bin of ``speed_bins`` (the depth
-    statistic, taking the joints in ``order``), or (D,) in files written before the bins.
+
+class ResidualModel:
+    """A map from the twin's effort (and the model's other prepared inputs) to the measured one,
+    and the score of its residual; one subclass per model kind (scikit-learn style: parameters
+    in ``__init__``, never changed by fitting; learned values end in ``_``).
+
+    Fitting is ``stats`` per log or block, an exact merge (``merge``, ``+``), then ``solve``.
+    Whitening is a property of the score: ``whitened`` models divide each joint's residual by
+    its training RMS, per bin of the joint's speed (``speed_bins``; the depth statistic over the
+    joints in ``order``, base first), or one per joint in files written before the bins (the
+    sum); the others score Σ_j r_j².
     """
 
-    kind: str
-    a: FloatArray
-    b: FloatArray
-    c: FloatArray | None = None
-    d: FloatArray | None = None
-    epsilon: FloatArray | None = None
-    scale: FloatArray | None = None
-    theta: FloatArray | None = None
-    speed_bins: tuple[float, ...] = SPEED_BINS
-    order: tuple[int, ...] | None = None  # joints base first (None: as they come)
+    name: ClassVar[str] = AFFINE  # the kind's stem in calibration files
+    needs_coulomb: ClassVar[bool] = False  # prepared with the Coulomb features of every ε
+    needs_regressor: ClassVar[bool] = False  # prepared with the joint-torque regressor
+    learned: ClassVar[tuple[str, ...]] = ("a", "b", "scale")  # its ``COEFFICIENTS``
+
+    a_: FloatArray
+    b_: FloatArray
+    scale_: FloatArray | None
+    r2_: FloatArray | None
+    rmse_: FloatArray | None
+    n_samples_: int
+    fit_s_: float
+    joint_names_: tuple[str, ...]  # the joints of the logs ``fit`` saw
+
+    def __init__(
+        self,
+        whitened: bool = False,
+        order: Sequence[int] | None = None,
+        speed_bins: tuple[float, ...] = SPEED_BINS,
+    ) -> None:
+        self.whitened = whitened
+        self.order = order
+        self.speed_bins = speed_bins
+
+    @property
+    def kind(self) -> str:
+        """The kind as calibration files name it (``MODEL_KINDS``)."""
+        return f"{self.name}-whitened" if self.whitened else self.name
+
+    # ------------------------------------------------------------------ fitting
+
+    def stats(self, inputs: Mapping[str, Any], clean: BoolArray) -> FitStats:
+        """The statistics this model fits from, of prepared samples (``predict``'s inputs plus
+        ``effort_f`` and the raw ``velocity``), rows where ``clean`` holds."""
+        return FitStats.from_inputs(inputs, clean)
+
+    @staticmethod
+    def merge(parts: Iterable[FitStats]) -> FitStats:
+        """Statistics of several logs or blocks together (exact, in any order)."""
+        return reduce(operator.add, parts)
+
+    def solve(self: M, stats: FitStats) -> M:
+        """Fit from merged statistics; a whitened model also takes its scale from them (per
+        speed bin with ``stats.speed``, else one per joint)."""
+        self._solve_map(stats)
+        self.scale_ = None
+        if self.whitened:
+            assert self.rmse_ is not None
+            speed = stats.speed
+            self.scale_ = self.rmse_ if speed is None else speed_scale(speed, self, self.rmse_)
+        return self
+
+    def fit(self: M, logs: Iterable[PreparedLog]) -> M:
+        """Fit on the collision-free samples of prepared ``logs``, one at a time (may be lazy);
+        ``fit_s_`` times the statistics and the solve, as the paper times training."""
+        from twincd.calibration.affine import clean_mask
+
+        elapsed = 0.0
+        parts = []
+        for log_ in logs:
+            start = time.perf_counter()
+            parts.append(self.stats(model_inputs(log_), clean_mask(log_)))
+            self.joint_names_ = log_.joint_names
+            elapsed += time.perf_counter() - start
+        if not parts:
+            raise DataError("no logs to fit", "fit", "give at least one collision-free log")
+        start = time.perf_counter()
+        self.solve(self.merge(parts))
+        self.fit_s_ = elapsed + time.perf_counter() - start
+        return self
+
+    def _solve_map(self, stats: FitStats) -> None:
+        from twincd.calibration.affine import solve
+
+        sol = solve(stats.affine)
+        self.a_, self.b_, self.r2_, self.rmse_ = sol.a, sol.b, sol.r2, sol.rmse
+        self.n_samples_ = stats.affine.n
+
+    def with_coefficients(
+        self: M,
+        coefficients: Mapping[str, FloatArray | None],
+        r2: FloatArray | None = None,
+        rmse: FloatArray | None = None,
+    ) -> M:
+        """This model fitted with stored ``coefficients`` (``COEFFICIENTS``: those of the kind;
+        what a calibration file holds)."""
+        for key in self.learned:
+            setattr(self, f"{key}_", coefficients.get(key))
+        self.r2_, self.rmse_ = r2, rmse
+        return self
+
+    def coefficients(self) -> dict[str, FloatArray | None]:
+        """Every field of ``COEFFICIENTS``, None where this kind has none."""
+        self._check()
+        return {key: getattr(self, f"{key}_", None) for key in COEFFICIENTS}
+
+    # ------------------------------------------------------------------ the map
+
+    def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
+        """The twin's effort mapped to the real robot's, (N, D), from prepared samples
+        (``sim_effort_f``; friction models also ``velocity_f``, ``coulomb_f`` and
+        ``coulomb_eps``; identified ones ``regressor_f``)."""
+        self._check()
+        out: FloatArray = self.a_ * np.asarray(inputs["sim_effort_f"], dtype=np.float64) + self.b_
+        return out
+
+    def residual(
+        self, inputs: Mapping[str, Any], predicted: FloatArray | None = None
+    ) -> FloatArray:
+        """τ̃ − f(τ̂̃, …), (N, D) (``predicted``: ``predict(inputs)``, when already known)."""
+        twin = self.predict(inputs) if predicted is None else predicted
+        out: FloatArray = np.asarray(inputs["effort_f"], np.float64) - twin
+        return out
+
+    def residual_weights(self, params: int, coulomb: int) -> FloatArray:
+        """(D, K) the residual τ̃ − f(…) + b as weights on the columns of ``SpeedStats`` with
+        ``params`` regressor entries and ``coulomb`` Coulomb features per joint."""
+        w = np.zeros((len(self.a_), params + 3 + coulomb))
+        w[:, 0] = -self.a_
+        w[:, -1] = 1.0
+        return w
+
+    def _check(self) -> None:
+        if not hasattr(self, "a_"):
+            raise NotFittedError(
+                f"the {self.kind} model is not fitted", type(self).__name__, "call fit()"
+            )
+
+    # ------------------------------------------------------------------ the score
 
     @property
     def statistic(self) -> str:
         """How residuals become a score (one of ``STATISTICS``; "sum" for unwhitened models)."""
-        return "depth" if self.scale is not None and self.scale.ndim == 2 else "sum"
+        scale = getattr(self, "scale_", None)
+        return "depth" if scale is not None and scale.ndim == 2 else "sum"
 
     @property
     def needs_speed(self) -> bool:
         """Scoring reads each sample's joint speeds (``velocity``) as well as its residual."""
         return self.statistic == "depth"
 
-    def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
-        """The twin's effort mapped to the real robot's, (N, D), from prepared samples
-        (``sim_effort_f``; friction models also ``velocity_f``, ``coulomb_f`` and
-        ``coulomb_eps``; identified ones ``regressor_f``)."""
-        out: FloatArray = self.a * np.asarray(inputs["sim_effort_f"], dtype=np.float64) + self.b
-        if self.c is not None and self.d is not None and self.epsilon is not None:
-            if inputs.get("coulomb_f") is None or inputs.get("velocity_f") is None:
-                raise DataError(
-                    f"the {self.kind} model needs the filtered velocity and Coulomb features",
-                    "scoring",
-                    "prepare logs with the calibration's settings (Setup.from_calibration)",
-                )
-            coulomb = coulomb_columns(inputs["coulomb_f"], inputs["coulomb_eps"], self.epsilon)
-            out = out + self.c * coulomb + self.d * np.asarray(inputs["velocity_f"])
-        if self.theta is not None:
-            effort = inputs.get("regressor_effort_f")
-            if effort is not None:  # Ỹθ filtered as one channel per joint (twincd.chain)
-                summed: FloatArray = out + np.asarray(effort, dtype=np.float64)
-                return summed
-            regressor = inputs.get("regressor_f")
-            regressor_mask = inputs.get("regressor_mask")
-            if regressor is None:
-                raise DataError(
-                    f"the {self.kind} model needs the filtered joint-torque regressor",
-                    "scoring",
-                    "prepare logs with the calibration's settings (Setup.from_calibration)",
-                )
-            if regressor_mask is not None and np.ndim(regressor) == 2:
-                if np.shape(regressor_mask) != self.theta.shape:
-                    raise self._theta_mismatch(np.shape(regressor_mask)[1])
-                from twincd.twin.dynamics import regressor_effort
-
-                y = np.asarray(regressor, dtype=np.float64)
-                return out + regressor_effort(y, self.theta, np.asarray(regressor_mask, dtype=bool))
-            if np.shape(regressor)[1:] != self.theta.shape:
-                raise self._theta_mismatch(np.shape(regressor)[-1])
-            out = out + np.einsum("ndp,dp->nd", regressor, self.theta)
-        return out
-
-    def _theta_mismatch(self, params: int) -> JointMismatchError:
-        assert self.theta is not None
-        return JointMismatchError(
-            f"the calibration's theta holds {self.theta.shape[1]} inertial parameters "
-            f"per joint, the robot model has {params}",
-            "scoring",
-            "use a calibration fitted with this robot's URDF, or re-run `twincd fit`",
-        )
-
-    def residual(self, inputs: Mapping[str, Any]) -> FloatArray:
-        """τ̃ − f(τ̂̃, …), (N, D)."""
-        out: FloatArray = np.asarray(inputs["effort_f"], np.float64) - self.predict(inputs)
-        return out
-
     def score(self, residual: FloatArray, velocity: FloatArray | None = None) -> FloatArray:
-        """(N,) Σ_j r_j² (affine, friction), the depth statistic of r_j / s_j(|q̇_j|) (whitened,
+        """(N,) Σ_j r_j² (unwhitened), the depth statistic of r_j / s_j(|q̇_j|) (whitened,
         from the (N, D) joint ``velocity``), or Σ_j (r_j/s_j)² (whitened, written before the
         speed bins)."""
-        if self.scale is None or self.scale.ndim == 1:
-            r = residual if self.scale is None else residual / np.maximum(self.scale, _MIN_SCALE)
+        scale = self.scale_
+        if scale is None or scale.ndim == 1:
+            r = residual if scale is None else residual / np.maximum(scale, _MIN_SCALE)
             out: FloatArray = np.einsum("ij,ij->i", r, r)
             return out
         order = None if self.order is None else np.asarray(self.order, dtype=np.intp)
         return depth_score(self._by_speed(residual, velocity), order)
 
-    def whitened(self, residual: FloatArray, velocity: FloatArray | None) -> FloatArray | None:
+    def whitened_residual(
+        self, residual: FloatArray, velocity: FloatArray | None
+    ) -> FloatArray | None:
         """(N, D) each joint's residual over its noise scale at its speed, the evidence the
         depth statistic weighs (None for models without speed bins)."""
-        if self.scale is None or self.scale.ndim == 1:
+        if self.statistic != "depth":
             return None
         return self._by_speed(residual, velocity)
 
     def _by_speed(self, residual: FloatArray, velocity: FloatArray | None) -> FloatArray:
-        assert self.scale is not None
+        assert self.scale_ is not None
         if velocity is None:
             raise DataError(
                 f"the {self.kind} model scores with the joints' speeds",
@@ -702,7 +753,7 @@ class ResidualModel:
             )
         bins = speed_bin(np.asarray(velocity, dtype=np.float64), self.speed_bins)
         joints = np.arange(residual.shape[1])
-        out: FloatArray = residual / np.maximum(self.scale, _MIN_SCALE)[joints[None, :], bins]
+        out: FloatArray = residual / np.maximum(self.scale_, _MIN_SCALE)[joints[None, :], bins]
         return out
 
     def scores(self, inputs: Mapping[str, Any]) -> FloatArray:
@@ -710,17 +761,176 @@ class ResidualModel:
         ``velocity`` for the depth statistic)."""
         return self.score(self.residual(inputs), inputs.get("velocity"))
 
-    def joint_scale(self, rmse: FloatArray | None) -> FloatArray | None:
+    @property
+    def joint_scale(self) -> FloatArray | None:
         """The per-joint scale isolation divides an event's residual peaks by: ones for a model
-        with speed bins (its evidence is already ``whitened``), the flat whitening scale, else
-        ``rmse`` (the training residual RMS)."""
-        if self.scale is not None:
-            return self.scale if self.scale.ndim == 1 else np.ones(len(self.scale))
-        return rmse
+        with speed bins (its evidence is already ``whitened_residual``), the flat whitening
+        scale, else the training residual RMS (None when unknown)."""
+        if self.scale_ is not None:
+            return self.scale_ if self.scale_.ndim == 1 else np.ones(len(self.scale_))
+        return self.rmse_
+
+
+class AffineModel(ResidualModel):
+    """The seed paper's τ̃ ≈ a⊙τ̂̃ + b (eq. 3–4); unwhitened, its score is eq. 5."""
+
+    def stats(self, inputs: Mapping[str, Any], clean: BoolArray) -> FitStats:
+        """Only the affine statistics, unless the whitening scale needs the speed bins."""
+        if self.whitened:
+            return super().stats(inputs, clean)
+        from twincd.calibration.affine import AffineStats
+
+        return FitStats(AffineStats.from_arrays(inputs["sim_effort_f"], inputs["effort_f"], clean))
+
+
+class FrictionModel(ResidualModel):
+    """Per joint τ̃ ≈ a·τ̂̃ + b + c·LP[tanh(q̇/ε)] + d·q̇̃ (ε per joint from ``EPSILON_GRID``)."""
+
+    name = "friction"
+    needs_coulomb = True
+    learned = (*ResidualModel.learned, "c", "d", "epsilon")
+
+    c_: FloatArray
+    d_: FloatArray
+    epsilon_: FloatArray
+
+    def _solve_map(self, stats: FitStats) -> None:
+        if stats.friction is None:
+            raise DataError(
+                f"the {self.kind} model needs Coulomb features for every ε candidate",
+                "fit",
+                "prepare the logs with setup_for_model(setup, model)",
+            )
+        self._set_friction(solve_friction(stats.friction), stats.affine.n)
+
+    def _set_friction(self, fr: FrictionSolution, samples: int) -> None:
+        self.a_, self.b_, self.c_, self.d_, self.epsilon_ = fr.a, fr.b, fr.c, fr.d, fr.epsilon
+        self.r2_, self.rmse_ = fr.r2, fr.rmse
+        self.n_samples_ = samples
+
+    def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
+        out = super().predict(inputs)
+        if inputs.get("coulomb_f") is None or inputs.get("velocity_f") is None:
+            raise DataError(
+                f"the {self.kind} model needs the filtered velocity and Coulomb features",
+                "scoring",
+                "prepare logs with the calibration's settings (Setup.from_calibration)",
+            )
+        coulomb = coulomb_columns(inputs["coulomb_f"], inputs["coulomb_eps"], self.epsilon_)
+        # (τ̂ term + Coulomb) + viscous, in that order: the bits of every file scored before
+        with_friction: FloatArray = (
+            out + self.c_ * coulomb + self.d_ * np.asarray(inputs["velocity_f"])
+        )
+        return with_friction
+
+    def residual_weights(self, params: int, coulomb: int) -> FloatArray:
+        if coulomb != len(EPSILON_GRID):
+            raise DataError(
+                f"the {self.kind} model's whitening needs every ε candidate's Coulomb feature",
+                "fit",
+                "prepare the logs with setup_for_model(setup, model)",
+            )
+        w = super().residual_weights(params, coulomb)
+        w[:, params + 1] = -self.d_
+        at = [EPSILON_GRID.index(float(x)) for x in self.epsilon_]
+        w[np.arange(len(w)), params + 2 + np.array(at, dtype=np.intp)] = -self.c_
+        return w
+
+
+class IdentifiedModel(FrictionModel):
+    """Per joint τ̃ ≈ a·τ̂̃ + Ỹ_j θ_j + b + c·LP[tanh(q̇/ε)] + d·q̇̃: the friction model plus
+    the URDF's inertial parameters corrected as each joint sees them (``solve_identified``)."""
+
+    name = "identified"
+    needs_regressor = True
+    learned = (*FrictionModel.learned, "theta")
+
+    theta_: FloatArray  # (D, P): per joint, the regressor's weights
+
+    def _solve_map(self, stats: FitStats) -> None:
+        if stats.friction is None:
+            super()._solve_map(stats)  # the same error: the features of every ε are missing
+        if stats.identified is None:
+            raise DataError(
+                f"the {self.kind} model needs the joint-torque regressor's statistics",
+                "fit",
+                "prepare the logs with the robot model (setup_for_model)",
+            )
+        ident = solve_identified(stats.identified)
+        self._set_friction(ident.friction, stats.affine.n)
+        self.theta_ = ident.theta
+
+    def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
+        out = super().predict(inputs)
+        effort = inputs.get("regressor_effort_f")
+        if effort is not None:  # Ỹθ filtered as one channel per joint (twincd.chain)
+            summed: FloatArray = out + np.asarray(effort, dtype=np.float64)
+            return summed
+        regressor = inputs.get("regressor_f")
+        regressor_mask = inputs.get("regressor_mask")
+        if regressor is None:
+            raise DataError(
+                f"the {self.kind} model needs the filtered joint-torque regressor",
+                "scoring",
+                "prepare logs with the calibration's settings (Setup.from_calibration)",
+            )
+        if regressor_mask is not None and np.ndim(regressor) == 2:
+            if np.shape(regressor_mask) != self.theta_.shape:
+                raise self._theta_mismatch(np.shape(regressor_mask)[1])
+            from twincd.twin.dynamics import regressor_effort
+
+            y = np.asarray(regressor, dtype=np.float64)
+            return out + regressor_effort(y, self.theta_, np.asarray(regressor_mask, dtype=bool))
+        if np.shape(regressor)[1:] != self.theta_.shape:
+            raise self._theta_mismatch(np.shape(regressor)[-1])
+        inertial: FloatArray = np.einsum("ndp,dp->nd", regressor, self.theta_)
+        return out + inertial
+
+    def residual_weights(self, params: int, coulomb: int) -> FloatArray:
+        if self.theta_.shape[1] != params:
+            raise self._theta_mismatch(params)
+        w = super().residual_weights(params, coulomb)
+        w[:, 1 : params + 1] = -self.theta_
+        return w
+
+    def _theta_mismatch(self, params: int) -> JointMismatchError:
+        return JointMismatchError(
+            f"the calibration's theta holds {self.theta_.shape[1]} inertial parameters "
+            f"per joint, the robot model has {params}",
+            "scoring",
+            "use a calibration fitted with this robot's URDF, or re-run `twincd fit`",
+        )
+
+
+MODEL_CLASSES: dict[str, type[ResidualModel]] = {
+    cls.name: cls for cls in (AffineModel, FrictionModel, IdentifiedModel)
+}
+
+
+def model_class(kind: str) -> tuple[type[ResidualModel], bool]:
+    """The class of a model kind of ``MODEL_KINDS`` and whether it is whitened."""
+    stem, whitened = kind.removesuffix("-whitened"), kind.endswith("-whitened")
+    if kind not in MODEL_KINDS:
+        raise UsageError(
+            f"unknown calibration model {kind!r}",
+            "fit",
+            f"choose one of {', '.join(MODEL_KINDS)}",
+            option="model",
+        )
+    return MODEL_CLASSES[stem], whitened
+
+
+def make_model(
+    kind: str, order: Sequence[int] | None = None, speed_bins: tuple[float, ...] = SPEED_BINS
+) -> ResidualModel:
+    """An unfitted model of ``kind`` (``MODEL_KINDS``), its depth statistic over ``order``."""
+    cls, whitened = model_class(kind)
+    joints = None if order is None else tuple(int(i) for i in order)
+    return cls(whitened, joints, speed_bins)
 
 
 def model_inputs(log: PreparedLog) -> dict[str, Any]:
-    """What ``ResidualModel`` reads, from a whole prepared log."""
+    """What a ``ResidualModel`` reads, from a whole prepared log."""
     return {
         "effort_f": log.effort_f,
         "sim_effort_f": log.sim_effort_f,
@@ -733,53 +943,18 @@ def model_inputs(log: PreparedLog) -> dict[str, Any]:
     }
 
 
-@dataclass(frozen=True)
-class ModelFit:
-    """A fitted residual model with its per-joint R² and RMSE on the training samples."""
-
-    model: ResidualModel
-    r2: FloatArray
-    rmse: FloatArray
-
-
 def fit_model(
     kind: str,
     affine: AffineStats,
-    friction: FrictionStats,
+    friction: FrictionStats | None = None,
     identified: IdentifiedStats | None = None,
     speed: SpeedStats | None = None,
     order: Sequence[int] | None = None,
-) -> ModelFit:
-    """``kind`` fitted from merged statistics (all kinds of statistics come from one pass).
-    A whitened model takes its scale per speed bin from ``speed`` and scores with the depth
-    statistic over the joints in ``order`` (base first); without ``speed``, one scale per joint
-    and the sum (as files written before the speed bins)."""
-    from twincd.calibration.affine import solve
-
-    if uses_regressor(kind):
-        if identified is None:
-            raise DataError(
-                f"the {kind} model needs the joint-torque regressor's statistics",
-                "fit",
-                "prepare the logs with the robot model (setup_for_model)",
-            )
-        ident = solve_identified(identified)
-        fr = ident.friction
-        model = ResidualModel(kind, fr.a, fr.b, fr.c, fr.d, fr.epsilon, theta=ident.theta)
-        r2, rmse = fr.r2, fr.rmse
-    elif uses_friction(kind):
-        fr = solve_friction(friction)
-        model = ResidualModel(kind, fr.a, fr.b, fr.c, fr.d, fr.epsilon)
-        r2, rmse = fr.r2, fr.rmse
-    else:
-        sol = solve(affine)
-        model = ResidualModel(kind, sol.a, sol.b)
-        r2, rmse = sol.r2, sol.rmse
-    if is_whitened(kind):
-        scale = rmse if speed is None else speed_scale(speed, model, rmse)
-        joints = None if order is None else tuple(int(i) for i in order)
-        model = replace(model, scale=scale, order=joints)
-    return ModelFit(model, r2, rmse)
+) -> ResidualModel:
+    """``kind`` fitted from merged statistics (``ResidualModel.solve``): a whitened model takes
+    its scale per speed bin from ``speed``, or without it one per joint (the sum, as files
+    written before the speed bins)."""
+    return make_model(kind, order).solve(FitStats(affine, speed, friction, identified))
 
 
 @dataclass(frozen=True)
@@ -787,10 +962,11 @@ class FitStats:
     """Everything a fit of any model kind needs from some samples, from one pass: mergeable
     (``+``, exact and in any order), small and picklable (what one log sends back from a
     worker). ``friction`` and ``identified`` exist when the samples were prepared with every
-    ε's Coulomb feature (and the regressor); ``speed`` always (the whitening scale)."""
+    ε's Coulomb feature (and the regressor); ``speed`` (the whitening scale) unless only the
+    affine map was asked for (``AffineModel.stats``)."""
 
     affine: AffineStats
-    speed: SpeedStats
+    speed: SpeedStats | None = None
     friction: FrictionStats | None = None
     identified: IdentifiedStats | None = None
 
@@ -832,21 +1008,10 @@ class FitStats:
 
         return FitStats(
             self.affine + other.affine,
-            self.speed + other.speed,
+            both(self.speed, other.speed),
             both(self.friction, other.friction),
             both(self.identified, other.identified),
         )
-
-    def fit(self, kind: str, order: Sequence[int] | None = None) -> ModelFit:
-        """``kind`` fitted from these statistics (``fit_model``)."""
-        if uses_friction(kind) and self.friction is None:
-            raise DataError(
-                f"the {kind} model needs Coulomb features for every ε candidate",
-                "fit",
-                "prepare the logs with setup_for_model(setup, model)",
-            )
-        friction = self.friction or FrictionStats.zeros(len(self.affine.mean_x))
-        return fit_model(kind, self.affine, friction, self.identified, self.speed, order)
 
 
 def depth_order(depths: Sequence[int] | None, joints: int) -> tuple[int, ...]:

@@ -82,8 +82,8 @@ class ScoringStage:
         isolator = isolator_for(
             calibration.links,
             calibration.depths,
-            calibration.joint_scale,
-            kappa_for(calibration.kind, calibration.model.statistic),
+            self.model.joint_scale,
+            kappa_for(self.model.kind, self.model.statistic),
         )
         self.events = EventTracker(joint_names or calibration.joint_names, isolator, self.rules)
         self.counts = FlagCount()
@@ -92,10 +92,11 @@ class ScoringStage:
 
     def push(self, frame: Frame) -> tuple[Frame, list[Event]]:
         """``frame`` (with ``effort_f``, ``sim_effort_f``, ``stamp_ns``, and ``velocity_f`` and
-        ``coulomb_f`` for friction models) plus ``residual``, ``score`` and ``flag`` columns,
-        and the events that closed in it."""
+        ``coulomb_f`` for friction models) plus ``predicted`` (the model's effort), ``residual``,
+        ``score`` and ``flag`` columns, and the events that closed in it."""
         inputs = {**frame, "coulomb_eps": self.coulomb_eps, "regressor_mask": self.regressor_mask}
-        r = self.model.residual(inputs)
+        predicted = self.model.predict(inputs)
+        r = self.model.residual(inputs, predicted)
         scores = self.model.score(r, frame.get("velocity"))
         flags = scores >= self.threshold
         hold = scores >= self.release
@@ -106,10 +107,11 @@ class ScoringStage:
             hold &= judged
         self.counts.add(flags, judged, frame.get("labels"))
         # the events weigh joints as the score does: by their noise at their speed, if known
-        evidence = self.model.whitened(r, frame.get("velocity"))
+        evidence = self.model.whitened_residual(r, frame.get("velocity"))
         evidence = r if evidence is None else evidence
         closed = self.events.push(flags, scores, evidence, frame["stamp_ns"], hold)
-        return frame.with_columns(residual=r, score=scores, flag=flags), closed
+        columns = {"predicted": predicted, "residual": r, "score": scores, "flag": flags}
+        return frame.with_columns(**columns), closed
 
     def finish(self) -> list[Event]:
         return self.events.finish()

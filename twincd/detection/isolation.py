@@ -47,10 +47,10 @@ DEFAULT_MARGIN = 1.2
 
 
 # κ for a model with speed bins, whose evidence is each joint's residual over its noise at its
-# speed (``ResidualModel.whitened``): studies/choose_isolation.py, ρ = 1.2. Synth seed 2 (96
-# found presses): κ = 3.25 named 75 % (94.4 % right), 4: 91.7 % (94.3 %), 5: 96.9 % (92.5 %),
-# 6: 92.7 % (91.0 %); the flat scale of before named 80 % (92.2 % right). Seeds 2 and 4 (196):
-# κ = 3.25: 79.6 % (92.3 %), 4: 91.8 % (91.7 %), 5: 95.4 % (89.3 %).
+# speed (``ResidualModel.whitened_residual``): studies/choose_isolation.py, ρ = 1.2. Synth seed 2
+# (96 found presses): κ = 3.25 named 75 % (94.4 % right), 4: 91.7 % (94.3 %), 5: 96.9 %
+# (92.5 %), 6: 92.7 % (91.0 %); the flat scale of before named 80 % (92.2 % right). Seeds 2 and
+# 4 (196): κ = 3.25: 79.6 % (92.3 %), 4: 91.8 % (91.7 %), 5: 95.4 % (89.3 %).
 KAPPA_BY_SPEED = 4.0
 
 

@@ -9,15 +9,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from twincd.calibration import Calibration
-from twincd.calibration.affine import clean_mask
 from twincd.calibration.models import (
     EPSILON_GRID,
-    FitStats,
     ResidualModel,
     depth_order,
+    make_model,
+    model_class,
     model_inputs,
-    uses_friction,
-    uses_regressor,
 )
 from twincd.detection.events import Event, EventRules, find_events
 from twincd.detection.isolation import LinkIsolator, kappa_for
@@ -41,32 +39,27 @@ class ModelMethod(ScoringMethod):
         self.kappa = kappa  # None: the model's own (twincd.detection.isolation.kappa_for)
 
     def check(self, logs: Sequence[PreparedLog]) -> None:
-        if uses_friction(self.model_kind) and any(lg.coulomb_eps != EPSILON_GRID for lg in logs):
+        cls = model_class(self.model_kind)[0]
+        if cls.needs_coulomb and any(lg.coulomb_eps != EPSILON_GRID for lg in logs):
             raise MethodSkipped("needs logs prepared with every ε candidate's Coulomb feature")
-        if uses_regressor(self.model_kind) and any(lg.regressor_f is None for lg in logs):
+        if cls.needs_regressor and any(lg.regressor_f is None for lg in logs):
             raise MethodSkipped("needs the robot model (URDF) of every joint, for its regressor")
 
     def fit(self, train: Sequence[PreparedLog]) -> ModelMethod:
         if not train:
             raise DataError("no training logs", self.name, "give collision-free training logs")
-        stats = FitStats.from_inputs(model_inputs(train[0]), clean_mask(train[0]))
-        for lg in train[1:]:
-            stats = stats + FitStats.from_inputs(model_inputs(lg), clean_mask(lg))
         depths = None
         if train[0].robot is not None:
             from twincd.twin.robot import child_links
 
             depths = child_links(train[0].robot, train[0].joint_names)[1]
-        fitted = stats.fit(self.model_kind, depth_order(depths, len(train[0].joint_names)))
-        self.model_: ResidualModel = fitted.model
-        self.rmse_: FloatArray = fitted.rmse
+        order = depth_order(depths, len(train[0].joint_names))
+        self.model_: ResidualModel = make_model(self.model_kind, order).fit(train)
         return self
 
     def from_calibration(self, calibration: Calibration) -> ModelMethod:
         method = type(self)(self.kappa)
         method.model_ = calibration.model
-        rmse = calibration.joint_scale
-        method.rmse_ = rmse if rmse is not None else np.ones(len(calibration.joint_names))
         return method
 
     def _model(self) -> ResidualModel:
@@ -87,8 +80,8 @@ class ModelMethod(ScoringMethod):
         from twincd.twin.robot import child_links
 
         links, depths = child_links(log.robot, log.joint_names)
-        scale = self._model().joint_scale(self.rmse_)
-        assert scale is not None
+        scale = self._model().joint_scale
+        scale = np.ones(len(links)) if scale is None else scale
         kappa = (
             kappa_for(self.model_kind, self._model().statistic)
             if self.kappa is None
@@ -102,7 +95,8 @@ class ModelMethod(ScoringMethod):
         """Detect's events, with the joint and the link each names."""
         stamps = log.states.stamp_ns
         r = self.residual(log)
-        evidence = self._model().whitened(r, log.states.velocity)  # as detect weighs joints
+        # the joints weighed as detect weighs them
+        evidence = self._model().whitened_residual(r, log.states.velocity)
         evidence = r if evidence is None else evidence
         iso = self.isolator(log)
         return find_events(

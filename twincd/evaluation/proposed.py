@@ -1,4 +1,5 @@
-"""The seed paper's method as a scoring method for ``evaluate`` (contract: Methods ``proposed``)."""
+"""The seed paper's method as a scoring method for ``evaluate`` (contract: Methods ``proposed``):
+the affine model, unwhitened."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from twincd.calibration import AffineCalibration, Calibration
-from twincd.detection.score import affine_score
+from twincd.calibration.models import AffineModel, ResidualModel, model_inputs
 from twincd.errors import NotFittedError
 from twincd.evaluation.methods import ScoringMethod
 from twincd.pipeline import PreparedLog
@@ -27,18 +28,29 @@ class ProposedMethod(ScoringMethod):
         self.a = a
         self.b = b
         if a is not None and b is not None:
-            self.a_: FloatArray = np.asarray(a, dtype=np.float64)
-            self.b_: FloatArray = np.asarray(b, dtype=np.float64)
+            coefficients = {"a": np.asarray(a, dtype=np.float64), "b": np.asarray(b, np.float64)}
+            self.model_: ResidualModel = AffineModel().with_coefficients(coefficients)
 
     def from_calibration(self, calibration: Calibration) -> ProposedMethod:
         return type(self)(list(calibration.a), list(calibration.b))
 
     def fit(self, train: Sequence[PreparedLog]) -> ProposedMethod:
-        est = AffineCalibration().fit(train)
-        self.a_, self.b_ = est.a_, est.b_
+        self.model_ = AffineCalibration().fit(train)
         return self
 
-    def score(self, log: PreparedLog) -> FloatArray:
-        if not hasattr(self, "a_"):
+    @property
+    def a_(self) -> FloatArray:
+        """The fitted gains a (the affine model's)."""
+        return self._model().a_
+
+    @property
+    def b_(self) -> FloatArray:
+        return self._model().b_
+
+    def _model(self) -> ResidualModel:
+        if not hasattr(self, "model_"):
             raise NotFittedError("method 'proposed' is not fitted", "proposed", "call fit()")
-        return affine_score(log.effort_f, log.sim_effort_f, self.a_, self.b_)
+        return self.model_
+
+    def score(self, log: PreparedLog) -> FloatArray:
+        return self._model().scores(model_inputs(log))

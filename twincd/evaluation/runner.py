@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from twincd.calibration import Calibration
-from twincd.calibration.models import EPSILON_GRID, uses_friction, uses_regressor
+from twincd.calibration.models import EPSILON_GRID, MODEL_KINDS, model_class
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 from twincd.detection.detect import FlagCount
 from twincd.detection.events import EventRules
@@ -510,9 +510,10 @@ def evaluate(
         th = calibration.threshold if calibration is not None else None
         k_sigma = th.k_sigma if th is not None else DEFAULT_K_SIGMA
     _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
-    if any(uses_friction(name) for name in methods):
+    models = [model_class(name)[0] for name in methods if name in MODEL_KINDS]
+    if any(m.needs_coulomb for m in models):
         setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
-    if any(uses_regressor(name) for name in methods):
+    if any(m.needs_regressor for m in models):
         # the whole regressor, which the identified methods fit on (not a calibration's Ỹθ)
         setup = replace(setup, regressor=True, regressor_optional=True, regressor_weights=None)
     if load is None:

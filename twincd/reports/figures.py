@@ -93,7 +93,7 @@ def detection_figure(summary: DetectionSummary, trace: DetectionTrace) -> Any:
     for j, name in enumerate(trace.joint_names):
         ax = axes[j]
         ax.plot(*trace.measured(j), lw=0.7, color="tab:blue", label="measured τ̃")
-        ax.plot(*trace.twin(j), lw=0.7, color="tab:orange", label="twin a·τ̂̃ + b")
+        ax.plot(*trace.twin(j), lw=0.7, color="tab:orange", label="twin (the model's prediction)")
         ax.set_ylabel(f"{name}\n(N·m)", rotation=0, ha="right", va="center")
     ax = axes[d]
     x, y = trace.score()

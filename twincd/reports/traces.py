@@ -1,5 +1,6 @@
 """What the figures draw, collected while a log streams, at bounded memory whatever its length:
-the measured and calibrated-twin effort and the score as min/max envelopes (``Envelope``), and
+the measured effort, what the calibration's model predicts of it and the score as min/max
+envelopes (``Envelope``), and
 for ``fit`` an evenly thinned sample of (twin, measured) pairs. Both are small and picklable,
 so they come back from worker processes with the log's summary."""
 
@@ -16,7 +17,7 @@ from twincd.types import FloatArray
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from twincd.calibration.setup import LogFit
+    from twincd.calibration.fitting import LogFit
     from twincd.detection.events import Event
     from twincd.frames import Frame
     from twincd.pipeline import Setup
@@ -29,19 +30,13 @@ DEFAULT_POINTS = 2000
 
 class DetectionTrace:
     """A ``FrameSink`` keeping, per column of the figure, the min and max of each joint's
-    measured effort τ̃, calibrated twin a⊙τ̂̃ + b, the score and the labels (when present)."""
+    measured effort τ̃, the twin as the calibration's model predicts it (the frames'
+    ``predicted``, ``ResidualModel.predict``), the score and the labels (when present)."""
 
     def __init__(
-        self,
-        joint_names: Sequence[str],
-        a: FloatArray,
-        b: FloatArray,
-        threshold: float,
-        columns: int = DEFAULT_COLUMNS,
+        self, joint_names: Sequence[str], threshold: float, columns: int = DEFAULT_COLUMNS
     ) -> None:
         self.joint_names = tuple(joint_names)
-        self.a = np.asarray(a, dtype=np.float64)
-        self.b = np.asarray(b, dtype=np.float64)
         self.threshold = float(threshold)
         d = len(self.joint_names)
         # channels: measured (d), twin (d), score, label
@@ -59,8 +54,7 @@ class DetectionTrace:
         if labels is not None:
             self.has_labels = True
         label = np.full(frame.n, np.nan) if labels is None else np.asarray(labels, dtype=np.float64)
-        twin = frame["sim_effort_f"] * self.a + self.b
-        values = np.column_stack([frame["effort_f"], twin, frame["score"], label])
+        values = np.column_stack([frame["effort_f"], frame["predicted"], frame["score"], label])
         self.envelope.push(stamps, values)
 
     def seconds(self) -> FloatArray:
@@ -143,7 +137,7 @@ class ThinnedPairs:
 
 def fit_log_with_pairs(path: str | Path, setup: Setup) -> tuple[LogFit, ThinnedPairs]:
     """``fit``'s per-log step, also keeping the thinned pairs a report's figure draws."""
-    from twincd.calibration.setup import fit_log
+    from twincd.calibration.fitting import fit_log
 
     pairs = ThinnedPairs()
     return fit_log(path, setup, [pairs]), pairs

@@ -12,20 +12,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.calibration.affine import AffineCalibration, clean_rows
+from twincd.calibration.affine import AffineSolution, clean_rows, solve, warn_ill_conditioned
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.calibration.models import (
-    AFFINE,
     EPSILON_GRID,
     FRICTION_WHITENED,
     IDENTIFIED_WHITENED,
-    MODEL_KINDS,
     FitStats,
+    ResidualModel,
     depth_order,
-    uses_friction,
-    uses_regressor,
+    make_model,
+    model_class,
 )
-from twincd.errors import DataError, UsageError
+from twincd.errors import DataError
 from twincd.pipeline import PreparedStream, Setup, agreed_joints
 
 if TYPE_CHECKING:
@@ -88,25 +87,20 @@ def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:
 
 
 def check_model(model: str | None) -> None:
-    if model is not None and model not in MODEL_KINDS:
-        raise UsageError(
-            f"unknown calibration model {model!r}",
-            "fit",
-            f"choose one of {', '.join(MODEL_KINDS)}",
-            option="model",
-        )
+    if model is not None:
+        model_class(model)
 
 
 def setup_for_model(setup: Setup, model: str | None) -> Setup:
     """The setup that prepares what fitting ``model`` needs (friction: every ε candidate;
     identified: the joint-torque regressor too; None, the best model the logs allow: both,
     the regressor where a robot model is known)."""
-    check_model(model)
     best = model is None
+    cls = None if model is None else model_class(model)[0]
     return replace(
         setup,
-        coulomb_eps=EPSILON_GRID if best or uses_friction(str(model)) else (),
-        regressor=best or uses_regressor(str(model)),
+        coulomb_eps=EPSILON_GRID if cls is None or cls.needs_coulomb else (),
+        regressor=cls is None or cls.needs_regressor,
         regressor_optional=best or setup.regressor_optional,
     )
 
@@ -116,7 +110,7 @@ def filter_kind_for(model: str | None) -> str:
     floor, where a Butterworth filter's ringing around a push shows as alarms before and after
     it, so it (and the best model, which is identified when it can be) filters without
     overshoot."""
-    return "critical" if model is None or uses_regressor(model) else "butterworth"
+    return "critical" if model is None or model_class(model)[0].needs_regressor else "butterworth"
 
 
 def best_model(stats: FitStats) -> str:
@@ -134,21 +128,24 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
     if not parts:
         raise DataError("no logs to fit", "fit", "give at least one collision-free log")
     names = agreed_joints(parts)  # from the robot model (or by name), whichever log is first
-    total = parts[0].stats
-    for p in parts[1:]:
-        total = total + p.stats
+    total = ResidualModel.merge(p.stats for p in parts)
     if model is None:
         model = best_model(total)
         log.info("fit: model %s, the best these logs allow (--model affine is the paper's)", model)
-    start = time.perf_counter()
-    # a friction model's slope a is conditioned by its other terms too: no affine warning
-    estimator = AffineCalibration(names, not uses_friction(model)).fit_stats(total.affine)
-    estimator.fit_s_ = sum(p.seconds for p in parts) + time.perf_counter() - start
-    _warn_about_fit(estimator, [p.source for p in parts if not p.labelled])
     robots = sorted({p.robot for p in parts if p.robot is not None})
     name, sha = robots[0] if robots else (setup.robot, None)
+    links, depths = _chain(name, names)
+    start = time.perf_counter()
+    fitted = make_model(model, depth_order(depths, len(names))).solve(total)
+    fitted.fit_s_ = sum(p.seconds for p in parts) + time.perf_counter() - start
+    affine = solve(total.affine)
+    # a friction model's slope a is conditioned by its other terms too: no affine warning
+    if not fitted.needs_coulomb:
+        warn_ill_conditioned(names, total.affine, affine.ill_conditioned, affine.a)
+    _warn_about_fit(names, affine, [p.source for p in parts if not p.labelled])
     cal = calibration_from_fit(
-        estimator,
+        fitted,
+        names,
         setup.lowpass,
         setup.options,
         name,
@@ -157,26 +154,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         [p.source for p in parts],
         period_s=statistics.median(p.period_s for p in parts),
     )
-    links, depths = _chain(name, names)
-    cal = replace(cal, kind=model, links=links, depths=depths)
-    if model != AFFINE:
-        start = time.perf_counter()
-        fitted = total.fit(model, depth_order(depths, len(names)))
-        m = fitted.model
-        cal = replace(
-            cal,
-            a=m.a,
-            b=m.b,
-            c=m.c,
-            d=m.d,
-            epsilon=m.epsilon,
-            scale=m.scale,
-            theta=m.theta,
-            r2=fitted.r2,
-            rmse=fitted.rmse,
-            fit_s=cal.fit_s + time.perf_counter() - start,
-        )
-    return cal
+    return replace(cal, links=links, depths=depths)
 
 
 def _chain(
@@ -200,19 +178,18 @@ def _chain(
 LOW_R2 = 0.1
 
 
-def _warn_about_fit(estimator: AffineCalibration, unlabelled: list[str]) -> None:
+def _warn_about_fit(names: Sequence[str], affine: AffineSolution, unlabelled: list[str]) -> None:
     """Fits that are likely wrong say so (one line each): a negative gain, a twin that explains
-    nothing (a wrong robot model or joint map), logs without labels whose collisions, if any,
-    were fitted as if normal."""
-    names = estimator.joint_names or ()
-    negative = [n for n, a in zip(names, estimator.a_, strict=True) if a < 0]
+    nothing (a wrong robot model or joint map), by the affine map whatever the model; logs
+    without labels whose collisions, if any, were fitted as if normal."""
+    negative = [n for n, a in zip(names, affine.a, strict=True) if a < 0]
     if negative:
         log.warning(
             "fit: negative a on %s: the twin's effort runs against the measured one; check the "
             "robot model, the joint map and the effort sign",
             ", ".join(negative),
         )
-    r2 = estimator.r2_
+    r2 = affine.r2
     if len(r2) and bool(np.all(np.nan_to_num(r2, nan=0.0) < LOW_R2)):
         log.warning(
             "fit: R² below %g on every joint (best %.3f): the twin explains almost none of the "
