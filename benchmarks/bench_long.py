@@ -27,20 +27,20 @@ What it does, in one run:
 4. Start-up: ``twincd --version`` against ``python -c "import numpy"``, best of 5 each.
 
 Columns: ``s`` wall seconds of the command (start-up included, as a user sees it); ``cpu s``
-its user+system CPU; ``× rosbags`` = rosbags seconds / command seconds on the same file
-(higher is faster; 5× = five times faster than merely decoding the topic with rosbags);
-``RSS MB`` its peak resident set (``os.wait4`` ru_maxrss, which also covers workers it waited
-for, as a maximum, not a sum; MB = 10⁶ bytes; a ~10 MB floor comes from the launcher it is
-forked from). Verdicts follow the acceptance of the long-log issue, on the paper's affine model
-(fit's default then): detect ≥ 5×, fit ≥ 5×, simulate and detect -o ≥ 2× on the 20 min log (PASS/FAIL there; lower case at other lengths,
-for information); peak RSS ≤ 300 MB for every twincd command (judged at every length);
-``twincd --version`` ≤ 3× ``import numpy``. ``detect`` exiting 1 (a collision found) counts as
-success, unless stderr holds a Python traceback (an uncaught exception exits 1 too); the files
-``detect -o``, ``simulate`` and ``fit`` write must exist, with one message per sample on each
-new channel. A failed command is marked ✗ and gets no ratio. --timeout and --max-rss-mb kill a
-command that runs away. The script exits 1 when a measured check fails, 2 when calibration
-fails. The machines are shared and noisy: compare ratios within one run, not seconds across
-runs.
+its user+system CPU; ``× rosbags`` = rosbags seconds / command seconds on the same file (higher
+is faster; 5× = five times faster than merely decoding the topic with rosbags); ``RSS MB`` its
+peak resident set (``os.wait4`` ru_maxrss, which also covers workers it waited for, as a
+maximum, not a sum; MB = 10⁶ bytes; a ~10 MB floor comes from the launcher it is forked from).
+Verdicts follow the acceptance of the long-log issue, on the paper's affine model (fit's
+default then): detect ≥ 5×, fit ≥ 5×, simulate and detect -o ≥ 2× on the 20 min log (PASS/FAIL
+there; lower case at other lengths, for information); peak RSS ≤ 300 MB for every twincd
+command (judged at every length); ``twincd --version`` ≤ 3× ``import numpy``. ``detect``
+exiting 1 (a collision found) counts as success, unless stderr holds a Python traceback (an
+uncaught exception exits 1 too); the files ``detect -o``, ``simulate`` and ``fit`` write must
+exist, with one message per sample on each new channel. A failed command is marked ✗ and gets
+no ratio. --timeout and --max-rss-mb kill a command that runs away. The script exits 1 when a
+measured check fails, 2 when calibration fails. The machines are shared and noisy: compare
+ratios within one run, not seconds across runs.
 
 Only twincd's command line is timed, so the benchmark survives any rewrite of the library; the
 log builder uses only stable pieces (``load_robot``, ``joint_state_cdr``, mcap's and rosbags'
