@@ -213,7 +213,7 @@ def threshold(
     from twincd.executors import Bound
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.threshold import check_threshold_choice, score_log, with_threshold
+    from twincd.threshold import check_threshold_choice, score_log, threshold_from_parts
 
     check_threshold_choice(sigma, false_alarms_per_hour)
     cal = Calibration.load(calibration)
@@ -233,7 +233,7 @@ def threshold(
     done = run_per_log(
         work, paths, "scoring", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
     )
-    cal = with_threshold(done.results, cal, sigma, false_alarms_per_hour)
+    cal = threshold_from_parts(done.results, cal, sigma, false_alarms_per_hour)
     cal.save(target)
     stdout.print(threshold_line(cal.require_threshold()), soft_wrap=True)
     log.info("wrote %s", target)

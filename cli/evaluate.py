@@ -69,7 +69,7 @@ def _write_reports(
     no_summary: bool,
     gates: tuple[float | None, float | None],
 ) -> None:
-    from twincd.evaluation.reports import evaluation_markdown
+    from twincd.evaluation.markdown import evaluation_markdown
     from twincd.reports import (
         append_step_summary,
         calibration_settings,
@@ -183,7 +183,7 @@ def evaluate(
     """
     from twincd.calibration import Calibration
     from twincd.cluster import open_executor
-    from twincd.evaluation.reports import (
+    from twincd.evaluation.markdown import (
         SHORT_COLUMNS,
         SHORT_EVENT_COLUMNS,
         evaluation_rows,

@@ -139,7 +139,7 @@ def twin_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def twin_calibration(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The paper's calibration (``--model affine``, fit on twin_dataset/train, threshold on
     val) shared by many tests (read-only: copy it before changing it)."""
-    from clitools import run
+    from support.clitools import run
 
     path = tmp_path_factory.mktemp("twin_calibration") / "cal.json"
     fit = run("fit", twin_dataset / "train", "-o", path, "-q", "--model", "affine")
@@ -152,7 +152,7 @@ def twin_calibration(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactor
 def xarm_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small synthetic xArm 7 set (train 2, val 1, test 1 paths of 10–12 s), twin from the
     robot model: what the identified models and the best model fit on."""
-    from clitools import run
+    from support.clitools import run
 
     root = tmp_path_factory.mktemp("xarm_dataset")
     args = ["--seed", "3", "--train", "2", "--val", "1", "--test", "1"]

@@ -12,7 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 import pytest
-from builders import trajectory
+from support.builders import trajectory
 
 from twincd.evaluation.baselines.mob import NaiveMob, check_mob, mob_tau_ext, momentum_observer
 from twincd.evaluation.methods import MethodSkipped, make_method

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import trajectory
-from clitools import assert_one_line_error, run
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.builders import trajectory
+from support.clitools import assert_one_line_error, run
 from test_pipeline import jittered_xarm_log
 
 from twincd.calibration import Calibration, fit_calibration

@@ -8,10 +8,10 @@ import json
 
 import numpy as np
 import pytest
-from clitools import assert_one_line_error, run
 from conftest import T0_NS
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
 from twincd.calibration.affine import AffineStats

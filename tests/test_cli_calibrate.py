@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from clitools import assert_one_line_error, run
+from support.clitools import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")

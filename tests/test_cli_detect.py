@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from clitools import assert_one_line_error, run
+from support.clitools import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import Message, String, joint_recording, write
-from clitools import assert_one_line_error, run
+from support.builders import Message, String, joint_recording, write
+from support.clitools import assert_one_line_error, run
 
 
 def files(folder: Path) -> set[str]:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from clitools import assert_one_line_error, run
+from support.clitools import assert_one_line_error, run
 
 pytest.importorskip("distributed")
 
@@ -53,7 +53,7 @@ def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
 def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     """A ``dask scheduler`` and two one-thread ``dask worker`` processes on 127.0.0.1 (free
     ports), torn down at the end. The scheduler gives up on a log after one worker death
-    beyond the first (allowed-failures 1); workers die on demand (tests/dask_preload.py)."""
+    beyond the first (allowed-failures 1); workers die on demand (tests/support/dask_preload.py)."""
     from distributed import Client
 
     root = tmp_path_factory.mktemp("cluster")
@@ -96,7 +96,7 @@ def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
                     [
                         *(*dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1"),
                         *("--no-dashboard", "--dashboard-address", "127.0.0.1:0"),
-                        *("--preload", "dask_preload"),
+                        *("--preload", "support.dask_preload"),
                     ],
                     env=env,
                     stdout=log,

@@ -21,7 +21,7 @@ from twincd.io.logs import expand_logs
 from twincd.outputs import write_detection
 from twincd.pipeline import Setup, read_log
 from twincd.signal.filters import LowPass
-from twincd.threshold import ScoreStats, calibrate_threshold
+from twincd.threshold import ScoreStats, threshold_prepared_logs
 
 
 def test_score_by_hand():
@@ -72,7 +72,7 @@ def calibrated(twin_dataset):
     setup = Setup(lowpass=LowPass(2.0))
     cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup, "affine")
     val = setup.prepare_all(expand_logs([twin_dataset / "val"]))
-    return calibrate_threshold(val, cal, 4.0)
+    return threshold_prepared_logs(val, cal, 4.0)
 
 
 def test_threshold_streams_val_logs(calibrated, twin_dataset):

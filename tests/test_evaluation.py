@@ -15,7 +15,7 @@ from twincd.evaluation.runner import evaluate, parse_methods
 from twincd.io.logs import expand_logs
 from twincd.pipeline import PreparedLog, Setup
 from twincd.signal.filters import LowPass
-from twincd.threshold import calibrate_threshold
+from twincd.threshold import threshold_prepared_logs
 
 
 class SeededNoise(ScoringMethod):
@@ -84,7 +84,7 @@ def split(twin_dataset):
 def calibration(split):
     setup = Setup(lowpass=LowPass(2.0))
     cal = fit_calibration(split["train"], setup, "affine")
-    return calibrate_threshold(setup.prepare_all(split["val"]), cal, 4.0)
+    return threshold_prepared_logs(setup.prepare_all(split["val"]), cal, 4.0)
 
 
 def test_proposed_from_the_calibration(calibration, split):

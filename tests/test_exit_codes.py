@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from builders import joint_recording, write
-from clitools import assert_one_line_error, run
 from conftest import build_twin_log
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.builders import joint_recording, write
+from support.clitools import assert_one_line_error, run
 
 from twincd.errors import DataError, InternalError, OutputError
 

@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from clitools import assert_one_line_error, run
 from conftest import TWIN_JOINTS, build_twin_log
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
 

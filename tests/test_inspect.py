@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import XARM, Message, joint_recording, joint_state, write
-from clitools import run
+from support.builders import XARM, Message, joint_recording, joint_state, write
+from support.clitools import run
 
 from twincd.inspect import inspect_log
 

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from clitools import assert_one_line_error, run
+from support.clitools import assert_one_line_error, run
 
 from twincd.errors import OutputError
 from twincd.io.atomic import (

@@ -10,13 +10,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from builders import SUFFIX, TS, Bool, Message, String, joint_recording, write
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Channel, Chunk
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
+from support.builders import SUFFIX, TS, Bool, Message, String, joint_recording, write
 
 import twincd
 import twincd.io.mcap.messages as message_blocks

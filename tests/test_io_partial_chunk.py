@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import TS, Message, joint_recording, write
-from clitools import assert_one_line_error, run
 from conftest import build_twin_log
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.writer import CompressionType
+from support.builders import TS, Message, joint_recording, write
+from support.clitools import assert_one_line_error, run
 from test_io_topics import write_mcap
 
 from twincd.errors import LogReadError

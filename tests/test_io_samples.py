@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import SUFFIX, XARM, Bool, Message, joint_recording, joint_state, write
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.builders import SUFFIX, XARM, Bool, Message, joint_recording, joint_state, write
 from test_io_topics import cut, write_mcap
 
 from twincd.errors import JointMismatchError, LogReadError

@@ -11,7 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import (
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from mcap.writer import CompressionType, IndexType, Writer
+from support.builders import (
     FORMS,
     SUFFIX,
     TS,
@@ -24,9 +27,6 @@ from builders import (
     write,
     write_humble_sqlite3,
 )
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-from mcap.writer import CompressionType, IndexType, Writer
 
 from twincd.errors import LogReadError, TopicError
 from twincd.io.stream import BoolBatch, JointStateBatch, StringBatch, TopicReader

@@ -6,7 +6,17 @@ import logging
 
 import numpy as np
 import pytest
-from builders import FORMS, SUFFIX, XARM, Bool, Message, String, joint_recording, joint_state, write
+from support.builders import (
+    FORMS,
+    SUFFIX,
+    XARM,
+    Bool,
+    Message,
+    String,
+    joint_recording,
+    joint_state,
+    write,
+)
 
 from twincd.errors import LogReadError, TopicError, UsageError
 from twincd.io.logs import expand_logs

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from builders import XARM, Message, joint_state, write
+from support.builders import XARM, Message, joint_state, write
 
 from twincd.calibration import fit_calibration
 from twincd.detection import OnlineDetector, detect_file
@@ -155,7 +155,7 @@ def test_online_detector_skips_bad_samples_without_poisoning_its_state(
 @pytest.mark.parametrize("form", ["rosbag2-sqlite3", "rosbag2-mcap", "ros1"])
 def test_every_storage_form_streams_like_bare_mcap(tmp_path: Path, form: str) -> None:
     # the reader runs on a prefetch thread: every backend must work from there
-    from builders import FORMS, SUFFIX
+    from support.builders import FORMS, SUFFIX
 
     assert form in FORMS
     # longer than what opening reads ahead (a batch and the reorder window), so the prefetch

@@ -12,11 +12,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from builders import TS, XARM, Bool, Message, joint_state, trajectory, write
-from clitools import assert_one_line_error, run
 from conftest import DEFAULT_BUMPS, TWIN_JOINTS, build_twin_log
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.builders import TS, XARM, Bool, Message, joint_state, trajectory, write
+from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
 from twincd.detection import detect_log

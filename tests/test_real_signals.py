@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from builders import TS, Message, write
-from clitools import assert_one_line_error, run
 from conftest import build_twin_log
 from rosbags.highlevel import AnyReader
+from support.builders import TS, Message, write
+from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
 from twincd.errors import CalibrationError

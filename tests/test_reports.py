@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from clitools import assert_one_line_error, run
+from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
 from twincd.errors import OutputError, UsageError
@@ -242,7 +242,7 @@ def evaluation(twin_calibration, twin_dataset):
 
 
 def test_evaluate_report_shows_event_metrics(evaluation, tmp_path):
-    from twincd.evaluation.reports import evaluation_markdown
+    from twincd.evaluation.markdown import evaluation_markdown
     from twincd.reports import evaluation_html
 
     result = evaluation

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from chromium import Browser, find_chromium
-from clitools import run
+from support.chromium import Browser, find_chromium
+from support.clitools import run
 
 from twincd.evaluation.runner import method_for
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from streaming import chunked, split_points
+from support.streaming import chunked, split_points
 
 from twincd.errors import DataError, UsageError
 from twincd.signal import (

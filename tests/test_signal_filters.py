@@ -11,7 +11,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy import signal
-from streaming import chunked, split_points
+from support.streaming import chunked, split_points
 
 from twincd.defaults import DEFAULT_CUTOFF_HZ
 from twincd.errors import DataError, UsageError

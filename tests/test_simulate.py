@@ -6,7 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import (
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+from support.builders import (
     XARM,
     Bool,
     Message,
@@ -17,8 +19,6 @@ from builders import (
     write,
     write_humble_sqlite3,
 )
-from mcap.reader import make_reader
-from rosbags.highlevel import AnyReader
 
 from twincd.io.mcap import QOS_KEY
 from twincd.pipeline import read_log

@@ -395,7 +395,7 @@ def test_short_paths_keep_their_messages(split: str, tmp_path: Path) -> None:
 
 
 def test_cli_makes_a_long_path(tmp_path: Path) -> None:
-    from clitools import run
+    from support.clitools import run
 
     result = run(
         "synth", str(tmp_path / "out"), "--train", "0", "--val", "1", "--test", "0",

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from clitools import assert_one_line_error, run
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
+from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration, clean_mask
 from twincd.calibration.models import model_inputs
@@ -38,7 +38,7 @@ from twincd.threshold import (
     ScoreStats,
     budget_threshold,
     check_threshold_settings,
-    with_threshold,
+    threshold_from_parts,
 )
 
 
@@ -133,10 +133,12 @@ def test_any_order_and_split_of_the_logs_give_the_same_threshold(
             )
         )
     cal = _calibration()
-    first = with_threshold(parts, cal, false_alarms_per_hour=1.0).require_threshold()
+    first = threshold_from_parts(parts, cal, false_alarms_per_hour=1.0).require_threshold()
     shuffled = parts[:]
     order.shuffle(shuffled)
-    assert with_threshold(shuffled, cal, false_alarms_per_hour=1.0).require_threshold() == first
+    assert (
+        threshold_from_parts(shuffled, cal, false_alarms_per_hour=1.0).require_threshold() == first
+    )
     # a worker that merged some logs' excursions first (any grouping) gives the same merge
     cut = order.randint(0, logs)
     grouped = sum((p.excursions for p in shuffled[:cut]), Excursions())  # type: ignore[misc]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-from builders import trajectory
+from support.builders import trajectory
 
 from twincd.io.logs import JointStates
 from twincd.signal.derivatives import differentiate

@@ -1,7 +1,7 @@
 """The detection threshold from the score on collision-free logs: the threshold of a false-alarm
 budget per hour of collision-free time extrapolated from the score's excursions (``twincd.tail``:
 Rice's formula for the depth statistic, the default models' score; peaks over threshold and a
-generalised Pareto tail for other scores), or the paper's μ + kσ (``with_threshold``).
+generalised Pareto tail for other scores), or the paper's μ + kσ (``threshold_from_parts``).
 
 Everything a log contributes merges exactly in any order: μ and σ from mergeable sums, the
 median and MAD from a fixed histogram, the excursions' peaks per level, and, as a check recorded
@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -302,7 +302,7 @@ def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogSc
     return LogScores(str(path), stats, stream.samples, alarms, excursions)
 
 
-def with_threshold(
+def threshold_from_parts(
     parts: Iterable[LogScores],
     calibration: Calibration,
     k_sigma: float | None = None,
@@ -340,16 +340,16 @@ def with_threshold(
         )
     check_threshold_choice(k_sigma, false_alarms_per_hour)
     if k_sigma is not None:
-        return calibration.with_threshold(total.threshold(k_sigma, seen))
+        return replace(calibration, threshold=total.threshold(k_sigma, seen))
     gaussian = calibration.model.statistic == "depth"
     if false_alarms_per_hour is None and not gaussian:
         # the paper's model and its sum-of-squares scores: the paper's μ + 4σ
-        return calibration.with_threshold(total.threshold(DEFAULT_K_SIGMA, seen))
+        return replace(calibration, threshold=total.threshold(DEFAULT_K_SIGMA, seen))
     budget = (
         DEFAULT_FALSE_ALARMS_PER_HOUR if false_alarms_per_hour is None else false_alarms_per_hour
     )
     threshold = budget_threshold(excursions, alarms, total, budget, seen, gaussian)
-    return calibration.with_threshold(threshold)
+    return replace(calibration, threshold=threshold)
 
 
 def threshold_calibration(
@@ -359,16 +359,16 @@ def threshold_calibration(
     k_sigma: float | None = None,
     false_alarms_per_hour: float | None = None,
 ) -> Calibration:
-    """The threshold from collision-free logs, each streamed (see ``with_threshold``)."""
+    """The threshold from collision-free logs, each streamed (see ``threshold_from_parts``)."""
     parts = [score_log(p, calibration, setup) for p in paths]
-    return with_threshold(parts, calibration, k_sigma, false_alarms_per_hour)
+    return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
 
 
-def calibrate_threshold(
+def threshold_prepared_logs(
     logs: Iterable[PreparedLog], calibration: Calibration, k_sigma: float | None = None
 ) -> Calibration:
     """The threshold from logs already prepared in memory (as evaluate uses), by the rules of
-    ``with_threshold``."""
+    ``threshold_from_parts``."""
     parts = []
     for lg in logs:
         scores = calibration.model.scores(model_inputs(lg))
@@ -379,4 +379,4 @@ def calibrate_threshold(
         peaks.push(scores, usable)
         stats = ScoreStats.from_scores(scores, usable)
         parts.append(LogScores(lg.source, stats, len(lg), counter.counts, peaks.excursions))
-    return with_threshold(parts, calibration, k_sigma)
+    return threshold_from_parts(parts, calibration, k_sigma)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from itertools import pairwise
 from pathlib import Path
@@ -199,9 +199,6 @@ class Calibration:
                 option="calibration",
             )
         return self.threshold
-
-    def with_threshold(self, threshold: Threshold) -> Calibration:
-        return replace(self, threshold=threshold)
 
     def to_dict(self) -> dict[str, Any]:
         names = list(self.joint_names)

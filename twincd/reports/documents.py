@@ -10,14 +10,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from twincd.errors import OutputError
-from twincd.evaluation.reports import (
+from twincd.evaluation.markdown import (
     EVALUATION_COLUMNS,
     EVENT_COLUMNS,
     evaluation_markdown,
     evaluation_rows,
     markdown_table,
 )
-from twincd.evaluation.reports import event_rows as event_rows_of
+from twincd.evaluation.markdown import event_rows as event_rows_of
 from twincd.reports import html
 from twincd.reports.tables import event_columns, event_rows
 from twincd.version import __version__

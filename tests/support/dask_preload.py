@@ -1,4 +1,4 @@
-"""Preloaded (``dask worker --preload dask_preload``) into the worker processes that
+"""Preloaded (``dask worker --preload support.dask_preload``) into the worker processes that
 tests/test_cluster.py starts: while an ``arm-*`` file waits in ``$TWINCD_TEST_KILL_DIR``, the
 first worker to write a block of ``detect`` output takes one and kills itself with SIGKILL,
 its output half-written — a worker dying mid-run at a moment the test chooses."""
