@@ -2,7 +2,6 @@
 its JSON file."""
 
 from twincd.calibration.affine import (
-    AffineCalibration,
     AffineSolution,
     AffineStats,
     clean_mask,
@@ -12,6 +11,7 @@ from twincd.calibration.affine import (
 from twincd.calibration.file import SCHEMA, Calibration, Threshold, calibration_from_fit
 from twincd.calibration.fitting import LogFit, fit_calibration, fit_log, merge_fits
 from twincd.calibration.models import (
+    AffineCalibration,
     AffineModel,
     FitStats,
     FrictionModel,

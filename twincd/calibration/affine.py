@@ -9,18 +9,16 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from twincd.calibration.models import AffineModel
 from twincd.errors import DataError
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
-    from twincd.calibration.models import FitStats
     from twincd.pipeline import PreparedLog
 
 log = logging.getLogger("twincd")
@@ -183,44 +181,3 @@ def warn_ill_conditioned(
             math.sqrt(float(stats.var_y[i])),
             float(a[i]),
         )
-
-
-class AffineCalibration(AffineModel):
-    """The paper's a, b as an estimator on its own (the affine model, unwhitened), which also
-    warns about joints whose slope is badly conditioned and predicts from the twin's effort
-    alone. Learned attributes as ``AffineModel``'s, and ``stats_`` (the merged AffineStats)."""
-
-    def __init__(
-        self, joint_names: Sequence[str] | None = None, warn_ill_conditioned: bool = True
-    ) -> None:
-        super().__init__()
-        self.joint_names = joint_names
-        self.warn_ill_conditioned = warn_ill_conditioned
-
-    def fit_arrays(
-        self, effort_f: FloatArray, sim_effort_f: FloatArray, mask: BoolArray | None = None
-    ) -> AffineCalibration:
-        return self.fit_stats(AffineStats.from_arrays(sim_effort_f, effort_f, mask))
-
-    def fit_stats(self, stats: AffineStats) -> AffineCalibration:
-        """Fit from statistics merged elsewhere (e.g. computed per log on workers)."""
-        from twincd.calibration.models import FitStats
-
-        self.fit_s_ = 0.0
-        return self.solve(FitStats(stats))
-
-    def solve(self, stats: FitStats) -> AffineCalibration:
-        super().solve(stats)
-        self.stats_ = stats.affine
-        if self.warn_ill_conditioned:
-            sol = solve(stats.affine)
-            names = self.joint_names or getattr(self, "joint_names_", None)
-            warn_ill_conditioned(names, stats.affine, sol.ill_conditioned, sol.a)
-        return self
-
-    def predict(self, inputs: Mapping[str, Any] | FloatArray) -> FloatArray:
-        """a⊙τ̂̃ + b: the twin's effort adjusted to the real robot (``inputs``: prepared
-        samples, or the twin's effort τ̂̃ alone)."""
-        if isinstance(inputs, Mapping):
-            return super().predict(inputs)
-        return super().predict({"sim_effort_f": inputs})

@@ -36,11 +36,19 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
 
+from twincd.calibration.affine import (
+    AffineStats,
+    clean_mask,
+    r_squared,
+    require_samples,
+    same_joints,
+    solve,
+    warn_ill_conditioned,
+)
 from twincd.errors import DataError, JointMismatchError, NotFittedError, UsageError
 from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
-    from twincd.calibration.affine import AffineStats
     from twincd.pipeline import PreparedLog
 
 
@@ -231,8 +239,6 @@ def merge_moments(
         return theirs.n, theirs.mean, theirs.cross
     if theirs.n == 0:
         return mine.n, mine.mean, mine.cross
-    from twincd.calibration.affine import same_joints
-
     same_joints(mine.mean.shape[joint_axis], theirs.mean.shape[joint_axis])
     n = mine.n + theirs.n
     delta = theirs.mean - mine.mean
@@ -407,8 +413,6 @@ class SpeedStats:
                 f"{self.params}/{self.coulomb} vs {other.params}/{other.coulomb} columns",
                 "prepare every log with the same settings",
             )
-        from twincd.calibration.affine import same_joints
-
         same_joints(self.n.shape[1], other.n.shape[1])
         merged = _merge_counted((self.n, self.mean, self.cross), (other.n, other.mean, other.cross))
         return SpeedStats(*merged, self.params, self.coulomb)
@@ -483,8 +487,6 @@ class FrictionSolution:
 
 def solve_friction(stats: FrictionStats) -> FrictionSolution:
     """Least squares per joint and ε from merged statistics; per joint the ε of least error."""
-    from twincd.calibration.affine import r_squared, require_samples
-
     require_samples(stats.n, 5)
     cxx = stats.cross[..., :3, :3]  # (E, D, 3, 3)
     cxy = stats.cross[..., :3, 3]  # (E, D, 3)
@@ -521,8 +523,6 @@ class IdentifiedSolution:
 def solve_identified(stats: IdentifiedStats) -> IdentifiedSolution:
     """Ridge least squares per joint and ε on standardised columns; per joint the ε of least
     training error (as ``solve_friction``)."""
-    from twincd.calibration.affine import r_squared, require_samples
-
     require_samples(stats.n, 5)
     p, e = stats.params, len(EPSILON_GRID)
     sse = []
@@ -636,8 +636,6 @@ class ResidualModel:
     def fit(self: M, logs: Iterable[PreparedLog]) -> M:
         """Fit on the collision-free samples of prepared ``logs``, one at a time (may be lazy);
         ``fit_s_`` times the statistics and the solve, as the paper times training."""
-        from twincd.calibration.affine import clean_mask
-
         elapsed = 0.0
         parts = []
         for log_ in logs:
@@ -653,8 +651,6 @@ class ResidualModel:
         return self
 
     def _solve_map(self, stats: FitStats) -> None:
-        from twincd.calibration.affine import solve
-
         sol = solve(stats.affine)
         self.a_, self.b_, self.r2_, self.rmse_ = sol.a, sol.b, sol.r2, sol.rmse
         self.n_samples_ = stats.affine.n
@@ -778,8 +774,6 @@ class AffineModel(ResidualModel):
         """Only the affine statistics, unless the whitening scale needs the speed bins."""
         if self.whitened:
             return super().stats(inputs, clean)
-        from twincd.calibration.affine import AffineStats
-
         return FitStats(AffineStats.from_arrays(inputs["sim_effort_f"], inputs["effort_f"], clean))
 
 
@@ -974,8 +968,6 @@ class FitStats:
     def from_inputs(cls, inputs: Mapping[str, Any], clean: BoolArray) -> FitStats:
         """The statistics of prepared samples (``ResidualModel.predict``'s inputs plus
         ``effort_f`` and the raw ``velocity``), rows where ``clean`` holds."""
-        from twincd.calibration.affine import AffineStats
-
         sim, effort = inputs["sim_effort_f"], inputs["effort_f"]
         affine = AffineStats.from_arrays(sim, effort, clean)
         grid = tuple(inputs.get("coulomb_eps") or ()) == EPSILON_GRID
@@ -1020,3 +1012,42 @@ def depth_order(depths: Sequence[int] | None, joints: int) -> tuple[int, ...]:
     if depths is None:
         return tuple(range(joints))
     return tuple(int(i) for i in np.argsort(np.asarray(depths), kind="stable"))
+
+
+class AffineCalibration(AffineModel):
+    """The paper's a, b as an estimator on its own (the affine model, unwhitened), which also
+    warns about joints whose slope is badly conditioned and predicts from the twin's effort
+    alone. Learned attributes as ``AffineModel``'s, and ``stats_`` (the merged AffineStats)."""
+
+    def __init__(
+        self, joint_names: Sequence[str] | None = None, warn_ill_conditioned: bool = True
+    ) -> None:
+        super().__init__()
+        self.joint_names = joint_names
+        self.warn_ill_conditioned = warn_ill_conditioned
+
+    def fit_arrays(
+        self, effort_f: FloatArray, sim_effort_f: FloatArray, mask: BoolArray | None = None
+    ) -> AffineCalibration:
+        return self.fit_stats(AffineStats.from_arrays(sim_effort_f, effort_f, mask))
+
+    def fit_stats(self, stats: AffineStats) -> AffineCalibration:
+        """Fit from statistics merged elsewhere (e.g. computed per log on workers)."""
+        self.fit_s_ = 0.0
+        return self.solve(FitStats(stats))
+
+    def solve(self, stats: FitStats) -> AffineCalibration:
+        super().solve(stats)
+        self.stats_ = stats.affine
+        if self.warn_ill_conditioned:
+            sol = solve(stats.affine)
+            names = self.joint_names or getattr(self, "joint_names_", None)
+            warn_ill_conditioned(names, stats.affine, sol.ill_conditioned, sol.a)
+        return self
+
+    def predict(self, inputs: Mapping[str, Any] | FloatArray) -> FloatArray:
+        """a⊙τ̂̃ + b: the twin's effort adjusted to the real robot (``inputs``: prepared
+        samples, or the twin's effort τ̂̃ alone)."""
+        if isinstance(inputs, Mapping):
+            return super().predict(inputs)
+        return super().predict({"sim_effort_f": inputs})
