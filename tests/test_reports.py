@@ -76,6 +76,7 @@ def test_detection_figure_has_the_size_asked_and_is_not_blank(sample_detection, 
 
 def test_fit_figure_is_drawn(twin_dataset, tmp_path):
     from twincd.calibration import merge_fits
+    from twincd.calibration.fitting import setup_for_model
     from twincd.reports.figures import fit_figure
     from twincd.reports.traces import ThinnedPairs, fit_log_with_pairs
 
@@ -84,7 +85,18 @@ def test_fit_figure_is_drawn(twin_dataset, tmp_path):
     cal = merge_fits([part for part, _ in both], setup, "affine")
     pairs = ThinnedPairs.merge([p for _, p in both])
     assert pairs.seen == cal.fit_samples
-    assert_drawn(fit_figure(cal, pairs), tmp_path / "fit")
+    figure = fit_figure(cal, pairs)
+    # the affine model's prediction is the line a·τ̂̃ + b: drawn on every joint's axes
+    lines = [ax.lines for ax in figure.axes if ax.get_visible()]
+    assert len(lines) == len(cal.joint_names) and all(len(drawn) == 1 for drawn in lines)
+    assert_drawn(figure, tmp_path / "fit")
+    # a friction model predicts from more than τ̂̃: no line of τ̂̃ alone claims to be it
+    setup = setup_for_model(Setup(), "friction")
+    both = [fit_log_with_pairs(p, setup) for p in sorted((twin_dataset / "train").iterdir())]
+    friction = merge_fits([part for part, _ in both], setup, "friction")
+    figure = fit_figure(friction, ThinnedPairs.merge([p for _, p in both]))
+    assert not any(ax.lines for ax in figure.axes)
+    assert all("friction" in ax.get_title() for ax in figure.axes if ax.get_visible())
 
 
 def test_trace_follows_the_summary(sample_detection):

@@ -195,21 +195,26 @@ def event_metrics(method: Any) -> dict[str, Any]:
 
 
 def fit_figure(cal: Calibration, pairs: ThinnedPairs) -> Any:
-    """Per joint: measured against twin effort (a thinned sample), the fitted line, R²."""
+    """Per joint: measured against twin effort (a thinned sample) and R²; for the affine models
+    the fitted line a·τ̂̃ + b, which is what they predict. The friction and identified models
+    predict from more than the twin's effort (friction, re-fitted inertia): no line of τ̂̃
+    alone is their prediction, so none is drawn (the detect report draws their prediction)."""
     d = len(cal.joint_names)
     cols = min(4, d)
     rows = -(-d // cols)
     fig, axes = _figure(rows, cols, 2.6 * rows + 0.4)
+    affine = cal.c is None and cal.theta is None
     for j, name in enumerate(cal.joint_names):
         ax = axes[j // cols, j % cols]
         x, y = pairs.twin[:, j], pairs.measured[:, j]
         # a raster inside the SVG: thousands of dots as vector marks would weigh megabytes
         ax.scatter(x, y, s=2, alpha=0.3, color="tab:blue", lw=0, rasterized=True)
-        if len(x):
+        if len(x) and affine:
             line = np.array([x.min(), x.max()])
             ax.plot(line, cal.a[j] * line + cal.b[j], color="tab:red", lw=1)
         r2 = "" if cal.r2 is None else f"\nR² = {cal.r2[j]:.3f}"
-        ax.set_title(f"{name}: a = {cal.a[j]:.3f}, b = {cal.b[j]:+.3f}{r2}", fontsize=8)
+        fitted = f"a = {cal.a[j]:.3f}, b = {cal.b[j]:+.3f}" if affine else cal.kind
+        ax.set_title(f"{name}: {fitted}{r2}", fontsize=8)
         ax.set_xlabel("twin τ̂̃ (N·m)")
         if j % cols == 0:
             ax.set_ylabel("measured τ̃ (N·m)")
