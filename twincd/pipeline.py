@@ -532,6 +532,9 @@ class Setup:
     # with ``regressor``, to score a fitted identified model: its (D, P) weights θ, so that only
     # Ỹθ is filtered (``regressor_effort_f``, D channels) instead of Ỹ's entries
     regressor_weights: FloatArray | None = field(default=None, compare=False)
+    # fit: gather each joint's residual statistics per bin of its speed (the whitened models'
+    # noise scale); False for an unwhitened model, whose fit then costs what the paper's did
+    speed_stats: bool = True
 
     def block_size_for(self, regressor: bool) -> int:
         """Samples per block read: fewer when the regressor is filtered (``REGRESSOR_BLOCK``)."""

@@ -61,7 +61,7 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
             clean = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             # the stream knows its regressor's entries once its first block is read
             prepared = {"coulomb_eps": stream.coulomb_eps, "regressor_mask": stream.regressor_mask}
-            part = FitStats.from_inputs({**frame, **prepared}, clean)
+            part = FitStats.from_inputs({**frame, **prepared}, clean, setup.speed_stats)
             stats = part if stats is None else stats + part
             seconds += time.perf_counter() - start
             for sink in sinks:
@@ -96,12 +96,13 @@ def setup_for_model(setup: Setup, model: str | None) -> Setup:
     identified: the joint-torque regressor too; None, the best model the logs allow: both,
     the regressor where a robot model is known)."""
     best = model is None
-    cls = None if model is None else model_class(model)[0]
+    cls, whitened = (None, True) if model is None else model_class(model)
     return replace(
         setup,
         coulomb_eps=EPSILON_GRID if cls is None or cls.needs_coulomb else (),
         regressor=cls is None or cls.needs_regressor,
         regressor_optional=best or setup.regressor_optional,
+        speed_stats=whitened,
     )
 
 

@@ -965,9 +965,12 @@ class FitStats:
     identified: IdentifiedStats | None = None
 
     @classmethod
-    def from_inputs(cls, inputs: Mapping[str, Any], clean: BoolArray) -> FitStats:
+    def from_inputs(
+        cls, inputs: Mapping[str, Any], clean: BoolArray, speed: bool = True
+    ) -> FitStats:
         """The statistics of prepared samples (``ResidualModel.predict``'s inputs plus
-        ``effort_f`` and the raw ``velocity``), rows where ``clean`` holds."""
+        ``effort_f`` and the raw ``velocity``), rows where ``clean`` holds; ``speed`` False:
+        no speed bins (an unwhitened model's fit, unless the identified model needs them)."""
         sim, effort = inputs["sim_effort_f"], inputs["effort_f"]
         affine = AffineStats.from_arrays(sim, effort, clean)
         grid = tuple(inputs.get("coulomb_eps") or ()) == EPSILON_GRID
@@ -977,7 +980,9 @@ class FitStats:
                 sim, inputs["velocity_f"], inputs["coulomb_f"], effort, clean
             )
         regressor = inputs.get("regressor_f") if grid else None
-        speed = SpeedStats.from_arrays(
+        if not speed and regressor is None:
+            return cls(affine, None, friction, None)
+        bins = SpeedStats.from_arrays(
             inputs["velocity"],
             sim,
             effort,
@@ -990,9 +995,9 @@ class FitStats:
         identified = None
         if regressor is not None:
             # the identified model's moments are the speed bins' pooled: one product, not two
-            n, mean, cross = speed.pooled()
+            n, mean, cross = bins.pooled()
             identified = IdentifiedStats(n, mean, cross)
-        return cls(affine, speed, friction, identified)
+        return cls(affine, bins, friction, identified)
 
     def __add__(self, other: FitStats) -> FitStats:
         def both(mine: Any, theirs: Any) -> Any:
