@@ -317,8 +317,9 @@ def test_fit_report_has_one_scatter_per_joint(twin_dataset, tmp_path):
     result = run("fit", twin_dataset / "train", "-o", tmp_path / "c.json", "--report", html)
     assert result.exit_code == 0, result.output
     page = html.read_text()
-    for joint in ("j1", "j2", "j3"):
-        assert f"{joint}: a = " in page
+    kind = json.loads((tmp_path / "c.json").read_text())["model"]["kind"]  # the default model
+    for joint in ("j1", "j2", "j3"):  # each panel names the joint and what was fitted
+        assert f"{joint}: a = " in page if kind.startswith("affine") else f"{joint}: {kind}" in page
     assert "R²" in page and str(tmp_path / "c.json") in page
     assert len(page) < 1_000_000  # the scatter is a raster inside the SVG
     md = tmp_path / "f.md"
