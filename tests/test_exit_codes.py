@@ -306,10 +306,12 @@ def test_help_into_a_closed_pipe(tmp_path):
 # ------------------------------------------------------------------ full disks, devices
 
 
+NO_DEV_FULL = pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full")
+
+
+@NO_DEV_FULL
 def test_dev_full_is_refused_before_any_work(world, tmp_path):
     full = Path("/dev/full")
-    if not full.exists():
-        pytest.skip("no /dev/full")
     data, cal = world["data"], world["cal"]
     test = data / "test" / "test_0.mcap"
     for args in (
@@ -325,9 +327,8 @@ def test_dev_full_is_refused_before_any_work(world, tmp_path):
     assert full.is_char_device()
 
 
+@NO_DEV_FULL
 def test_stdout_on_a_full_device_is_exit_2(world):
-    if not Path("/dev/full").exists():
-        pytest.skip("no /dev/full")
     test = world["data"] / "test" / "test_0.mcap"
     with open("/dev/full", "w") as full:
         proc = subprocess.run(

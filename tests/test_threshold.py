@@ -389,9 +389,10 @@ def test_the_gaussian_budget_holds_on_a_smooth_gaussian_score():
     tail = fit_gaussian_tail(counter.excursions, 1.0, median, sigma)
     assert tail is not None and tail.method == "rice-gaussian"
     assert tail.low <= tail.estimate <= (tail.high or np.inf)
-    assert 1.5 + 2.0 * 3.5 < tail.estimate < 1.5 + 2.0 * 5.0  # ≈ 4.1 σ above the mean
+    assert 8.5 < tail.estimate < 11.5  # ≈ 4.1 σ above the mean 1.5, σ = 2
     long = process(10.0)
     runs_above = runs(long >= tail.estimate)
     # declustered as the budget counts: a run within 0.2 s of the previous one continues it
     starts = [a for i, (a, _) in enumerate(runs_above) if i == 0 or a - runs_above[i - 1][1] > 20]
-    assert 1 <= len(starts) <= 40  # 10 expected at the budget; far off means a wrong formula
+    # 10 expected at the budget (14 seen): an exponential tail or a wrong formula is far off
+    assert 3 <= len(starts) <= 30
