@@ -139,6 +139,12 @@ def test_fit_without_a_model_fits_the_best_the_logs_allow(
     budget = th["false_alarm_budget"]
     assert th["estimator"] == "median-mad" and budget["method"] == "rice-gaussian"
     assert budget["interval"][0] <= th["value"] == budget["estimate"] <= budget["interval"][1]
+    # the clean scores' mean and sd are kept too: evaluate's F1 over μ + iσ is on them
+    assert th["mean"] != th["mu"] and th["sd"] > 0
+    tests_dir = data / "test"
+    evaluated = json.loads(run("evaluate", tests_dir, "-c", cal, "--json", "-q").stdout)
+    method = evaluated["methods"][0]
+    assert (method["mu"], method["sigma"]) == (th["mean"], th["sd"])
     tests = sorted((data / "test").glob("*.mcap"))
     found = run("detect", *tests, "-c", cal, "--json")
     assert found.exit_code == 1, found.output

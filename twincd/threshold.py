@@ -223,9 +223,12 @@ def budget_threshold(
     and standard deviation."""
     check_threshold_settings(0.0, per_hour)
     minutes = excursions.seconds / 60.0
+    mean: float | None = None
+    sd: float | None = None
     if gaussian:
         mu, sigma = stats.robust()
         estimator = "median-mad"
+        mean, sd = stats.mu, stats.sigma
         tail = fit_gaussian_tail(excursions, per_hour, mu, sigma)
     else:
         mu, sigma = stats.mu, stats.sigma  # no collision-free samples: a clear error here
@@ -238,7 +241,9 @@ def budget_threshold(
             minutes,
             DEFAULT_K_SIGMA,
         )
-        return Threshold(DEFAULT_K_SIGMA, mu, sigma, tuple(logs), stats.n, estimator=estimator)
+        return Threshold(
+            DEFAULT_K_SIGMA, mu, sigma, tuple(logs), stats.n, estimator=estimator, mean=mean, sd=sd
+        )
     if tail.method == "pot-exponential":
         log.warning(
             "only %d score excursion(s) in %.3g min of collision-free data, fewer than the %d "
@@ -262,6 +267,8 @@ def budget_threshold(
         judged_s=counts.seconds,
         tail=tail,
         estimator=estimator,
+        mean=mean,
+        sd=sd,
     )
 
 

@@ -96,6 +96,17 @@ class Threshold:
     judged_s: float | None = None
     tail: TailFit | None = None  # the tail fit that chose the threshold of a budget
     estimator: str = "mean-sd"
+    # with the median and MAD: the scores' mean and standard deviation too, which evaluate's
+    # F1 over μ + iσ uses (contract: Metrics)
+    mean: float | None = None
+    sd: float | None = None
+
+    @property
+    def mean_sd(self) -> tuple[float, float]:
+        """The clean scores' mean and standard deviation (what μ + iσ means in the metrics)."""
+        if self.mean is not None and self.sd is not None:
+            return self.mean, self.sd
+        return self.mu, self.sigma
 
     @property
     def value(self) -> float:
@@ -108,6 +119,7 @@ class Threshold:
             "sigma": self.sigma,
             "value": self.value,
             "estimator": self.estimator,
+            **({} if self.mean is None else {"mean": self.mean, "sd": self.sd}),
             "logs": list(self.logs),
             "samples": self.samples,
         }
@@ -328,6 +340,10 @@ class Calibration:
                     samples=int(th.get("samples", 0)),
                     **_budget(th.get("false_alarm_budget"), where),
                     estimator=_estimator(th.get("estimator", "mean-sd"), where),
+                    mean=None
+                    if "mean" not in th
+                    else finite_number(th["mean"], "threshold.mean", where),
+                    sd=None if "sd" not in th else finite_number(th["sd"], "threshold.sd", where),
                 )
             if th is not None and threshold is not None:
                 _check_threshold(threshold, th, where)
@@ -444,6 +460,11 @@ def _joint_names(raw: Any, where: str) -> tuple[str, ...]:
             "calibration field robot.joint_names names a joint twice", where, "re-run `twincd fit`"
         )
     return tuple(raw)
+
+
+def _optional_number(section: Mapping[str, Any], key: str, where: str) -> float | None:
+    """``threshold.<key>`` when the file has it (a finite number), else None."""
+    return None if key not in section else finite_number(section[key], f"threshold.{key}", where)
 
 
 def _estimator(value: Any, where: str) -> str:

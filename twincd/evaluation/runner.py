@@ -310,8 +310,9 @@ def _run_once(
     val_scores: list[FloatArray] = []
     if from_calibration and not val:
         assert calibration is not None
-        th = calibration.require_threshold()
-        mu, sigma = th.mu, th.sigma
+        # μ + iσ of the metrics is the clean scores' mean and standard deviation, whatever
+        # estimator set the threshold itself
+        mu, sigma = calibration.require_threshold().mean_sd
     else:
         stats, val_scores = _val_stats(method, val)
         mu, sigma = stats.mu, stats.sigma
