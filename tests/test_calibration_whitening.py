@@ -207,3 +207,24 @@ def test_the_calibration_file_keeps_the_binned_scale_and_old_files_keep_their_su
         edit(broken)
         with pytest.raises(CalibrationError):
             Calibration.from_dict(broken)
+
+
+def test_a_threshold_s_estimator_and_mean_are_checked_on_load():
+    from twincd.calibration import Threshold
+
+    cal = _calibration(np.arange(1, 13, dtype=float).reshape(2, 6) / 10)
+    cal = Calibration.from_dict(
+        {
+            **cal.to_dict(),
+            "threshold": Threshold(
+                4.0, 0.9, 0.8, estimator="median-mad", mean=1.0, sd=0.9
+            ).to_dict(),
+        }
+    )
+    assert cal.threshold is not None and cal.threshold.mean_sd == (1.0, 0.9)
+    doc = cal.to_dict()
+    for key, value in (("estimator", "trimmed"), ("mean", "1.0"), ("sd", float("nan"))):
+        broken = json.loads(json.dumps(doc))
+        broken["threshold"][key] = value
+        with pytest.raises(CalibrationError, match=f"threshold.{key}"):
+            Calibration.from_dict(broken)
