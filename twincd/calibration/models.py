@@ -727,8 +727,18 @@ class ResidualModel:
             r = residual if scale is None else residual / np.maximum(scale, _MIN_SCALE)
             out: FloatArray = np.einsum("ij,ij->i", r, r)
             return out
+        return self.weigh(residual, velocity)[0]
+
+    def weigh(
+        self, residual: FloatArray, velocity: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray]:
+        """(N,) scores and the (N, D) evidence events weigh joints by: the residual whitened by
+        speed for the depth statistic (computed once for both), else the residual itself."""
+        if self.statistic != "depth":
+            return self.score(residual), residual
+        whitened = self._by_speed(residual, velocity)
         order = None if self.order is None else np.asarray(self.order, dtype=np.intp)
-        return depth_score(self._by_speed(residual, velocity), order)
+        return depth_score(whitened, order), whitened
 
     def whitened_residual(
         self, residual: FloatArray, velocity: FloatArray | None

@@ -97,7 +97,8 @@ class ScoringStage:
         inputs = {**frame, "coulomb_eps": self.coulomb_eps, "regressor_mask": self.regressor_mask}
         predicted = self.model.predict(inputs)
         r = self.model.residual(inputs, predicted)
-        scores = self.model.score(r, frame.get("velocity"))
+        # the events weigh joints as the score does: by their noise at their speed, if known
+        scores, evidence = self.model.weigh(r, frame.get("velocity"))
         flags = scores >= self.threshold
         hold = scores >= self.release
         judged = np.ones(len(flags), dtype=bool)
@@ -106,9 +107,6 @@ class ScoringStage:
             flags &= judged
             hold &= judged
         self.counts.add(flags, judged, frame.get("labels"))
-        # the events weigh joints as the score does: by their noise at their speed, if known
-        evidence = self.model.whitened_residual(r, frame.get("velocity"))
-        evidence = r if evidence is None else evidence
         closed = self.events.push(flags, scores, evidence, frame["stamp_ns"], hold)
         columns = {"predicted": predicted, "residual": r, "score": scores, "flag": flags}
         return frame.with_columns(**columns), closed
