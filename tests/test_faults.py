@@ -380,9 +380,11 @@ def test_one_bad_effort_value_drops_a_sample(world, tmp_path):
 def test_fit_warnings(tmp_path):
     against = build_twin_log(tmp_path / "neg.mcap", gains=np.array([-1.3, 0.8, 1.1]))
     result = run("fit", against, "-o", tmp_path / "neg.json")
-    assert result.exit_code == 0 and "negative a on j1" in result.stderr
+    assert result.exit_code == 0 and "negative a (of a·twin + b) on j1" in result.stderr
     flat = build_twin_log(tmp_path / "flat.mcap", gains=np.zeros(3), noise=1.0, labels=False)
-    result = run("fit", flat, "-o", tmp_path / "flat.json")
+    # the paper's map explains nothing of an effort the twin does not drive (the R² warned of is
+    # the fitted model's: a friction model may still explain such an effort)
+    result = run("fit", flat, "-o", tmp_path / "flat.json", "--model", "affine")
     assert result.exit_code == 0
     assert "R² below 0.1 on every joint" in result.stderr
     assert "have no collision labels" in result.stderr

@@ -26,6 +26,7 @@ from twincd.calibration.models import (
 )
 from twincd.errors import DataError
 from twincd.pipeline import PreparedStream, Setup, agreed_joints
+from twincd.types import FloatArray
 
 if TYPE_CHECKING:
     from twincd.frames import FrameSink
@@ -143,7 +144,8 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
     # a friction model's slope a is conditioned by its other terms too: no affine warning
     if not fitted.needs_coulomb:
         warn_ill_conditioned(names, total.affine, affine.ill_conditioned, affine.a)
-    _warn_about_fit(names, affine, [p.source for p in parts if not p.labelled])
+    r2 = affine.r2 if fitted.r2_ is None else fitted.r2_
+    _warn_about_fit(names, affine, r2, [p.source for p in parts if not p.labelled])
     cal = calibration_from_fit(
         fitted,
         names,
@@ -179,22 +181,25 @@ def _chain(
 LOW_R2 = 0.1
 
 
-def _warn_about_fit(names: Sequence[str], affine: AffineSolution, unlabelled: list[str]) -> None:
-    """Fits that are likely wrong say so (one line each): a negative gain, a twin that explains
-    nothing (a wrong robot model or joint map), by the affine map whatever the model; logs
-    without labels whose collisions, if any, were fitted as if normal."""
+def _warn_about_fit(
+    names: Sequence[str], affine: AffineSolution, r2: FloatArray, unlabelled: list[str]
+) -> None:
+    """Fits that are likely wrong say so (one line each): a twin's effort against the measured
+    one (a negative gain of the paper's map a·twin + b, whatever the model: a sign or a joint
+    map to check), a model that explains next to nothing (``r2``: the fitted model's; a wrong
+    robot model or joint map); logs without labels whose collisions, if any, were fitted as if
+    normal."""
     negative = [n for n, a in zip(names, affine.a, strict=True) if a < 0]
     if negative:
         log.warning(
-            "fit: negative a on %s: the twin's effort runs against the measured one; check the "
-            "robot model, the joint map and the effort sign",
+            "fit: negative a (of a·twin + b) on %s: the twin's effort runs against the measured "
+            "one; check the robot model, the joint map and the effort sign",
             ", ".join(negative),
         )
-    r2 = affine.r2
     if len(r2) and bool(np.all(np.nan_to_num(r2, nan=0.0) < LOW_R2)):
         log.warning(
-            "fit: R² below %g on every joint (best %.3f): the twin explains almost none of the "
-            "measured effort; check the robot model and the joint map",
+            "fit: R² below %g on every joint (best %.3f): the model explains almost none of "
+            "the measured effort; check the robot model and the joint map",
             LOW_R2,
             float(np.nanmax(r2)) if np.isfinite(r2).any() else 0.0,
         )
