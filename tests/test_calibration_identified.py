@@ -27,7 +27,7 @@ from twincd.calibration.models import (
     fit_model,
     solve_identified,
 )
-from twincd.detection import OnlineDetector, detect_file
+from twincd.detection import OnlineDetector, detect_file, detect_log
 from twincd.errors import CalibrationError, DataError
 from twincd.pipeline import Setup
 from twincd.signal.derivatives import differentiate
@@ -281,6 +281,27 @@ def test_online_detector_equals_batch_with_an_identified_model(
     events += det.close()
     np.testing.assert_allclose(np.concatenate(live), np.concatenate(scores), rtol=1e-12)
     assert events == batch.events
+
+
+def test_detect_log_on_a_whole_log_equals_the_stream(
+    identified_cal: Path, xarm_dataset: Path
+) -> None:
+    """The library's whole-log path (``detect_log`` on ``Setup.prepare``) scores a fitted
+    identified model as ``detect`` streams it: the prepared log carries Ỹθ, not Ỹ's entries."""
+    cal = Calibration.load(identified_cal)
+    setup = Setup.from_calibration(cal)
+    log = xarm_dataset / "test" / "test_000.mcap"
+    scores: list[np.ndarray] = []
+
+    class Keep:
+        def write(self, frame, events):  # type: ignore[no-untyped-def]
+            if frame.n:
+                scores.append(frame["score"])
+
+    streamed = detect_file(log, cal, setup, [Keep()])
+    whole = detect_log(setup.prepare(log), cal)
+    np.testing.assert_allclose(whole.scores, np.concatenate(scores), rtol=1e-9, atol=1e-12)
+    assert whole.events == streamed.events and whole.events
 
 
 def test_filter_kind_is_a_choice_and_the_calibration_keeps_it(

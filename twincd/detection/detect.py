@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from twincd.calibration.models import model_inputs
 from twincd.detection.events import Event, EventRules, EventTracker
 from twincd.detection.isolation import isolator_for, kappa_for
 from twincd.frames import Frame, FrameSink
@@ -147,15 +148,11 @@ def detect_log(
 ) -> LogDetection:
     """Score and flag every sample of ``log`` with a calibration that has a threshold."""
     stage = ScoringStage(calibration, log.joint_names, log.coulomb_eps, rules)
+    inputs = {k: v for k, v in model_inputs(log).items() if k != "coulomb_eps"}
     frame = Frame(
         {
+            **inputs,
             "stamp_ns": log.states.stamp_ns,
-            "effort_f": log.effort_f,
-            "sim_effort_f": log.sim_effort_f,
-            "velocity": log.states.velocity,
-            "velocity_f": log.velocity_f,
-            "coulomb_f": log.coulomb_f,
-            "regressor_f": log.regressor_f,
             "edge": None if log.edge is None else log.edge.astype(np.float64),
             "labels": log.labels,
         }
