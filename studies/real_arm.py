@@ -14,7 +14,9 @@ rotations with its spread (min–max), and the pooled counts:
 
 Figures: collisions found (pooled and per rotation), median delay, false alarms in the whole
 collision-free time of the six test logs, events per found push (``evaluate``'s
-``events_per_detected``: detect's events that touch a labelled push, over the pushes found), AUC.
+``events_per_detected``: detect's events that touch a labelled push, over the pushes found), AUC,
+and how often a found push's event names a link (the recordings label none, so not whether
+it is right).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import shlex
 import subprocess
 import sys
 import tempfile
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from statistics import mean, median
@@ -53,6 +56,7 @@ class Rotation:
     evaluate: dict[str, Any]
     clean_s: float  # the test log's unlabelled time judged (100 Hz samples)
     delays_ms: list[float]  # each found push's delay, from detect's events
+    links: list[str | None]  # the link its first event names (None: not singled out)
 
 
 def rotate(i: int, work: Path, args: argparse.Namespace) -> Rotation:
@@ -64,31 +68,32 @@ def rotate(i: int, work: Path, args: argparse.Namespace) -> Rotation:
     must(twincd("threshold", val, "-c", cal, "-q", *shlex.split(args.threshold_args)))
     doc = json.loads(must(twincd("evaluate", test, "-c", cal, "--json", "-q")))
     found = json.loads(must(twincd("detect", test, "-c", cal, "--json", "-q"), ok=(0, 1)))
-    delays = push_delays(test, found["logs"][0]["events"])
+    delays, links = found_pushes(test, found["logs"][0]["events"])
     clean_s = (doc["samples"] - doc["positives"]) * PERIOD_S
-    return Rotation(test.name, doc["methods"][0], clean_s, delays)
+    return Rotation(test.name, doc["methods"][0], clean_s, delays, links)
 
 
-def push_delays(log: Path, events: list[dict[str, Any]]) -> list[float]:
+def found_pushes(log: Path, events: list[dict[str, Any]]) -> tuple[list[float], list[str | None]]:
     """Each found push's delay (ms) from detect's events, as evaluate counts it: from the push's
-    first labelled sample to the first event sample inside it or within 200 ms after it."""
+    first labelled sample to the first event sample inside it or within 200 ms after it; and the
+    link that first event names (the recordings label no links, so only how often one is
+    named can be judged)."""
     from twincd.detection.events import runs
     from twincd.pipeline import read_log
 
     states = read_log(log)
     assert states.labels is not None
     stamps = states.stamp_ns
-    out = []
+    delays: list[float] = []
+    links: list[str | None] = []
     for a, b in runs(states.labels):
         start, end = int(stamps[a]), int(stamps[b]) + 200_000_000
-        hits = [
-            max(e["start_ns"], start)
-            for e in events
-            if e["start_ns"] <= end and e["end_ns"] >= start
-        ]
+        hits = [e for e in events if e["start_ns"] <= end and e["end_ns"] >= start]
         if hits:
-            out.append((min(hits) - start) * 1e-6)
-    return out
+            first = min(hits, key=lambda e: e["start_ns"])
+            delays.append((max(first["start_ns"], start) - start) * 1e-6)
+            links.append(first.get("link"))
+    return delays, links
 
 
 def spread(values: list[float | None]) -> str:
@@ -143,6 +148,13 @@ def main() -> int:
     print(f"false alarms: {alarms} in {minutes:.1f} min of collision-free test time")
     print(f"events per found push: {on / max(found, 1):.2f} ({on:.0f} events on {found} pushes)")
     print(f"AUC per rotation: {spread([m['auc'] for m in rows])}")
+    named = [link for r in rotations for link in r.links]
+    if named:
+        shown = Counter(link for link in named if link is not None)
+        print(
+            f"a link named for {shown.total()} of {len(named)} found pushes"
+            f" ({shown.total() / len(named):.0%}): {dict(sorted(shown.items()))}"
+        )
     if args.json:
         args.json.write_text(json.dumps([r.__dict__ for r in rotations], indent=1))
     return 0

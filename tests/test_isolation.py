@@ -78,3 +78,34 @@ def test_events_name_the_link_across_blocks(split: int | None) -> None:
         events += tracker.finish()
     assert [e.link for e in events] == ["link3", "link6"]
     assert events[0].to_dict()["link"] == "link3"
+
+
+def test_detect_weighs_the_evidence_with_the_models_own_rule() -> None:
+    """A model with speed bins (its evidence whitened) gets its κ and ρ; the other models theirs:
+    a push whose deepest joint sits at 1.25 κ is named by the first's rule only when ρ < 1.25."""
+    from twincd.detection.isolation import (
+        DEFAULT_MARGIN,
+        KAPPA_BY_SPEED,
+        MARGIN_BY_SPEED,
+        kappa_for,
+        margin_for,
+    )
+
+    assert kappa_for("identified-whitened", "depth") == KAPPA_BY_SPEED
+    assert margin_for("depth") == MARGIN_BY_SPEED and margin_for("sum") == DEFAULT_MARGIN
+    assert kappa_for("identified-whitened") == 3.25 and kappa_for("affine") == 3.0
+    peaks = np.array([30.0, 20.0, 1.25 * KAPPA_BY_SPEED, 1.0, 0.5, 0.1, 0.0])
+    speed = LinkIsolator(LINKS, DEPTHS, np.ones(7), KAPPA_BY_SPEED, margin_for("depth"))
+    flat = LinkIsolator(LINKS, DEPTHS, np.ones(7), KAPPA_BY_SPEED, margin_for("sum"))
+    assert speed.isolate(peaks) == (None, ("link3", "link2"))
+    assert flat.isolate(peaks) == ("link3", ("link3",))
+    # and detect's scoring stage takes the rule of the calibration it scores
+    from pathlib import Path
+
+    from twincd.calibration import Calibration
+    from twincd.detection.detect import ScoringStage
+
+    shipped = Path(__file__).resolve().parents[1] / "sample_logs"
+    for name, margin in (("calibration.json", MARGIN_BY_SPEED), ("calibration.affine.json", 1.2)):
+        rule = ScoringStage(Calibration.load(shipped / name)).events.isolator
+        assert rule is not None and rule.margin == margin

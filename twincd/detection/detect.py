@@ -13,7 +13,7 @@ import numpy as np
 
 from twincd.calibration.models import model_inputs
 from twincd.detection.events import Event, EventRules, EventTracker
-from twincd.detection.isolation import isolator_for, kappa_for
+from twincd.detection.isolation import isolator_for, kappa_for, margin_for
 from twincd.frames import Frame, FrameSink
 from twincd.types import BoolArray, FloatArray
 
@@ -85,6 +85,7 @@ class ScoringStage:
             calibration.depths,
             self.model.joint_scale,
             kappa_for(self.model.kind, self.model.statistic),
+            margin_for(self.model.statistic),
         )
         self.events = EventTracker(joint_names or calibration.joint_names, isolator, self.rules)
         self.counts = FlagCount()

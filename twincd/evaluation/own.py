@@ -18,7 +18,7 @@ from twincd.calibration.models import (
     model_inputs,
 )
 from twincd.detection.events import Event, EventRules, find_events
-from twincd.detection.isolation import LinkIsolator, kappa_for
+from twincd.detection.isolation import LinkIsolator, kappa_for, margin_for
 from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.pipeline import PreparedLog
@@ -87,7 +87,7 @@ class ModelMethod(ScoringMethod):
             if self.kappa is None
             else self.kappa
         )
-        return LinkIsolator(links, depths, scale, kappa)
+        return LinkIsolator(links, depths, scale, kappa, margin_for(self._model().statistic))
 
     def events(
         self, log: PreparedLog, scores: FloatArray, flags: BoolArray, hold: BoolArray
