@@ -145,7 +145,13 @@ def test_fit_without_a_model_fits_the_best_the_logs_allow(
     evaluated = json.loads(run("evaluate", tests_dir, "-c", cal, "--json", "-q").stdout)
     method = evaluated["methods"][0]
     assert (method["mu"], method["sigma"]) == (th["mean"], th["sd"])
+    # ... but it judges at the calibration's own threshold, as detect flags: the same samples
+    assert method["threshold"] == th["value"]
+    assert method["mu"] + method["k_sigma"] * method["sigma"] == pytest.approx(th["value"])
     tests = sorted((data / "test").glob("*.mcap"))
     found = run("detect", *tests, "-c", cal, "--json")
     assert found.exit_code == 1, found.output
     assert sum(len(log["events"]) for log in json.loads(found.stdout)["logs"]) >= 1
+    flagged = sum(log["collision_samples"] for log in json.loads(found.stdout)["logs"])
+    hits = method["recall_at_threshold"] * method["positives"]
+    assert hits / method["precision_at_threshold"] == pytest.approx(flagged, abs=0.5)

@@ -295,7 +295,10 @@ def _run_once(
     calibration: Calibration | None,
     k_sigma: float,
     links: Links,
+    own_threshold: float | None = None,
 ) -> _Run:
+    """One run of a method; ``own_threshold``: the calibration's threshold, which its own model
+    is judged at when it comes from the calibration (else μ + ``k_sigma``·σ)."""
     from_calibration = method.calibrated and not train
     train_s: float | None = None
     if from_calibration:
@@ -308,11 +311,13 @@ def _run_once(
     else:
         method.fit(train)
     val_scores: list[FloatArray] = []
+    threshold: float | None = None
     if from_calibration and not val:
         assert calibration is not None
         # μ + iσ of the metrics is the clean scores' mean and standard deviation, whatever
-        # estimator set the threshold itself
+        # estimator set the threshold itself; the threshold itself is the calibration's
         mu, sigma = calibration.require_threshold().mean_sd
+        threshold = own_threshold
     else:
         stats, val_scores = _val_stats(method, val)
         mu, sigma = stats.mu, stats.sigma
@@ -332,7 +337,8 @@ def _run_once(
         )
     sweep = f1_sweep(y_true, y_score, mu, sigma)
     best_k, f1_best = best_of(sweep)
-    threshold = mu + k_sigma * sigma
+    if threshold is None:
+        threshold = mu + k_sigma * sigma
     at = at_threshold(y_true, y_score, threshold)
     figures: dict[str, float | None] = {
         "f1_best": f1_best,
@@ -409,10 +415,13 @@ def evaluate_method(
     k_sigma: float = DEFAULT_K_SIGMA,
     repeats: int = DEFAULT_REPEATS,
     links: Links | None = None,
+    own_threshold: float | None = None,
 ) -> MethodResult:
     """One method's figures; a method that cannot run comes back with ``skipped`` set.
 
     ``links``: the true contact link per sample of each test log (by source), for isolation.
+    ``own_threshold``: the calibration's threshold, at which the calibration's own model is
+    judged (``evaluate`` passes it unless ``k_sigma`` was given).
     """
     probe = make_method(name)
     unit = probe.unit
@@ -441,10 +450,18 @@ def evaluate_method(
         runs = []
         for seed in range(repeats if seeded else 1):
             method = make_method(name, seed=seed) if seeded else probe
-            runs.append(_run_once(method, train, val, test, calibration, k_sigma, links or {}))
+            runs.append(
+                _run_once(
+                    method, train, val, test, calibration, k_sigma, links or {}, own_threshold
+                )
+            )
     except MethodSkipped as exc:
         return MethodResult(name=name, unit=unit, skipped=str(exc) or "cannot run on these logs")
-    return _combine(name, unit, k_sigma, runs)
+    result = _combine(name, unit, k_sigma, runs)
+    if own and not val and own_threshold is not None and result.sigma:
+        # judged at the calibration's threshold: its k over the metrics' μ and σ
+        result.k_sigma = (own_threshold - (result.mu or 0.0)) / result.sigma
+    return result
 
 
 def load_logs(
@@ -507,9 +524,13 @@ def evaluate(
         raise UsageError(
             "repeats must be at least 1", f"repeats={repeats}", "give 1 or more", option="repeats"
         )
+    own_threshold = None
     if k_sigma is None:
         th = calibration.threshold if calibration is not None else None
         k_sigma = th.k_sigma if th is not None else DEFAULT_K_SIGMA
+        # the calibration's own model is judged at the calibration's threshold (contract:
+        # Metrics), whatever estimator set it; other methods at μ + kσ of their validation
+        own_threshold = th.value if th is not None else None
     _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
     models = [model_class(name)[0] for name in methods if name in MODEL_KINDS]
     if any(m.needs_coulomb for m in models):
@@ -531,7 +552,7 @@ def evaluate(
     # calibration, so logs of one robot agree whatever their message order
     agreed_joints([*test, *train, *val])
     results = [
-        evaluate_method(name, train, val, test, calibration, k_sigma, repeats, links)
+        evaluate_method(name, train, val, test, calibration, k_sigma, repeats, links, own_threshold)
         for name in progress(list(methods), "evaluating")
     ]
     if all(r.skipped is not None for r in results):
