@@ -122,7 +122,10 @@ def evaluate(
         typer.Option(
             "--sigma",
             "-k",
-            help="k of μ + kσ for the at-threshold figures (default: the calibration's, else 4).",
+            help=(
+                "k of μ + kσ for the at-threshold figures (default: the calibration's threshold"
+                " itself, else 4)."
+            ),
             min=0,
         ),
     ] = None,

@@ -458,8 +458,9 @@ def evaluate_method(
     except MethodSkipped as exc:
         return MethodResult(name=name, unit=unit, skipped=str(exc) or "cannot run on these logs")
     result = _combine(name, unit, k_sigma, runs)
-    if own and not val and own_threshold is not None and result.sigma:
-        # judged at the calibration's threshold: its k over the metrics' μ and σ
+    robust = calibration is not None and calibration.require_threshold().estimator != "mean-sd"
+    if own and not val and own_threshold is not None and robust and result.sigma:
+        # judged at the calibration's threshold, set on other μ and σ: its k over the metrics'
         result.k_sigma = (own_threshold - (result.mu or 0.0)) / result.sigma
     return result
 
