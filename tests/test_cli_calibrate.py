@@ -155,3 +155,15 @@ def test_fit_without_a_model_fits_the_best_the_logs_allow(
     flagged = sum(log["collision_samples"] for log in json.loads(found.stdout)["logs"])
     hits = method["recall_at_threshold"] * method["positives"]
     assert hits / method["precision_at_threshold"] == pytest.approx(flagged, abs=0.5)
+    # with other validation logs, the calibration's rule (here its budget) sets the threshold
+    # on them, as `twincd threshold` would
+    other = sorted((data / "val").glob("*.mcap"))[:1]
+    again = tmp_path / "again.json"
+    again.write_text(cal.read_text())
+    assert run("threshold", *other, "-c", again, "-q").exit_code == 0
+    expected = json.loads(again.read_text())["threshold"]
+    rerun = run("evaluate", tests_dir, "-c", cal, "--val", *other, "--json", "-q")
+    assert rerun.exit_code == 0, rerun.output
+    judged = json.loads(rerun.stdout)["methods"][0]
+    assert judged["threshold"] == pytest.approx(expected["value"], rel=1e-9)
+    assert expected["false_alarm_budget"]["per_hour"] == budget["per_hour"]

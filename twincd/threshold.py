@@ -372,7 +372,10 @@ def threshold_calibration(
 
 
 def threshold_prepared_logs(
-    logs: Iterable[PreparedLog], calibration: Calibration, k_sigma: float | None = None
+    logs: Iterable[PreparedLog],
+    calibration: Calibration,
+    k_sigma: float | None = None,
+    false_alarms_per_hour: float | None = None,
 ) -> Calibration:
     """The threshold from logs already prepared in memory (as evaluate uses), by the rules of
     ``threshold_from_parts``."""
@@ -386,4 +389,13 @@ def threshold_prepared_logs(
         peaks.push(scores, usable)
         stats = ScoreStats.from_scores(scores, usable)
         parts.append(LogScores(lg.source, stats, len(lg), counter.counts, peaks.excursions))
-    return threshold_from_parts(parts, calibration, k_sigma)
+    return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
+
+
+def same_rule(calibration: Calibration) -> tuple[float | None, float | None]:
+    """(k_sigma, false_alarms_per_hour) that set the calibration's threshold: its budget when it
+    has one, else its k (for ``threshold_*`` on other logs)."""
+    th = calibration.require_threshold()
+    if th.budget_per_hour is not None:
+        return None, th.budget_per_hour
+    return th.k_sigma, None

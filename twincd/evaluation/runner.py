@@ -37,7 +37,7 @@ from twincd.evaluation.metrics import (
 )
 from twincd.io.links import read_links
 from twincd.pipeline import PreparedLog, Setup, agreed_joints
-from twincd.threshold import ScoreStats
+from twincd.threshold import ScoreStats, same_rule, threshold_prepared_logs
 from twincd.types import BoolArray, FloatArray
 
 T = TypeVar("T")
@@ -295,10 +295,11 @@ def _run_once(
     calibration: Calibration | None,
     k_sigma: float,
     links: Links,
-    own_threshold: float | None = None,
+    own_rule: bool = False,
 ) -> _Run:
-    """One run of a method; ``own_threshold``: the calibration's threshold, which its own model
-    is judged at when it comes from the calibration (else μ + ``k_sigma``·σ)."""
+    """One run of a method; ``own_rule``: a model that comes from the calibration is judged at
+    the calibration's threshold, or with validation logs at what its rule sets on them (else
+    at μ + ``k_sigma``·σ)."""
     from_calibration = method.calibrated and not train
     train_s: float | None = None
     if from_calibration:
@@ -317,10 +318,15 @@ def _run_once(
         # μ + iσ of the metrics is the clean scores' mean and standard deviation, whatever
         # estimator set the threshold itself; the threshold itself is the calibration's
         mu, sigma = calibration.require_threshold().mean_sd
-        threshold = own_threshold
+        threshold = calibration.require_threshold().value if own_rule else None
     else:
         stats, val_scores = _val_stats(method, val)
         mu, sigma = stats.mu, stats.sigma
+        if from_calibration and own_rule:
+            # the calibration's own model on other validation logs: its threshold rule there
+            assert calibration is not None
+            again = threshold_prepared_logs(val, calibration, *same_rule(calibration))
+            threshold = again.require_threshold().value
     start = time.perf_counter()
     scores = [method.score(lg) for lg in test]
     test_s = time.perf_counter() - start
@@ -415,13 +421,13 @@ def evaluate_method(
     k_sigma: float = DEFAULT_K_SIGMA,
     repeats: int = DEFAULT_REPEATS,
     links: Links | None = None,
-    own_threshold: float | None = None,
+    own_rule: bool = False,
 ) -> MethodResult:
     """One method's figures; a method that cannot run comes back with ``skipped`` set.
 
     ``links``: the true contact link per sample of each test log (by source), for isolation.
-    ``own_threshold``: the calibration's threshold, at which the calibration's own model is
-    judged (``evaluate`` passes it unless ``k_sigma`` was given).
+    ``own_rule``: the calibration's own model is judged by the calibration's threshold (its
+    value, or its rule on ``val``); ``evaluate`` sets it unless ``k_sigma`` was given.
     """
     probe = make_method(name)
     unit = probe.unit
@@ -451,17 +457,15 @@ def evaluate_method(
         for seed in range(repeats if seeded else 1):
             method = make_method(name, seed=seed) if seeded else probe
             runs.append(
-                _run_once(
-                    method, train, val, test, calibration, k_sigma, links or {}, own_threshold
-                )
+                _run_once(method, train, val, test, calibration, k_sigma, links or {}, own_rule)
             )
     except MethodSkipped as exc:
         return MethodResult(name=name, unit=unit, skipped=str(exc) or "cannot run on these logs")
     result = _combine(name, unit, k_sigma, runs)
     robust = calibration is not None and calibration.require_threshold().estimator != "mean-sd"
-    if own and not val and own_threshold is not None and robust and result.sigma:
-        # judged at the calibration's threshold, set on other μ and σ: its k over the metrics'
-        result.k_sigma = (own_threshold - (result.mu or 0.0)) / result.sigma
+    if own and own_rule and robust and result.sigma:
+        # judged at the calibration's threshold rule, on other μ and σ: its k over the metrics'
+        result.k_sigma = ((result.threshold or 0.0) - (result.mu or 0.0)) / result.sigma
     return result
 
 
@@ -525,13 +529,13 @@ def evaluate(
         raise UsageError(
             "repeats must be at least 1", f"repeats={repeats}", "give 1 or more", option="repeats"
         )
-    own_threshold = None
+    own_rule = False
     if k_sigma is None:
         th = calibration.threshold if calibration is not None else None
         k_sigma = th.k_sigma if th is not None else DEFAULT_K_SIGMA
         # the calibration's own model is judged at the calibration's threshold (contract:
         # Metrics), whatever estimator set it; other methods at μ + kσ of their validation
-        own_threshold = th.value if th is not None else None
+        own_rule = th is not None
     _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
     models = [model_class(name)[0] for name in methods if name in MODEL_KINDS]
     if any(m.needs_coulomb for m in models):
@@ -553,7 +557,7 @@ def evaluate(
     # calibration, so logs of one robot agree whatever their message order
     agreed_joints([*test, *train, *val])
     results = [
-        evaluate_method(name, train, val, test, calibration, k_sigma, repeats, links, own_threshold)
+        evaluate_method(name, train, val, test, calibration, k_sigma, repeats, links, own_rule)
         for name in progress(list(methods), "evaluating")
     ]
     if all(r.skipped is not None for r in results):
