@@ -90,6 +90,20 @@ def test_train_val_and_methods(twin_dataset):
     assert_one_line_error(unknown, "(option --methods)")
 
 
+def test_a_calibration_without_threshold_evaluates_with_train_and_val(twin_dataset, tmp_path):
+    # the fitted model is refitted on --train and judged at μ + 4σ of --val: the calibration
+    # brings the settings, and its missing threshold is never asked for
+    bare = tmp_path / "bare.json"
+    assert run("fit", twin_dataset / "train", "-o", bare, "-q").exit_code == 0
+    result = run(
+        "evaluate", twin_dataset / "test", "-c", bare, "--train", twin_dataset / "train",
+        "--val", twin_dataset / "val", "--json", "-q",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    row = json.loads(result.stdout)["methods"][0]
+    assert row["threshold"] == pytest.approx(row["mu"] + 4.0 * row["sigma"])
+
+
 def test_errors(cal, twin_dataset, tmp_path, twin_log):
     unlabelled = twin_log(tmp_path / "nolabels.mcap", labels=False)
     unlabelled_run = run("evaluate", unlabelled, "-c", cal)

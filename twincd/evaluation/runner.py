@@ -462,9 +462,9 @@ def evaluate_method(
     except MethodSkipped as exc:
         return MethodResult(name=name, unit=unit, skipped=str(exc) or "cannot run on these logs")
     result = _combine(name, unit, k_sigma, runs)
-    robust = calibration is not None and calibration.require_threshold().estimator != "mean-sd"
-    if own and own_rule and robust and result.sigma:
-        # judged at the calibration's threshold rule, on other μ and σ: its k over the metrics'
+    th = calibration.threshold if calibration is not None and own and own_rule else None
+    if th is not None and th.estimator != "mean-sd" and result.sigma:
+        # judged by the calibration's threshold rule, on other μ and σ: its k over the metrics'
         result.k_sigma = ((result.threshold or 0.0) - (result.mu or 0.0)) / result.sigma
     return result
 
