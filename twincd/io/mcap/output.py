@@ -197,19 +197,7 @@ class McapOutput(ChannelTable):
             self.raw(PREFIX.pack(Opcode.MESSAGE_INDEX, len(index_body)))
             self.raw(index_body)
             self._count(channel_id, count, start, end)
-        self.chunk_indexes.append(
-            ChunkIndex(
-                message_start_time=start,
-                message_end_time=end,
-                chunk_start_offset=offset,
-                chunk_length=index_start - offset,
-                message_index_offsets=offsets,
-                message_index_length=self.offset - index_start,
-                compression=compression,
-                compressed_size=csize,
-                uncompressed_size=usize,
-            )
-        )
+        self._index_chunk(start, end, offset, index_start, offsets, compression, csize, usize)
 
     def write_chunk(self, data: Buffer, index: dict[int, tuple[U64, U64]]) -> None:
         """A new zstd chunk of ``data`` (records) with its index: channel → (log times, offsets)."""
@@ -240,6 +228,21 @@ class McapOutput(ChannelTable):
             offsets[channel_id] = self.offset
             self._put(message_index(channel_id, log_time, starts))
             self._count(channel_id, len(log_time), int(log_time.min()), int(log_time.max()))
+        self._index_chunk(start, end, offset, index_start, offsets, "zstd", len(compressed), size)
+
+    def _index_chunk(
+        self,
+        start: int,
+        end: int,
+        offset: int,
+        index_start: int,
+        offsets: dict[int, int],
+        compression: str,
+        compressed_size: int,
+        uncompressed_size: int,
+    ) -> None:
+        """The ChunkIndex of the chunk written at ``offset``, its MessageIndex records from
+        ``index_start`` up to here (the summary's index of every chunk)."""
         self.chunk_indexes.append(
             ChunkIndex(
                 message_start_time=start,
@@ -248,9 +251,9 @@ class McapOutput(ChannelTable):
                 chunk_length=index_start - offset,
                 message_index_offsets=offsets,
                 message_index_length=self.offset - index_start,
-                compression="zstd",
-                compressed_size=len(compressed),
-                uncompressed_size=size,
+                compression=compression,
+                compressed_size=compressed_size,
+                uncompressed_size=uncompressed_size,
             )
         )
 
