@@ -1,10 +1,11 @@
 """What limits isolation — on a development run set of its own, never on `sample_logs/test`.
 
-The isolation rule names the child link of the deepest joint whose residual, at its largest
-during the flagged run, reaches κ times the joint's training RMS. Where it is wrong, this study
-asks why, with the plant's ground truth that ``twincd synth`` can regenerate for any path: the
-push's own joint torques, through the same filter and in the same units (``true z``). Each miss
-falls in one of these kinds:
+The isolation rule of the time (detect has since moved to the value at the peak score, chosen
+by ``choose_isolation.py``) names the child link of the deepest joint whose residual, at its
+largest during the flagged run, reaches κ times the joint's training RMS. Where it is wrong,
+this study asks why, with the plant's ground truth that ``twincd synth`` can regenerate for any
+path: the push's own joint torques, through the same filter and in the same units (``true z``).
+Each miss falls in one of these kinds:
 
 - **below the noise**: the push's own torque on the next joint after the named link stays under
   κ (a push whose line of action passes near that joint's axis). The residual cannot show it to
@@ -41,7 +42,7 @@ import numpy as np
 
 from twincd.calibration.file import Calibration
 from twincd.detection.events import runs
-from twincd.detection.isolation import LinkIsolator, kappa_for
+from twincd.detection.isolation import LinkIsolator
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.own import ModelMethod
 from twincd.pipeline import Setup
@@ -96,7 +97,8 @@ def flagged_presses(dev: Path, seed: int) -> tuple[list[FlaggedPress], LinkIsola
             raise SystemExit(f"{path} is not path {path.stem} of seed {seed}: give its --seed")
         assert log.robot is not None
         links, depths = child_links(log.robot, log.joint_names)
-        isolator = LinkIsolator(links, depths, scale, kappa_for(model.kind))
+        kappa = 3.25 if model.kind.startswith("identified") else 3.0  # the rule's κ of the time
+        isolator = LinkIsolator(links, depths, scale, kappa)
         residual = method.residual(log)
         score = model.score(residual)
         judged = ~log.edge if log.edge is not None else np.ones(len(score), dtype=bool)

@@ -1,7 +1,10 @@
 """Collision isolation (twincd/detection/isolation.py): the deepest significant joint names the
-link, judged against each joint's training scale; events carry the link they name."""
+link, judged by each joint's residual at the event's peak score over its noise scale; events
+carry the link they name."""
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 import pytest
@@ -80,32 +83,46 @@ def test_events_name_the_link_across_blocks(split: int | None) -> None:
     assert events[0].to_dict()["link"] == "link3"
 
 
-def test_detect_weighs_the_evidence_with_the_models_own_rule() -> None:
-    """A model with speed bins (its evidence whitened) gets its κ and ρ; the other models theirs:
-    a push whose deepest joint sits at 1.25 κ is named by the first's rule only when ρ < 1.25."""
-    from twincd.detection.isolation import (
-        DEFAULT_MARGIN,
-        KAPPA_BY_SPEED,
-        MARGIN_BY_SPEED,
-        kappa_for,
-        margin_for,
-    )
+@pytest.mark.parametrize("split", [None, 37, 50])
+def test_the_evidence_is_the_residual_at_the_peak_score_in_any_block(split: int | None) -> None:
+    """A deeper joint's noise spike away from the push's peak does not make the link deeper (the
+    largest magnitude over the event would name link 5), wherever the blocks split the event."""
+    from twincd.detection.events import EventTracker
 
-    assert kappa_for("identified-whitened", "depth") == KAPPA_BY_SPEED
-    assert margin_for("depth") == MARGIN_BY_SPEED and margin_for("sum") == DEFAULT_MARGIN
-    assert kappa_for("identified-whitened") == 3.25 and kappa_for("affine") == 3.0
-    peaks = np.array([30.0, 20.0, 1.25 * KAPPA_BY_SPEED, 1.0, 0.5, 0.1, 0.0])
-    speed = LinkIsolator(LINKS, DEPTHS, np.ones(7), KAPPA_BY_SPEED, margin_for("depth"))
-    flat = LinkIsolator(LINKS, DEPTHS, np.ones(7), KAPPA_BY_SPEED, margin_for("sum"))
-    assert speed.isolate(peaks) == (None, ("link3", "link2"))
-    assert flat.isolate(peaks) == ("link3", ("link3",))
-    # and detect's scoring stage takes the rule of the calibration it scores
+    n = 100
+    stamps = np.arange(n, dtype=np.int64) * 10_000_000
+    residual = np.zeros((n, 7))
+    residual[30:60, :3] = np.sin(np.linspace(0.1, 3.0, 30))[:, None] * [8.0, 4.0, 2.0]
+    residual[35, 4] = 0.6  # joint 5: 6 noise units, once, early in the event
+    scores = (residual**2).sum(axis=1)
+    flags = scores > 0.5
+    iso = LinkIsolator(LINKS, DEPTHS, SCALE, margin=1.0)
+    names = tuple(f"joint{i}" for i in range(1, 8))
+    tracker = EventTracker(names, iso)
+    cuts = [0, n] if split is None else [0, split, n]
+    events = []
+    for a, b in itertools.pairwise(cuts):
+        events += tracker.push(flags[a:b], scores[a:b], residual[a:b], stamps[a:b])
+    events += tracker.finish()
+    assert [(e.link, e.peak_ns) for e in events] == [("link3", int(stamps[np.argmax(scores)]))]
+    largest = LinkIsolator(LINKS, DEPTHS, SCALE, margin=1.0).link(np.abs(residual).max(axis=0))
+    assert largest == "link5"
+
+
+def test_every_model_is_judged_by_one_rule() -> None:
+    """detect's scoring stage and evaluate's methods take the rule's κ and ρ, whatever the model;
+    a push whose deepest joint sits at 1.2 κ is named only when ρ < 1.2."""
     from pathlib import Path
 
     from twincd.calibration import Calibration
     from twincd.detection.detect import ScoringStage
+    from twincd.detection.isolation import DEFAULT_KAPPA, DEFAULT_MARGIN
 
+    z = np.array([30.0, 20.0, 1.2 * DEFAULT_KAPPA, 1.0, 0.5, 0.1, 0.0])
+    rule = LinkIsolator(LINKS, DEPTHS, np.ones(7))
+    assert rule.isolate(z) == (None, ("link3", "link2"))
+    assert LinkIsolator(LINKS, DEPTHS, np.ones(7), margin=1.1).isolate(z) == ("link3", ("link3",))
     shipped = Path(__file__).resolve().parents[1] / "sample_logs"
-    for name, margin in (("calibration.json", MARGIN_BY_SPEED), ("calibration.affine.json", 1.2)):
-        rule = ScoringStage(Calibration.load(shipped / name)).events.isolator
-        assert rule is not None and rule.margin == margin
+    for name in ("calibration.json", "calibration.affine.json"):
+        stage = ScoringStage(Calibration.load(shipped / name)).events.isolator
+        assert stage is not None and (stage.kappa, stage.margin) == (DEFAULT_KAPPA, DEFAULT_MARGIN)

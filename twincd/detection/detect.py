@@ -13,7 +13,7 @@ import numpy as np
 
 from twincd.calibration.models import model_inputs
 from twincd.detection.events import Event, EventRules, EventTracker
-from twincd.detection.isolation import isolator_for, kappa_for, margin_for
+from twincd.detection.isolation import isolator_for
 from twincd.frames import Frame, FrameSink
 from twincd.types import BoolArray, FloatArray
 
@@ -80,13 +80,7 @@ class ScoringStage:
         self.release = self.rules.release_level(threshold.value, threshold.mu)
         self.model = calibration.model
         self.coulomb_eps = tuple(calibration.coulomb_eps if coulomb_eps is None else coulomb_eps)
-        isolator = isolator_for(
-            calibration.links,
-            calibration.depths,
-            self.model.joint_scale,
-            kappa_for(self.model.kind, self.model.statistic),
-            margin_for(self.model.statistic),
-        )
+        isolator = isolator_for(calibration.links, calibration.depths, self.model.joint_scale)
         self.events = EventTracker(joint_names or calibration.joint_names, isolator, self.rules)
         self.counts = FlagCount()
         # (D, P) entries of the frames' (N, kept) regressor, set by whoever builds the stages

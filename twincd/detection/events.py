@@ -112,7 +112,7 @@ class EventTracker:
 
     ``push`` takes the flags (score ≥ threshold) and ``hold`` (score ≥ release level): an event
     opens at a flag and lasts while ``hold`` (or a flag) does. State is one event (a few
-    numbers, a per-joint sum and maximum), whatever the log length.
+    numbers, a per-joint sum and the residual at the peak score), whatever the log length.
     """
 
     def __init__(
@@ -188,7 +188,7 @@ class EventTracker:
             "peak_score": float(scores[peak]),
             "peak_ns": int(stamp_ns[peak]),
             "share": (residual_[seg] ** 2).sum(axis=0),
-            "absmax": np.abs(residual_[seg]).max(axis=0),
+            "at_peak": np.array(residual_[peak], dtype=np.float64),  # isolation's evidence
         }
 
     def _extend(self, part: dict[str, Any]) -> None:
@@ -196,15 +196,15 @@ class EventTracker:
         ev = self._open
         ev["last"], ev["end_ns"] = part["last"], part["end_ns"]
         ev["share"] = ev["share"] + part["share"]
-        ev["absmax"] = np.maximum(ev["absmax"], part["absmax"])
         if part["peak_score"] > ev["peak_score"]:  # the first peak wins ties, as argmax does
             ev["peak_score"], ev["peak_ns"] = part["peak_score"], part["peak_ns"]
+            ev["at_peak"] = part["at_peak"]
 
     def _close(self) -> Event:
         assert self._open is not None
         ev, self._open = self._open, None
         link, candidates = (
-            (None, ()) if self.isolator is None else self.isolator.isolate(ev["absmax"])
+            (None, ()) if self.isolator is None else self.isolator.isolate(ev["at_peak"])
         )
         return Event(
             first=ev["first"],

@@ -18,7 +18,7 @@ from twincd.calibration.models import (
     model_inputs,
 )
 from twincd.detection.events import Event, EventRules, find_events
-from twincd.detection.isolation import LinkIsolator, kappa_for, margin_for
+from twincd.detection.isolation import DEFAULT_KAPPA, LinkIsolator
 from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.pipeline import PreparedLog
@@ -36,7 +36,7 @@ class ModelMethod(ScoringMethod):
     isolates = True
 
     def __init__(self, kappa: float | None = None) -> None:
-        self.kappa = kappa  # None: the model's own (twincd.detection.isolation.kappa_for)
+        self.kappa = kappa  # the isolation rule's κ (None: twincd.detection.isolation's)
 
     def check(self, logs: Sequence[PreparedLog]) -> None:
         cls = model_class(self.model_kind)[0]
@@ -82,12 +82,9 @@ class ModelMethod(ScoringMethod):
         links, depths = child_links(log.robot, log.joint_names)
         scale = self._model().joint_scale
         scale = np.ones(len(links)) if scale is None else scale
-        kappa = (
-            kappa_for(self.model_kind, self._model().statistic)
-            if self.kappa is None
-            else self.kappa
+        return LinkIsolator(
+            links, depths, scale, DEFAULT_KAPPA if self.kappa is None else self.kappa
         )
-        return LinkIsolator(links, depths, scale, kappa, margin_for(self._model().statistic))
 
     def events(
         self, log: PreparedLog, scores: FloatArray, flags: BoolArray, hold: BoolArray
