@@ -236,7 +236,9 @@ def study(name: str, train: Sequence[PreparedLog], val: Sequence[PreparedLog], r
                 for k in KAPPAS:
                     if stat == "max, κ²+2ln(n/25)":
                         values = largest_of_run / length_growth(k, last - first + 1)
-                    link = LinkIsolator(chain, depths, method.rmse_, k).link(values)
+                    link = LinkIsolator(chain, depths, method.rmse_, k, 1.0).link(
+                        values
+                    )  # ρ 1: names all
                     right[stat, k] += int(link == true_link)
                     if (stat, k) == (KEPT, kept_kappa(name)) and link != true_link:
                         misses[true_link, link] += 1

@@ -52,6 +52,8 @@ from twincd.twin.robot import child_links
 HELD_OUT_SEEDS = (0, 1)  # sample_logs/ and the full protocol: their test paths are never read
 KAPPAS = (2.5, 3.0, 3.25, 3.5, 3.75, 4.0, 4.5)
 
+EVERY = 1.0  # ρ: the rule of the time named a link for every event
+
 
 @dataclass(frozen=True)
 class FlaggedPress:
@@ -98,7 +100,7 @@ def flagged_presses(dev: Path, seed: int) -> tuple[list[FlaggedPress], LinkIsola
         assert log.robot is not None
         links, depths = child_links(log.robot, log.joint_names)
         kappa = 3.25 if model.kind.startswith("identified") else 3.0  # the rule's κ of the time
-        isolator = LinkIsolator(links, depths, scale, kappa)
+        isolator = LinkIsolator(links, depths, scale, kappa, EVERY)
         residual = method.residual(log)
         score = model.score(residual)
         judged = ~log.edge if log.edge is not None else np.ones(len(score), dtype=bool)
@@ -173,7 +175,7 @@ def main() -> None:
         raise SystemExit(f"seed {args.seed}'s test paths are held out: make a dev set of another")
     presses, kept, threshold = flagged_presses(args.dev, args.seed)
     # the kept rule works on the residual in scale units: its scale is one here
-    unit = LinkIsolator(kept.links, kept.depths, np.ones(len(kept.links)), kept.kappa)
+    unit = LinkIsolator(kept.links, kept.depths, np.ones(len(kept.links)), kept.kappa, EVERY)
     misses: Counter[tuple[str, str, str]] = Counter()
     for p in presses:
         named = unit.link(p.largest)
@@ -194,7 +196,7 @@ def main() -> None:
     projected = [matched(p, rho) for p in presses]
     print("alternatives on the same runs (share named right):")
     for kappa in KAPPAS:
-        rule = LinkIsolator(unit.links, unit.depths, unit.scale, kappa)
+        rule = LinkIsolator(unit.links, unit.depths, unit.scale, kappa, EVERY)
         columns = {
             "max": [rule.link(p.largest) for p in presses],
             **{f"κ²+2ln(n/{n0})": [length_rule(p, rule, n0) for p in presses] for n0 in (25, 50)},
@@ -216,7 +218,7 @@ def share(named: list[str], presses: list[FlaggedPress]) -> float:
 def length_rule(press: FlaggedPress, rule: LinkIsolator, n0: int) -> str:
     """κ grown with the run's length n as the largest of n Gaussian samples grows."""
     kappa = float(np.sqrt(rule.kappa**2 + 2 * np.log(max(len(press.run) / n0, 1.0))))
-    return LinkIsolator(rule.links, rule.depths, rule.scale, kappa).link(press.largest)
+    return LinkIsolator(rule.links, rule.depths, rule.scale, kappa, EVERY).link(press.largest)
 
 
 if __name__ == "__main__":

@@ -64,7 +64,7 @@ def test_events_name_the_link_across_blocks(split: int | None) -> None:
     stamps = np.arange(n, dtype=np.int64) * 10_000_000
     residual = np.zeros((n, 7))
     residual[30:60, :3] = [4.0, 2.0, 1.0]  # a push on link 3
-    residual[45, 2] = 2.0  # its largest magnitude falls in the second block
+    residual[45, 2] = 2.0  # its peak score falls in the second block
     residual[80:90, :6] = 1.0  # link 6: joint 6 is 10 σ off
     scores = (residual**2).sum(axis=1)
     flags = scores > 0
@@ -86,14 +86,16 @@ def test_events_name_the_link_across_blocks(split: int | None) -> None:
 @pytest.mark.parametrize("split", [None, 37, 50])
 def test_the_evidence_is_the_residual_at_the_peak_score_in_any_block(split: int | None) -> None:
     """A deeper joint's noise spike away from the push's peak does not make the link deeper (the
-    largest magnitude over the event would name link 5), wherever the blocks split the event."""
+    largest magnitude over the event would name link 5), wherever the blocks split the event:
+    at 37 the spike sits on the first block's own highest score, so a tracker that kept it
+    would name link 5; at 50 a later, lower part must not replace the peak."""
     from twincd.detection.events import EventTracker
 
     n = 100
     stamps = np.arange(n, dtype=np.int64) * 10_000_000
     residual = np.zeros((n, 7))
     residual[30:60, :3] = np.sin(np.linspace(0.1, 3.0, 30))[:, None] * [8.0, 4.0, 2.0]
-    residual[35, 4] = 0.6  # joint 5: 6 noise units, once, early in the event
+    residual[36, 4] = 0.6  # joint 5: 6 noise units, once, early in the event
     scores = (residual**2).sum(axis=1)
     flags = scores > 0.5
     iso = LinkIsolator(LINKS, DEPTHS, SCALE, margin=1.0)
@@ -105,19 +107,48 @@ def test_the_evidence_is_the_residual_at_the_peak_score_in_any_block(split: int 
         events += tracker.push(flags[a:b], scores[a:b], residual[a:b], stamps[a:b])
     events += tracker.finish()
     assert [(e.link, e.peak_ns) for e in events] == [("link3", int(stamps[np.argmax(scores)]))]
-    largest = LinkIsolator(LINKS, DEPTHS, SCALE, margin=1.0).link(np.abs(residual).max(axis=0))
-    assert largest == "link5"
+    assert iso.link(residual[36]) == "link5"  # what keeping block 1's own peak would name
+    assert iso.link(np.abs(residual).max(axis=0)) == "link5"  # and the largest magnitude
+
+
+def test_the_first_of_equal_peaks_is_kept_even_when_the_callers_buffer_is_reused() -> None:
+    """Two equal peak scores in two blocks: the first one's residual names the link (as argmax
+    does), and the row is kept, not a view of the caller's block, which is then overwritten."""
+    from twincd.detection.events import EventTracker
+
+    n = 60
+    stamps = np.arange(n, dtype=np.int64) * 10_000_000
+    scores = np.zeros(n)
+    scores[10:50] = 2.0
+    scores[[20, 40]] = 9.0  # a tie
+    residual = np.zeros((n, 7))
+    residual[10:50, :3] = [8.0, 4.0, 2.0]
+    residual[40, 4] = 0.6  # the second peak's residual names link 5
+    tracker = EventTracker(
+        tuple(f"joint{i}" for i in range(1, 8)), LinkIsolator(LINKS, DEPTHS, SCALE)
+    )
+    buffer = np.empty((30, 7))
+    events = []
+    for a in (0, 30):
+        buffer[:] = residual[a : a + 30]
+        events += tracker.push(
+            scores[a : a + 30] > 1, scores[a : a + 30], buffer, stamps[a : a + 30]
+        )
+        buffer[:] = np.nan  # the caller reuses its buffer
+    events += tracker.finish()
+    assert [(e.link, e.peak_ns) for e in events] == [("link3", int(stamps[20]))]
 
 
 def test_every_model_is_judged_by_one_rule() -> None:
-    """detect's scoring stage and evaluate's methods take the rule's κ and ρ, whatever the model;
-    a push whose deepest joint sits at 1.2 κ is named only when ρ < 1.2."""
+    """detect's scoring stage takes the rule's κ and ρ (the values the docs quote), whatever the
+    model; a push whose deepest joint sits at 1.2 κ is named only when ρ < 1.2."""
     from pathlib import Path
 
     from twincd.calibration import Calibration
     from twincd.detection.detect import ScoringStage
     from twincd.detection.isolation import DEFAULT_KAPPA, DEFAULT_MARGIN
 
+    assert (DEFAULT_KAPPA, DEFAULT_MARGIN) == (2.25, 1.3)  # docs/models-and-results.md: Isolation
     z = np.array([30.0, 20.0, 1.2 * DEFAULT_KAPPA, 1.0, 0.5, 0.1, 0.0])
     rule = LinkIsolator(LINKS, DEPTHS, np.ones(7))
     assert rule.isolate(z) == (None, ("link3", "link2"))

@@ -769,7 +769,7 @@ class ResidualModel:
 
     @property
     def joint_scale(self) -> FloatArray | None:
-        """The per-joint scale isolation divides an event's residual peaks by: ones for a model
+        """The per-joint scale isolation divides an event's residual by: ones for a model
         with speed bins (its evidence is already ``whitened_residual``), the flat whitening
         scale, else the training residual RMS (None when unknown)."""
         if self.scale_ is not None:
