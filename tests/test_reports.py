@@ -124,6 +124,10 @@ def test_html_report_is_self_contained_with_summary_first(sample_detection):
     ]
     assert external == [], external
     assert "Collision" in page and "calibration.json" in page
+    # the settings name the filter the calibration records (the shipped one: critically damped)
+    assert (
+        cal.lowpass.kind == "critical" and "critically damped order 2, 1.5 Hz, zero-phase" in page
+    )
     for e in summary.events:
         assert f"{e.peak_score:.4g}" in page
 

@@ -341,3 +341,9 @@ def test_a_wide_input_filters_to_the_bits_of_each_channel_alone() -> None:
         assert wide.buffered == 0 and got.shape == values.shape
         alone = run(StreamingLowPass(lowpass, period_s=0.001), values[:, picked])
         assert np.array_equal(got[:, picked], alone)
+
+
+def test_a_filter_describes_itself_as_recorded() -> None:
+    assert LowPass(3.0, 2, causal=True).describe() == "Butterworth order 2, 3 Hz, causal"
+    critical = LowPass(1.5, 2, kind="critical")
+    assert critical.describe() == "critically damped order 2, 1.5 Hz, zero-phase"

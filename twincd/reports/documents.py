@@ -77,11 +77,7 @@ def calibration_settings(cal: Calibration) -> list[tuple[str, str]]:
         ("calibration", cal.source or "(in memory)"),
         ("robot", cal.robot or "default"),
         ("joints", ", ".join(cal.joint_names)),
-        (
-            "filter",
-            f"Butterworth order {lp.order}, {lp.cutoff_hz:g} Hz, "
-            f"{'causal' if lp.causal else 'zero-phase'}",
-        ),
+        ("filter", lp.describe()),
         ("topic", cal.options.topic),
         ("fit logs", f"{len(cal.fit_logs)} ({cal.fit_samples} samples)"),
     ]

@@ -148,6 +148,12 @@ class LowPass:
         period = nominal_period(ns, source) if period_s is None else period_s
         return run_whole(StreamingLowPass(self, period, gap_factor), ns, x)
 
+    def describe(self) -> str:
+        """For people: e.g. "critically damped order 2, 1.5 Hz, zero-phase"."""
+        kind = "critically damped" if self.kind == "critical" else "Butterworth"
+        how = "causal" if self.causal else "zero-phase"
+        return f"{kind} order {self.order}, {self.cutoff_hz:g} Hz, {how}"
+
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["zero_phase"] = not self.causal
