@@ -210,6 +210,7 @@ def threshold(
     Or: twincd threshold logs/val -c calibration.json --false-alarms-per-hour 1
     """
     from twincd.calibration import Calibration
+    from twincd.detection.files import record_false_alarms, tally_false_alarms
     from twincd.executors import Bound
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
@@ -234,6 +235,14 @@ def threshold(
         work, paths, "scoring", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
     )
     cal = threshold_from_parts(done.results, cal, sigma, false_alarms_per_hour)
+    # the false alarms the threshold gives on these logs: detect's events, counted as evaluate
+    # counts them (a second pass: the events need the threshold)
+    scored = [Path(p.source) for p in done.results]
+    tallied = run_per_log(
+        Bound(tally_false_alarms, cal, setup), scored, "counting", quiet, jobs=jobs,
+        scheduler=scheduler, keep_going=keep_going,
+    )  # fmt: skip
+    cal = record_false_alarms(cal, tallied.results)
     cal.save(target)
     stdout.print(threshold_line(cal.require_threshold()), soft_wrap=True)
     log.info("wrote %s", target)
@@ -253,8 +262,9 @@ def threshold_line(th: Threshold) -> str:
         return f"k-sigma: {line}  ({seen})"
     high = "∞" if tail.high is None else f"{tail.high:.6g}"
     hours = (th.judged_s or 0.0) / 3600.0
-    shape = "" if tail.method == "rice-gaussian" else f", ξ = {tail.shape:.3g}"
-    above = "excursions" if tail.method == "rice-gaussian" else "peaks"
+    by_rate = tail.method in ("rice-gaussian", "bulk-exponential")
+    shape = "" if by_rate else f", ξ = {tail.shape:.3g}"
+    above = "excursions" if by_rate else "peaks"
     return (
         f"{tail.method}: budget {tail.per_hour:g} false alarm(s)/h → {line}, "
         f"{100 * tail.confidence:.0f} % interval [{tail.low:.6g}, {high}]  "

@@ -156,11 +156,12 @@ def robust(k: float) -> Rule:
 
 
 def rice(per_hour: float) -> Rule:
-    """``twincd threshold``'s default for the depth statistic: the budget by Rice's formula on
-    the robust z (``twincd.tail.fit_gaussian_tail``)."""
+    """The budget by Rice's formula for a smooth Gaussian score on the robust z, from the
+    excursions' rate at μ + 2σ (``twincd threshold``'s default when this study was run; since
+    then an exponential tail above the bulk, studies/choose_budget.py)."""
 
     def rule(val: Scored, score: str) -> float:
-        from twincd.tail import ExcursionCounter, fit_gaussian_tail
+        from twincd.tail import LEVELS, ExcursionCounter
 
         clean = val.clean(0.0)
         s = val.scores[score][clean]
@@ -168,8 +169,13 @@ def rice(per_hour: float) -> Rule:
         sigma = 1.4826 * float(np.median(np.abs(s - med)))
         counter = ExcursionCounter(val.period_s)
         counter.push(val.scores[score], clean)
-        tail = fit_gaussian_tail(counter.excursions, per_hour, med, sigma)
-        return float("nan") if tail is None else tail.estimate
+        ex = counter.excursions
+        j = int(np.searchsorted(LEVELS, med + 2.0 * sigma, side="right")) - 1
+        if not ex.counts[j] or sigma <= 0:
+            return float("nan")
+        z_u = (float(LEVELS[j]) - med) / sigma
+        rate = ex.counts[j] / (ex.seconds / 3600.0)
+        return med + sigma * float(np.sqrt(z_u**2 + 2.0 * max(np.log(rate / per_hour), 0.0)))
 
     return rule
 

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twincd.detection.events import RUNS, EventRules, EventTracker, find_events, runs
+from twincd.detection.events import RUNS, Event, EventRules, EventTracker, find_events, runs
 
 NAMES = ("a", "b")
 
@@ -115,3 +115,36 @@ def test_an_unsure_link_is_null_with_its_candidates_in_json_and_text():
     assert unsure.link_text == "link3 or link4?"
     sure = Event(0, 4, 0, 40, 3.0, 20, "joint3", "link3", ("link3",))
     assert sure.link_text == "link3" and sure.to_dict()["link_candidates"] == ["link3"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    labels=st.lists(st.booleans(), min_size=1, max_size=60),
+    cuts=st.lists(st.integers(1, 59), max_size=6),
+)
+def test_labelled_spans_in_any_blocks_are_the_runs_of_the_whole(
+    labels: list[bool], cuts: list[int]
+) -> None:
+    from twincd.detection.events import LabelSpans
+
+    lab = np.asarray(labels)
+    stamps = np.arange(len(lab), dtype=np.int64) * 10_000_000 + 5
+    spans = LabelSpans()
+    bounds = [0, *sorted({c for c in cuts if c < len(lab)}), len(lab)]
+    for a, b in itertools.pairwise(bounds):
+        spans.push(stamps[a:b], lab[a:b])
+    assert spans.finish() == [(int(stamps[a]), int(stamps[b])) for a, b in runs(lab)]
+
+
+def test_a_false_alarm_is_an_event_touching_no_labelled_span_within_200_ms() -> None:
+    from twincd.detection.events import false_alarms
+
+    def event(start_ms: int, end_ms: int) -> Event:
+        return Event(0, 1, start_ms * 10**6, end_ms * 10**6, 9.0, start_ms * 10**6, "j1")
+
+    spans = [(1000 * 10**6, 2000 * 10**6)]
+    assert false_alarms([event(2150, 2300)], spans) == 0  # starts 150 ms after the push
+    assert false_alarms([event(2250, 2300)], spans) == 1  # 250 ms after: a false alarm
+    assert false_alarms([event(700, 810)], spans) == 0  # ends 190 ms before it
+    assert false_alarms([event(700, 790)], spans) == 1
+    assert false_alarms([event(700, 790), event(5000, 5100)], []) == 2  # no labels: every one

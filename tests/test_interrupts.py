@@ -74,10 +74,11 @@ def test_interrupted_runs_leave_nothing_partial(long_log, cal, tmp_path, name, s
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=120)
         if sig == signal.SIGTERM:
-            # -15: the signal came while the interpreter shut down, after the run had finished
+            # -15: the signal came before twincd's handler was installed (a slow start: nothing
+            # written yet) or while the interpreter shut down after the run (the output whole)
             assert proc.returncode in (0, 1, 143, -15), err
             assert proc.returncode != 143 or b"terminated" in err
-            assert proc.returncode != -15 or complete(target)
+            assert proc.returncode != -15 or not target.exists() or complete(target)
             assert leftovers(tmp_path) == []  # cleaned up on the way out
         assert not target.exists() or complete(target)
         if target.exists():

@@ -1,6 +1,7 @@
 """twincd/threshold.py and twincd/tail.py: the threshold of a false-alarm budget from the score's
-excursions (declustered peaks, a generalised Pareto tail), the runs counted at every value of a
-grid, their merges, the calibration's record of them, and the CLI."""
+excursions (declustered peaks, a generalised Pareto tail; the depth statistic's bulk rate and an
+exponential tail), their merges, the calibration's record of them, the false alarms `threshold`
+counts on its own logs, and the CLI."""
 
 from __future__ import annotations
 
@@ -32,35 +33,12 @@ from twincd.tail import (
     fit_tail,
 )
 from twincd.threshold import (
-    ALARM_GRID,
-    AlarmCounter,
     LogScores,
     ScoreStats,
     budget_threshold,
     check_threshold_settings,
     threshold_from_parts,
 )
-
-
-@settings(max_examples=40, deadline=None)
-@given(
-    seed=st.integers(0, 10_000),
-    n=st.integers(1, 400),
-    cuts=st.lists(st.integers(1, 399), max_size=5),
-)
-def test_runs_at_every_threshold_in_any_chunking(seed: int, n: int, cuts: list[int]) -> None:
-    rng = np.random.default_rng(seed)
-    scores = np.exp(rng.normal(0.0, 2.0, n))  # heavy-tailed, as scores are
-    usable = rng.uniform(size=n) > 0.1  # left-out samples end runs
-    counter = AlarmCounter(period_s=0.01)
-    bounds = [0, *sorted({c for c in cuts if c < n}), n]
-    for a, b in itertools.pairwise(bounds):
-        counter.push(scores[a:b], usable[a:b])
-    got = counter.counts
-    assert got.seconds == pytest.approx(0.01 * usable.sum())
-    for g in range(0, len(ALARM_GRID), 37):
-        want = len(runs((scores >= ALARM_GRID[g]) & usable))
-        assert got.runs[g] == want, (g, ALARM_GRID[g])
 
 
 def _excursions(scores: np.ndarray, usable: np.ndarray, period_s: float, cuts=()) -> Excursions:  # type: ignore[no-untyped-def]
@@ -121,14 +99,11 @@ def test_any_order_and_split_of_the_logs_give_the_same_threshold(
     for i in range(logs):
         scores = _smooth_scores(rng, int(rng.integers(500, 4000)))
         usable = np.ones(len(scores), dtype=bool)
-        counter = AlarmCounter(0.01)
-        counter.push(scores, usable)
         parts.append(
             LogScores(
                 f"log{i}",
                 ScoreStats.from_scores(scores),
                 len(scores),
-                counter.counts,
                 _excursions(scores, usable, 0.01),
             )
         )
@@ -183,19 +158,17 @@ def test_the_budget_threshold_is_mu_plus_k_sigma_and_records_its_tail(
 ) -> None:
     scores, _ = _spikes(0, 0.1)
     usable = np.ones(len(scores), dtype=bool)
-    counter = AlarmCounter(0.01)
-    counter.push(scores, usable)
     stats_ = ScoreStats.from_scores(scores)
     with caplog.at_level(logging.WARNING, logger="twincd"):
-        th = budget_threshold(_excursions(scores, usable, 0.01), counter.counts, stats_, 2.0)
+        th = budget_threshold(_excursions(scores, usable, 0.01), stats_, 2.0)
     assert not caplog.text  # an hour of data: no warning
     assert th.tail is not None and th.budget_per_hour == 2.0
     assert th.value == pytest.approx(th.tail.estimate) and th.k_sigma > 0
     assert th.value == pytest.approx(stats_.mu + th.k_sigma * stats_.sigma)
-    # counted at the grid value just below: at least the alarms at the threshold
-    assert th.false_alarms is not None and th.false_alarms >= len(runs(scores >= th.value))
+    # the clean time judged; the false alarms are counted later, as detect's events
+    assert th.judged_s == pytest.approx(3600.0) and th.false_alarms is None
     # a larger budget, a lower threshold
-    lower = budget_threshold(_excursions(scores, usable, 0.01), counter.counts, stats_, 20.0)
+    lower = budget_threshold(_excursions(scores, usable, 0.01), stats_, 20.0)
     assert lower.value < th.value
 
 
@@ -204,11 +177,9 @@ def test_too_few_peaks_take_an_exponential_tail_and_say_so(
 ) -> None:
     scores, _ = _spikes(1, 0.1, hours=8 / 1800)  # eight spikes
     usable = np.ones(len(scores), dtype=bool)
-    counter = AlarmCounter(0.01)
-    counter.push(scores, usable)
     with caplog.at_level(logging.WARNING, logger="twincd"):
         th = budget_threshold(
-            _excursions(scores, usable, 0.01), counter.counts, ScoreStats.from_scores(scores), 1.0
+            _excursions(scores, usable, 0.01), ScoreStats.from_scores(scores), 1.0
         )
     assert len(caplog.records) == 1 and "exponential tail" in caplog.text
     assert th.tail is not None and th.tail.method == "pot-exponential" and th.tail.shape == 0.0
@@ -222,11 +193,9 @@ def test_a_score_without_a_tail_takes_mu_plus_4_sigma_and_says_so(
     scores = np.ones(100_000)
     scores[::100] = 5.0  # a thousand equal spikes: every level between is one excursion each
     usable = np.ones(len(scores), dtype=bool)
-    counter = AlarmCounter(0.01)
-    counter.push(scores, usable)
     stats_ = ScoreStats.from_scores(scores)
     with caplog.at_level(logging.WARNING, logger="twincd"):
-        th = budget_threshold(_excursions(scores, usable, 0.01), counter.counts, stats_, 1.0)
+        th = budget_threshold(_excursions(scores, usable, 0.01), stats_, 1.0)
     assert len(caplog.records) == 1 and "μ + 4σ instead" in caplog.text
     assert th.tail is None and th.k_sigma == 4.0 and th.budget_per_hour is None
 
@@ -366,33 +335,139 @@ def test_older_thresholds_keep_loading(twin_calibration: Path, tmp_path: Path) -
     assert Calibration.load(older).require_threshold().budget_per_hour is None
 
 
-def test_the_gaussian_budget_holds_on_a_smooth_gaussian_score():
-    # a score that is a smooth standard-normal process (white noise through a 1 Hz low-pass,
-    # at 100 Hz, as the depth statistic is without collisions): the 1/h threshold from ten
-    # minutes is passed about once an hour on ten other hours
+def _laplace_process(rng: np.random.Generator, hours: float) -> np.ndarray:
+    """A smooth score at 100 Hz whose excursions above its bulk fall exponentially (what the
+    depth statistic's do on fresh clean logs): the exponential of a smooth Gaussian's square
+    root, shifted and scaled."""
     from scipy import signal
 
-    from twincd.tail import fit_gaussian_tail
-
-    rng = np.random.default_rng(7)
     sos = signal.butter(2, 1.0, fs=100.0, output="sos")
+    x = signal.sosfilt(sos, rng.standard_normal(int(hours * 360_000)))
+    x = np.abs(x / x.std())
+    return 1.0 + 1.0 * x**1.5  # heavier than a Gaussian: exp(−c·z^(4/3)) tails
 
-    def process(hours: float) -> np.ndarray:
-        x = signal.sosfilt(sos, rng.standard_normal(int(hours * 360_000)))
-        return 1.5 + 2.0 * x / x.std()  # shifted and scaled: the fit must find both
 
-    short = process(1 / 6)
+def _rate_above(scores: np.ndarray, level: float, hours: float) -> float:
+    above = runs(scores >= level)
+    # declustered as the budget counts: a run within 0.2 s of the previous one continues it
+    starts = [a for i, (a, _) in enumerate(above) if i == 0 or a - above[i - 1][1] > 20]
+    return len(starts) / hours
+
+
+def test_the_depth_budget_assumes_an_exponential_tail_above_the_bulk() -> None:
+    from twincd.tail import (
+        BULK_LEVEL_SIGMA,
+        BULK_TAIL_SCALE,
+        LEVELS,
+        MISFIT_STUDIED,
+        fit_bulk_tail,
+    )
+
+    rng = np.random.default_rng(3)
+    short = _laplace_process(rng, 2 / 60)  # two minutes
     counter = ExcursionCounter(0.01)
     counter.push(short, np.ones(len(short), bool))
     median = float(np.median(short))
     sigma = 1.4826 * float(np.median(np.abs(short - median)))
-    tail = fit_gaussian_tail(counter.excursions, 1.0, median, sigma)
-    assert tail is not None and tail.method == "rice-gaussian"
+    noise_median = median - 0.5  # a residual half a unit of score above its noise
+    tail = fit_bulk_tail(counter.excursions, 1.0, median, sigma, noise_median)
+    assert tail is not None and tail.method == "bulk-exponential"
+    # u the grid level at or below μ + 2σ, λ(u) its excursions per hour, β = (s₀ + s₁(μ − μ₀))σ
+    j = int(np.searchsorted(LEVELS, median + BULK_LEVEL_SIGMA * sigma, side="right")) - 1
+    assert tail.level == LEVELS[j] and tail.peaks == counter.excursions.counts[j] > 0
+    assert tail.rate_per_hour == pytest.approx(tail.peaks / (2 / 60))
+    noise, misfit = BULK_TAIL_SCALE
+    assert tail.scale == pytest.approx((noise + misfit * 0.5) * sigma)
+    # a score at its noise-only median (or below) takes the noise part alone
+    at_noise = fit_bulk_tail(counter.excursions, 1.0, median, sigma, median + 1.0)
+    assert at_noise is not None and at_noise.scale == pytest.approx(noise * sigma)
+    # far above it: held at the most the study saw
+    far = fit_bulk_tail(counter.excursions, 1.0, median, sigma, median - 50.0)
+    assert far is not None
+    assert far.scale == pytest.approx((noise + misfit * MISFIT_STUDIED) * sigma)
+    want = tail.level + tail.scale * np.log(tail.rate_per_hour / 1.0)
+    assert tail.estimate == pytest.approx(want)
     assert tail.low <= tail.estimate <= (tail.high or np.inf)
-    assert 8.5 < tail.estimate < 11.5  # ≈ 4.1 σ above the mean 1.5, σ = 2
-    long = process(10.0)
-    runs_above = runs(long >= tail.estimate)
-    # declustered as the budget counts: a run within 0.2 s of the previous one continues it
-    starts = [a for i, (a, _) in enumerate(runs_above) if i == 0 or a - runs_above[i - 1][1] > 20]
-    # 10 expected at the budget (14 seen): an exponential tail or a wrong formula is far off
-    assert 3 <= len(starts) <= 30
+    # two minutes cannot measure the tail: how much clean data would is said
+    assert tail.firm_after_minutes is not None and tail.firm_after_minutes > 2.0
+    # a budget twice as large: one scale lower by ln 2
+    half = fit_bulk_tail(counter.excursions, 2.0, median, sigma, noise_median)
+    assert half is not None
+    assert tail.estimate - half.estimate == pytest.approx(tail.scale * np.log(2.0))
+
+
+def test_the_depth_statistics_noise_only_median() -> None:
+    from twincd.calibration.models import depth_noise_median, depth_score
+
+    rng = np.random.default_rng(11)
+    for joints in (3, 6, 7):
+        scores = depth_score(rng.standard_normal((200_000, joints)))
+        assert depth_noise_median(joints) == pytest.approx(np.median(scores), abs=0.01)
+    assert depth_noise_median(7) == depth_noise_median(7)  # the same in every run
+
+
+def test_the_depth_budget_without_excursions_is_bounded_and_cautious() -> None:
+    from twincd.tail import fit_bulk_tail
+
+    flat = 0.9 + 0.1 * (np.arange(6000) % 3)  # a spread, and nothing above μ + 2σ
+    counter = ExcursionCounter(0.01)
+    counter.push(flat, np.ones(len(flat), bool))
+    median, sigma = ScoreStats.from_scores(flat).robust()
+    assert sigma > 0
+    tail = fit_bulk_tail(counter.excursions, 1.0, median, sigma, 0.69)
+    assert tail is not None and tail.peaks == 0
+    # the rate at the upper end of the Poisson interval of zero counts: finite, above the bulk
+    assert np.isfinite(tail.estimate) and tail.estimate > median + 2 * sigma
+    assert tail.high == pytest.approx(tail.estimate)
+
+
+def test_the_depth_budget_measures_the_tail_once_the_data_allow() -> None:
+    from twincd.tail import TARGET_PEAKS, fit_bulk_tail
+
+    rng = np.random.default_rng(5)
+    long = _laplace_process(rng, 3.0)
+    counter = ExcursionCounter(0.01)
+    counter.push(long, np.ones(len(long), bool))
+    median = float(np.median(long))
+    sigma = 1.4826 * float(np.median(np.abs(long - median)))
+    tail = fit_bulk_tail(counter.excursions, 1.0, median, sigma, 0.69)
+    assert tail is not None and tail.method == "pot-gpd" and tail.peaks >= TARGET_PEAKS
+    assert tail.level >= median + 3 * sigma and tail.firm_after_minutes is None
+    # and it keeps the budget on ten fresh hours of the same process (10 expected)
+    fresh = _laplace_process(rng, 10.0)
+    assert 2 <= _rate_above(fresh, tail.estimate, 10.0) * 10 <= 25
+
+
+def test_threshold_counts_its_own_false_alarms_as_detect_events(
+    twin_calibration: Path, twin_dataset: Path, tmp_path: Path
+) -> None:
+    # a lavish budget puts the threshold low enough for the validation logs to raise events:
+    # the count recorded is detect's events on those logs (one definition of a false alarm),
+    # and a count above what the budget allows for their length is warned about, once
+    val = twin_dataset / "val"
+    out = tmp_path / "cal.json"
+    result = run(
+        "threshold", val, "-c", twin_calibration, "-o", out, "--false-alarms-per-hour", "3000"
+    )
+    assert result.exit_code == 0, result.output
+    th = json.loads(out.read_text())["threshold"]
+    budget = th["false_alarm_budget"]
+    detected = json.loads(run("detect", val, "-c", out, "--json", "-q").stdout)
+    events = sum(len(lg["events"]) for lg in detected["logs"])
+    assert events > 0 and budget["false_alarms"] == events
+    hours = budget["hours"]
+    allowed = int(stats.poisson.ppf(0.95, 3000 * hours))
+    warned = [line for line in result.stderr.splitlines() if "false alarm(s) on its own" in line]
+    assert len(warned) == (1 if events > allowed else 0), result.stderr
+    # at a budget of 1/h: no event on its own logs, and nothing to warn about
+    quiet = run(
+        "threshold", val, "-c", twin_calibration, "-o", tmp_path / "d.json",
+        "--false-alarms-per-hour", "1",
+    )  # fmt: skip
+    assert quiet.exit_code == 0 and "false alarm(s) on its own" not in quiet.stderr
+    assert json.loads((tmp_path / "d.json").read_text())["threshold"]["false_alarm_budget"][
+        "false_alarms"
+    ] == sum(
+        len(lg["events"])
+        for lg in json.loads(run("detect", val, "-c", tmp_path / "d.json", "--json").stdout)["logs"]
+    )

@@ -1,13 +1,11 @@
 """The detection threshold from the score on collision-free logs: the threshold of a false-alarm
 budget per hour of collision-free time extrapolated from the score's excursions (``twincd.tail``:
-Rice's formula for the depth statistic, the default models' score; peaks over threshold and a
-generalised Pareto tail for other scores), or the paper's μ + kσ (``threshold_from_parts``).
+an exponential tail above the bulk for the depth statistic, the default models' score; peaks
+over threshold and a generalised Pareto tail for other scores), or the paper's μ + kσ
+(``threshold_from_parts``).
 
 Everything a log contributes merges exactly in any order: μ and σ from mergeable sums, the
-median and MAD from a fixed histogram, the excursions' peaks per level, and, as a check recorded
-beside a budget's threshold, the runs of scores at every value of a fixed log-spaced grid (a run
-starts at sample i for every threshold t with s[i−1] < t ≤ s[i]) — the false alarms the
-validation logs themselves gave.
+median and MAD from a fixed histogram, the excursions' peaks per level, and the clean time.
 """
 
 from __future__ import annotations
@@ -19,14 +17,20 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from twincd.calibration import Calibration, Threshold, clean_mask, clean_rows
-from twincd.calibration.models import model_inputs
+from twincd.calibration.models import depth_noise_median, model_inputs
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedLog, Setup
-from twincd.tail import MIN_PEAKS, ExcursionCounter, Excursions, fit_gaussian_tail, fit_tail
+from twincd.tail import (
+    MIN_PEAKS,
+    MISFIT_STUDIED,
+    ExcursionCounter,
+    Excursions,
+    fit_bulk_tail,
+    fit_tail,
+)
 from twincd.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger("twincd")
@@ -125,54 +129,12 @@ def _weighted_median(values: FloatArray, counts: IntArray) -> float:
     return float(values[order][at])
 
 
-# candidate thresholds of a false-alarm budget: 64 per decade (3.7 % apart) over any score
-ALARM_GRID = np.logspace(-9.0, 12.0, 21 * 64 + 1)
+def allowed_false_alarms(per_hour: float, hours: float) -> int:
+    """The most false alarms that ``hours`` of clean data may give under a budget of
+    ``per_hour`` (its Poisson 95 % quantile: 3 in an hour at 1/h, 0 in a few minutes)."""
+    from scipy import stats
 
-
-@dataclass(frozen=True)
-class AlarmCounts:
-    """Mergeable: per threshold of ``ALARM_GRID`` the runs of scores at or above it, and the
-    collision-free time judged (s)."""
-
-    runs: NDArray[np.int64]
-    seconds: float = 0.0
-
-    @classmethod
-    def zeros(cls) -> AlarmCounts:
-        return cls(np.zeros(len(ALARM_GRID), dtype=np.int64))
-
-    def __add__(self, other: AlarmCounts) -> AlarmCounts:
-        return AlarmCounts(self.runs + other.runs, self.seconds + other.seconds)
-
-
-class AlarmCounter:
-    """Counts the runs of one log block by block: a run that goes on across blocks is counted
-    once, a sample left out (labelled, at a filter edge) ends a run."""
-
-    def __init__(self, period_s: float) -> None:
-        self.period_s = period_s
-        self._last = -np.inf  # the previous sample's score (−∞: left out, or none yet)
-        self._counts = AlarmCounts.zeros()
-
-    def push(self, scores: FloatArray, usable: BoolArray) -> None:
-        s = np.where(usable, np.asarray(scores, dtype=np.float64), -np.inf)
-        if not len(s):
-            return
-        before = np.concatenate(([self._last], s[:-1]))
-        self._last = float(s[-1])
-        rising = usable & (s > before)
-        # a run starts here for every threshold t with before < t ≤ s
-        first = np.searchsorted(ALARM_GRID, before[rising], side="right")
-        stop = np.searchsorted(ALARM_GRID, s[rising], side="right")
-        size = len(ALARM_GRID) + 1
-        steps = np.bincount(first, minlength=size) - np.bincount(stop, minlength=size)
-        runs = self._counts.runs + np.cumsum(steps)[:-1]
-        seconds = self._counts.seconds + float(np.count_nonzero(usable)) * self.period_s
-        self._counts = AlarmCounts(runs, seconds)
-
-    @property
-    def counts(self) -> AlarmCounts:
-        return self._counts
+    return int(stats.poisson.ppf(0.95, per_hour * hours))
 
 
 def check_threshold_choice(k_sigma: float | None, per_hour: float | None) -> None:
@@ -207,29 +169,40 @@ def check_threshold_settings(k_sigma: float, per_hour: float | None = None) -> N
 
 def budget_threshold(
     excursions: Excursions,
-    counts: AlarmCounts,
     stats: ScoreStats,
     per_hour: float = DEFAULT_FALSE_ALARMS_PER_HOUR,
     logs: Sequence[str] = (),
-    gaussian: bool = False,
+    depth: bool = False,
+    noise_median: float = 0.0,
 ) -> Threshold:
     """The threshold x of a false-alarm budget extrapolated from the score's excursions (see
-    ``twincd.tail``), never below μ, as μ + kσ with its k; with it the tail fit and the runs the
-    validation logs gave at the grid value just below x (at least the alarms at x).
+    ``twincd.tail``), never below μ, as μ + kσ with its k; with it the tail fit and the clean
+    time judged (the false alarms the logs give at x are ``detect``'s events: counted once x is
+    known, ``twincd.detection.files.record_false_alarms``).
 
-    ``gaussian``: the score is a standard-normal z without collisions (the depth statistic):
-    μ and σ are the median and MAD, and Rice's formula carries the excursions' rate at μ + 2σ
-    to the budget (``fit_gaussian_tail``); else the peaks' tail (``fit_tail``), μ and σ the mean
+    ``depth``: the score is the depth statistic: μ and σ are the median and MAD, and the
+    excursions' rate at μ + 2σ is carried to the budget by an exponential tail (``fit_bulk_tail``,
+    whose scale grows as μ rises above ``noise_median``; measured instead once the data allow);
+    else the peaks' tail (``fit_tail``), μ and σ the mean
     and standard deviation."""
     check_threshold_settings(0.0, per_hour)
     minutes = excursions.seconds / 60.0
     mean: float | None = None
     sd: float | None = None
-    if gaussian:
+    if depth:
         mu, sigma = stats.robust()
         estimator = "median-mad"
         mean, sd = stats.mu, stats.sigma
-        tail = fit_gaussian_tail(excursions, per_hour, mu, sigma)
+        tail = fit_bulk_tail(excursions, per_hour, mu, sigma, noise_median)
+        if mu - noise_median > MISFIT_STUDIED:
+            log.warning(
+                "the clean score's median on these logs is %.3g, far above the %.3g the "
+                "residual's noise alone would give: the calibration fits them much less well "
+                "than its training logs (too little or too different training motion, another "
+                "payload or effort scale?); the false-alarm budget is extrapolated",
+                mu,
+                noise_median,
+            )
     else:
         mu, sigma = stats.mu, stats.sigma  # no collision-free samples: a clear error here
         estimator = "mean-sd"
@@ -255,7 +228,6 @@ def budget_threshold(
         )
     value = max(tail.estimate, mu)
     k_sigma = (value - mu) / sigma if sigma > 0 else 0.0
-    below = max(int(np.searchsorted(ALARM_GRID, value, side="right")) - 1, 0)
     return Threshold(
         k_sigma,
         mu,
@@ -263,8 +235,7 @@ def budget_threshold(
         tuple(logs),
         stats.n,
         budget_per_hour=per_hour,
-        false_alarms=int(counts.runs[below]),
-        judged_s=counts.seconds,
+        judged_s=excursions.seconds,
         tail=tail,
         estimator=estimator,
         mean=mean,
@@ -279,19 +250,16 @@ class LogScores:
     source: str
     stats: ScoreStats
     samples: int = 0  # every sample read (labelled ones too): what progress counts
-    alarms: AlarmCounts | None = None
     excursions: Excursions | None = None
 
 
 def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogScores:
-    """Stream one log into statistics of its calibrated score on collision-free samples, its
-    excursions, and its runs at every threshold of the alarm grid."""
+    """Stream one log into statistics of its calibrated score on collision-free samples and its
+    excursions."""
     stats = ScoreStats()
     with setup.open(path) as stream:
-        counter: AlarmCounter | None = None
         peaks: ExcursionCounter | None = None
         for frame in stream:
-            counter = counter or AlarmCounter(stream.period_s)
             peaks = peaks or ExcursionCounter(stream.period_s)
             scores = calibration.model.scores(
                 {
@@ -302,11 +270,9 @@ def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogSc
             )
             usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             stats = stats + ScoreStats.from_scores(scores, usable)
-            counter.push(scores, usable)
             peaks.push(scores, usable)
-    alarms = None if counter is None else counter.counts
     excursions = None if peaks is None else peaks.excursions
-    return LogScores(str(path), stats, stream.samples, alarms, excursions)
+    return LogScores(str(path), stats, stream.samples, excursions)
 
 
 def threshold_from_parts(
@@ -318,22 +284,20 @@ def threshold_from_parts(
     """The calibration with a threshold from per-log parts merged in any order: μ + kσ (mean
     and standard deviation) when ``k_sigma`` is given; else the threshold of a false-alarm
     budget (``false_alarms_per_hour``, by default ``DEFAULT_FALSE_ALARMS_PER_HOUR``) for a model
-    scored by the depth statistic (Rice's formula on its robust z: ``budget_threshold``), or
-    when a budget is asked for; else the paper's μ + 4σ (the affine and unwhitened models).
+    scored by the depth statistic (median and MAD, an exponential tail above the bulk:
+    ``budget_threshold``), or when a budget is asked for; else the paper's μ + 4σ (the affine
+    and unwhitened models).
 
-    Chosen in studies/real_arm_statistics.py on the real arm's six rotations (threshold on one
-    log, test on another): a validation log holding 23 s of unlabelled contact put the paper's
-    μ + 4σ at z = 21 in its rotation (2 of 32 pushes found there); the 1/h budget by Rice's
-    formula put it at z = 4.6–6.8 (161/169 found over the rotations, 1 false alarm in 9.9 min);
-    the peaks' GPD tail at 1/h put it at z = 7–18 (120/169)."""
+    Robust μ and σ because a validation log may hold unlabelled contact: on the real arm's six
+    rotations (threshold on one log, test on another) one with 23 s of it put the paper's
+    μ + 4σ at z = 21 (2 of 32 pushes found there), and the peaks' own GPD tail at z = 7–18
+    (120/169 found); the bulk's rate with the assumed tail does not see such contact
+    (studies/choose_budget.py)."""
     parts = sorted(parts, key=lambda p: p.source)
     total = ScoreStats()
-    alarms = AlarmCounts.zeros()
     excursions = Excursions()
     for p in parts:
         total = total + p.stats
-        if p.alarms is not None:
-            alarms = alarms + p.alarms
         if p.excursions is not None:
             excursions = excursions + p.excursions
     seen = [p.source for p in parts]
@@ -348,14 +312,15 @@ def threshold_from_parts(
     check_threshold_choice(k_sigma, false_alarms_per_hour)
     if k_sigma is not None:
         return replace(calibration, threshold=total.threshold(k_sigma, seen))
-    gaussian = calibration.model.statistic == "depth"
-    if false_alarms_per_hour is None and not gaussian:
+    depth = calibration.model.statistic == "depth"
+    if false_alarms_per_hour is None and not depth:
         # the paper's model and its sum-of-squares scores: the paper's μ + 4σ
         return replace(calibration, threshold=total.threshold(DEFAULT_K_SIGMA, seen))
     budget = (
         DEFAULT_FALSE_ALARMS_PER_HOUR if false_alarms_per_hour is None else false_alarms_per_hour
     )
-    threshold = budget_threshold(excursions, alarms, total, budget, seen, gaussian)
+    noise = depth_noise_median(len(calibration.joint_names)) if depth else 0.0
+    threshold = budget_threshold(excursions, total, budget, seen, depth, noise)
     return replace(calibration, threshold=threshold)
 
 
@@ -384,11 +349,10 @@ def threshold_prepared_logs(
         scores = calibration.model.scores(model_inputs(lg))
         usable = clean_mask(lg)
         period = lg.period_s or float(np.median(np.diff(lg.states.stamp_ns))) * 1e-9
-        counter, peaks = AlarmCounter(period), ExcursionCounter(period)
-        counter.push(scores, usable)
+        peaks = ExcursionCounter(period)
         peaks.push(scores, usable)
         stats = ScoreStats.from_scores(scores, usable)
-        parts.append(LogScores(lg.source, stats, len(lg), counter.counts, peaks.excursions))
+        parts.append(LogScores(lg.source, stats, len(lg), peaks.excursions))
     return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
 
 

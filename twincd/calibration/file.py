@@ -507,6 +507,8 @@ def _tail_dict(tail: TailFit) -> dict[str, Any]:
         "interval": [tail.low, tail.high],
         "confidence": tail.confidence,
         "decluster_gap_s": tail.gap_s,
+        # minutes of clean data that would let the tail be measured (None: it was measured)
+        "firm_after_minutes": tail.firm_after_minutes,
     }
 
 
@@ -555,6 +557,9 @@ def _tail(raw: Mapping[str, Any], where: str) -> TailFit:
         high=high,
         confidence=number("confidence", positive=True),
         gap_s=number("decluster_gap_s", positive=True),
+        firm_after_minutes=None
+        if raw.get("firm_after_minutes") is None
+        else number("firm_after_minutes", positive=True),
     )
 
 

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from twincd.calibration.models import model_inputs
-from twincd.detection.events import Event, EventRules, EventTracker
+from twincd.detection.events import Event, EventRules, EventTracker, LabelSpans, false_alarms
 from twincd.detection.isolation import isolator_for
 from twincd.frames import Frame, FrameSink
 from twincd.types import BoolArray, FloatArray
@@ -176,6 +176,20 @@ class DetectionSummary:
     warnings: list[str] = field(default_factory=list)
     # what a report's figure draws (a sink of bounded envelopes), when a report was asked for
     trace: FrameSink | None = None
+    clean_samples: int = 0  # judged samples not labelled as collisions
+    period_s: float = 0.0  # the log's nominal sampling period
+    labels: LabelSpans = field(default_factory=LabelSpans)  # labelled spans, when labelled
+
+    @property
+    def clean_s(self) -> float:
+        """Judged collision-free time (s): what a false-alarm rate is per."""
+        return self.clean_samples * self.period_s
+
+    @property
+    def false_alarms(self) -> int:
+        """Events that touch no labelled push (± 200 ms; every event when the log has no
+        labels): ``twincd.detection.events.false_alarms``."""
+        return false_alarms(self.events, self.labels.finish())
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -202,3 +216,8 @@ class DetectionSummary:
         self.collision_samples += int(frame["flag"].sum())
         edge = frame.get("edge")
         self.judged_samples += frame.n - (0 if edge is None else int(np.count_nonzero(edge)))
+        labels = frame.get("labels")
+        judged = np.ones(frame.n, bool) if edge is None else np.asarray(edge).reshape(-1) == 0
+        clean = judged if labels is None else judged & ~np.asarray(labels, dtype=bool)
+        self.clean_samples += int(np.count_nonzero(clean))
+        self.labels.push(frame["stamp_ns"], labels)

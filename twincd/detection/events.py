@@ -58,6 +58,58 @@ class Event:
         }
 
 
+# a flag up to this long after a labelled push still finds it, and an event this close to one is
+# not a false alarm (contract: Metrics)
+EVENT_TOLERANCE_NS = 200_000_000
+
+
+def false_alarms(
+    events: Sequence[Event],
+    labelled_ns: Sequence[tuple[int, int]],
+    tolerance_ns: int = EVENT_TOLERANCE_NS,
+) -> int:
+    """The events that touch no labelled span (first and last labelled stamp, ns) widened by
+    ``tolerance_ns`` both ways: the one definition of a false alarm (``evaluate``'s metrics,
+    ``threshold``'s count on its own logs)."""
+    if not labelled_ns:
+        return len(events)
+    spans = np.asarray(labelled_ns, dtype=np.int64).reshape(-1, 2)
+    starts, ends = spans[:, 0] - tolerance_ns, spans[:, 1] + tolerance_ns
+    return sum(not bool(np.any((starts <= e.end_ns) & (ends >= e.start_ns))) for e in events)
+
+
+class LabelSpans:
+    """The labelled spans of a log whose labels arrive block by block: (first, last) stamp of
+    each maximal run of labelled samples, a run across blocks counted once."""
+
+    def __init__(self) -> None:
+        self.spans: list[tuple[int, int]] = []
+        self._open: int | None = None  # first stamp of a run still open at the last block's end
+        self._last = 0  # the last sample's stamp
+
+    def push(self, stamp_ns: IntArray, labels: BoolArray | None) -> None:
+        if not len(stamp_ns):
+            return
+        lab = np.zeros(len(stamp_ns), bool) if labels is None else np.asarray(labels, bool)
+        if self._open is not None and not lab[0]:
+            self.spans.append((self._open, self._last))
+            self._open = None
+        for a, b in runs(lab):
+            start = int(stamp_ns[a]) if self._open is None or a > 0 else self._open
+            self._open = None
+            if b == len(lab) - 1:
+                self._open = start
+            else:
+                self.spans.append((start, int(stamp_ns[b])))
+        self._last = int(stamp_ns[-1])
+
+    def finish(self) -> list[tuple[int, int]]:
+        if self._open is not None:
+            self.spans.append((self._open, self._last))
+            self._open = None
+        return self.spans
+
+
 def runs(flags: BoolArray) -> list[tuple[int, int]]:
     """(first, last) index pairs, inclusive, of every run of True."""
     f = np.asarray(flags, dtype=bool).astype(np.int8)

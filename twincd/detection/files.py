@@ -5,7 +5,10 @@ and events are kept; per-sample results go to sinks."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+import logging
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,6 +19,8 @@ from twincd.frames import Frame, FrameSink
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.pipeline import Setup
+
+log = logging.getLogger("twincd")
 
 
 def detect_file(
@@ -37,8 +42,63 @@ def detect_file(
             _deliver(summary, sinks, out, closed)
         _deliver(summary, sinks, Frame(), stage.finish())
         summary.joint_names = stream.joint_names
+        summary.period_s = stream.period_s
     stage.counts.warn(str(path))
     return summary
+
+
+@dataclass(frozen=True)
+class AlarmTally:
+    """One log's false alarms at a calibration's threshold and its judged clean time."""
+
+    source: str
+    false_alarms: int
+    clean_s: float
+
+
+@contextlib.contextmanager
+def _said_already() -> Iterator[None]:
+    """Warnings off: a second pass over logs whose warnings the first pass gave."""
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
+def tally_false_alarms(path: str | Path, calibration: Calibration, setup: Setup) -> AlarmTally:
+    """``detect``'s false alarms on one log at the calibration's threshold (its events touching
+    no labelled push ± 200 ms), and the log's judged collision-free time: how ``threshold``
+    counts what its own logs give at the threshold it chose."""
+    with _said_already():
+        summary = detect_file(path, calibration, setup)
+    return AlarmTally(str(path), summary.false_alarms, summary.clean_s)
+
+
+def record_false_alarms(calibration: Calibration, tallies: Iterable[AlarmTally]) -> Calibration:
+    """The calibration with its threshold's false alarms counted on ``tallies`` (its own logs)
+    and their clean time; a warning when a budget's threshold gave more than the budget allows
+    for that time (``twincd.threshold.allowed_false_alarms``)."""
+    from twincd.threshold import allowed_false_alarms
+
+    tallies = list(tallies)
+    th = calibration.require_threshold()
+    count = sum(t.false_alarms for t in tallies)
+    seconds = sum(t.clean_s for t in tallies)
+    if th.budget_per_hour is not None:
+        allowed = allowed_false_alarms(th.budget_per_hour, seconds / 3600.0)
+        if count > allowed:
+            log.warning(
+                "the threshold gave %d false alarm(s) on its own %.3g min of collision-free "
+                "data, more than a budget of %g per hour allows there (%d): the score's tail is "
+                "heavier than assumed; give more clean validation logs, or a larger budget",
+                count,
+                seconds / 60.0,
+                th.budget_per_hour,
+                allowed,
+            )
+    return replace(calibration, threshold=replace(th, false_alarms=count, judged_s=seconds))
 
 
 def _deliver(

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sklearn.metrics import precision_recall_fscore_support, roc_auc_score
 
-from twincd.detection.events import Event, runs
+from twincd.detection.events import EVENT_TOLERANCE_NS, Event, false_alarms, runs
 from twincd.types import BoolArray, FloatArray
 
 # i = 0, 0.1, …, 1.0, then 2, 3, 4, 5 (rounded so that keys read 0.3, not 0.30000000000000004)
@@ -60,8 +60,6 @@ def auc(labels: BoolArray, scores: FloatArray) -> float | None:
 
 # ------------------------------------------------------------------ event metrics (contract:
 # Metrics)
-
-EVENT_TOLERANCE_NS = 200_000_000  # a flag up to 200 ms after a labelled event still finds it
 
 
 @dataclass(frozen=True)
@@ -199,16 +197,15 @@ def event_counts(
                 iso_named += link is not None
                 iso_right += link == true_link
     # detect's events against the labelled events widened by the tolerance both ways
-    starts = np.array([lo - tolerance_ns for lo, _ in windows], dtype=np.int64)
-    ends = np.array([hi for _, hi in windows], dtype=np.int64)
-    touching = [bool(np.any((starts <= e.end_ns) & (ends >= e.start_ns))) for e in events]
+    spans = [(int(stamp_ns[a]), int(stamp_ns[b])) for a, b in labelled]
+    alarms = false_alarms(events, spans, tolerance_ns)
     period_s = float(np.median(np.diff(stamp_ns))) / 1e9 if len(stamp_ns) > 1 else 0.0
     return EventCounts(
         events_total=len(labelled),
         events_detected=detected,
         delays_ms=tuple(delay_list),
-        false_alarms=touching.count(False),
-        events_on_labels=touching.count(True),
+        false_alarms=alarms,
+        events_on_labels=len(events) - alarms,
         unlabelled_s=float((~labels).sum()) * period_s,
         force_total=force_total,
         force_detected=force_detected,
