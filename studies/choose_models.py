@@ -179,8 +179,8 @@ def length_growth(kappa: float, n: int, n0: int = 25) -> float:
 
 
 def judged(lg: PreparedLog) -> np.ndarray:
-    """What ``detect`` judges: every sample but those within the zero-phase filter's edge span
-    of a segment's ends (they never flag and are left out of μ, σ, as in ``threshold``)."""
+    """What ``detect`` judges: every sample but those within the filter's edge span of a
+    segment's ends (they never flag and are left out of μ, σ, as in ``threshold``)."""
     return np.ones(len(lg), dtype=bool) if lg.edge is None else ~np.asarray(lg.edge, dtype=bool)
 
 

@@ -22,7 +22,7 @@ from twincd.errors import CalibrationError, DataError, NotFittedError
 from twincd.io.logs import expand_logs
 from twincd.io.options import LogOptions
 from twincd.pipeline import Setup
-from twincd.signal.filters import LowPass
+from twincd.signal.filters import LowPass, edge_span
 
 A = np.array([1.39, 1.17, 21.7])
 B = np.array([0.24, -1.27, 0.18])
@@ -203,8 +203,9 @@ def test_fit_calibration_over_logs_recovers_the_gains(twin_dataset):
     np.testing.assert_allclose(cal.a, GAINS, rtol=0.02)
     np.testing.assert_allclose(cal.b, OFFSET, atol=0.05)
     assert cal.robot is None and not cal.simulated  # the logs carry their own twin effort
-    # 0.1 s at each end (half a period of 5 Hz) is a filter edge: not fitted
-    assert len(cal.fit_logs) == 3 and cal.fit_samples == 3 * (1600 - 2 * 10)
+    # the filter's settling time at each end (0.33 s at 5 Hz) is its edge: not fitted
+    span = edge_span(LowPass(5.0), 0.01)
+    assert span == 33 and len(cal.fit_logs) == 3 and cal.fit_samples == 3 * (1600 - 2 * span)
     assert np.all(cal.r2 > 0.9)
 
 

@@ -332,7 +332,8 @@ def test_identified_fit_in_blocks_equals_one_block(tmp_path: Path) -> None:
     blocks = replace(one, block_size=97)
     fits = [fit_log(log, s) for s in (one, blocks)]
     whole, parts = (f.stats.identified for f in fits)
-    assert whole is not None and parts is not None and whole.n == parts.n > 2000
+    # 12 s in two segments, 1.63 s of filter edge at each of their four ends: 1 297 samples
+    assert whole is not None and parts is not None and whole.n == parts.n > 1000
     np.testing.assert_allclose(parts.mean, whole.mean, rtol=1e-9, atol=1e-12)
     scale = np.sqrt(np.einsum("dkk->dk", whole.cross))  # each column's spread
     assert np.all(np.abs(parts.cross - whole.cross) <= 1e-9 * scale[:, :, None] * scale[:, None])

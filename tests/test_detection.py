@@ -20,7 +20,7 @@ from twincd.evaluation.proposed import ProposedMethod
 from twincd.io.logs import expand_logs
 from twincd.outputs import write_detection
 from twincd.pipeline import Setup, read_log
-from twincd.signal.filters import LowPass
+from twincd.signal.filters import LowPass, edge_span
 from twincd.threshold import ScoreStats, threshold_prepared_logs
 
 
@@ -79,9 +79,10 @@ def test_threshold_streams_val_logs(calibrated, twin_dataset):
     th = calibrated.threshold
     setup = Setup.from_calibration(calibrated)
     logs = list(setup.prepare_all(expand_logs([twin_dataset / "val"])))
-    # the filter's edges (half a cut-off period at each end) are left out of μ and σ
+    # the filter's edges (its settling time at each end: 1.63 s at 1 Hz) are left out of μ and σ
     kept = [~lg.edge for lg in logs]
-    assert all(k[:10].sum() == 0 and k[-10:].sum() == 0 and k.sum() > 1500 for k in kept)
+    span = edge_span(calibrated.lowpass, 0.01)
+    assert all(not k[:span].any() and not k[-span:].any() and k.sum() > 1200 for k in kept)
     assert th.k_sigma == 4.0 and th.samples == sum(k.sum() for k in kept) and len(th.logs) == 2
     scores = np.concatenate(
         [
@@ -199,8 +200,8 @@ def test_events_are_the_same_in_any_chunking(flags: list[bool], cuts: list[int],
 
 
 def test_filter_edges_never_flag_but_the_middle_does(tmp_path, twin_dataset):
-    """A bump inside the zero-phase filter's edge span (first 0.5 s at 1 Hz) flags nothing; the
-    same bump in the middle is found (sosfiltfilt's edge transients)."""
+    """A bump inside the filter's edge span (its settling time, 1.63 s at 1 Hz and 100 Hz)
+    flags nothing; the same bump in the middle is found."""
     from conftest import build_twin_log
 
     from twincd.calibration import fit_calibration

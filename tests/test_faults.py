@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import struct
 from pathlib import Path
 from typing import Any
@@ -343,10 +342,12 @@ def test_short_logs_are_refused(world, tmp_path):
 
 
 def test_a_log_mostly_at_the_filter_edges_is_warned_about(world, tmp_path):
-    # 1.5 s at 1 Hz: 1 s of edge spans, 0.5 s judged (all of it within them: too short to
-    # judge, tests/test_real_signals.py); as long in cut-off periods at another cut-off
-    cutoff = Calibration.load(world["cal"]).lowpass.cutoff_hz
-    log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5 / cutoff)
+    # 1.5 × the edge spans: two thirds of the log within them, a third judged (all of it within
+    # them: too short to judge, tests/test_real_signals.py)
+    from twincd.pipeline import min_judged_s
+
+    spans = min_judged_s(Calibration.load(world["cal"]).lowpass, 0.01)
+    log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5 * spans)
     result = run("detect", log, "-c", world["cal"], "--json")
     assert result.exit_code == 0 and "within the filter's edge spans" in result.stderr
     assert any("edge spans" in w for w in json.loads(result.stdout)["warnings"])
@@ -420,7 +421,8 @@ def test_log_time_above_2_63_is_a_clean_error(tmp_path):
 
 
 def test_keep_going_reports_each_failure_and_exits_2(world, tmp_path):
-    good = shutil.copy(world["clean"], tmp_path / "a_good.mcap")
+    # long enough that most of it is judged: no "short" warning beside the one error line
+    good = build_twin_log(tmp_path / "a_good.mcap", seed=300, seconds=8.0)
     (tmp_path / "b_bad.mcap").write_bytes(MCAP_MAGIC + b"garbage")
     bad = tmp_path / "b_bad.mcap"
     result = run("detect", good, bad, "-c", world["cal"], "--json")

@@ -280,7 +280,7 @@ def test_cli_threshold_warns_once_with_too_few_peaks(
 ) -> None:
     from conftest import build_twin_log
 
-    short = build_twin_log(tmp_path / "short.mcap", seed=300, seconds=4.0)
+    short = build_twin_log(tmp_path / "short.mcap", seed=300, seconds=7.0)
     out = tmp_path / "cal.json"
     result = run(
         "threshold", short, "-c", twin_calibration, "-o", out, "--false-alarms-per-hour", "1"

@@ -207,12 +207,13 @@ def filter_stages(
 
 
 def edge_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
-    """An ``edge`` column (1.0 within the zero-phase filter's edge span of a segment's ends,
-    else 0.0): no stage at all for a causal filter."""
+    """An ``edge`` column: 1.0 within the filter's edge span (its settling time) of a
+    segment's start and, zero-phase, of its end; else 0.0."""
     from twincd.signal.filters import EdgeMarker, edge_span
 
     span = edge_span(lowpass, period_s)
-    return [Derived(EdgeMarker(span, period_s), "stamp_ns", "edge")] if span else []
+    marker = EdgeMarker(span, period_s, ends=not lowpass.causal)
+    return [Derived(marker, "stamp_ns", "edge")] if span else []
 
 
 # ------------------------------------------------------------------ one chain

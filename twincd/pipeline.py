@@ -79,7 +79,7 @@ class PreparedLog:
     # Ỹθ per joint, (N, D), instead of ``regressor_f`` when prepared to score a fitted
     # identified model (``Setup.regressor_weights``)
     regressor_effort_f: FloatArray | None = None
-    # True within the zero-phase filter's edge span of a segment's ends (None: no such span)
+    # True within the filter's edge span of a segment's ends (``edge_span``; None: unfiltered)
     edge: BoolArray | None = None
 
     @property
@@ -153,7 +153,7 @@ class PreparedStream:
         # (D, P): the regressor's entries the frames' ``regressor_f`` (N, kept) holds
         self.regressor_mask: BoolArray | None = None
         self.checks: SignalChecks | None = None
-        self.at_edges = 0  # samples within the zero-phase filter's edge spans
+        self.at_edges = 0  # samples within the filter's edge spans (never judged)
         self._log: LogStream | None = None
 
     @property
@@ -410,11 +410,12 @@ class PreparedStream:
 
 
 def min_judged_s(lowpass: LowPass, period_s: float) -> float:
-    """The shortest stretch without a gap in which a sample lies outside the zero-phase
-    filter's edge spans (0 for a causal filter: every sample is judged)."""
+    """The shortest stretch without a gap in which a sample lies outside the filter's edge
+    spans: its settling time at each end (zero-phase), or at the start only (causal)."""
     from twincd.signal.filters import edge_span
 
-    return 2 * edge_span(lowpass, period_s) * period_s
+    ends = 1 if lowpass.causal else 2
+    return ends * edge_span(lowpass, period_s) * period_s
 
 
 def warn_short(

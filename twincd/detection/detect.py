@@ -31,9 +31,10 @@ MOSTLY_FLAGGED = 0.5
 
 @dataclass
 class FlagCount:
-    """Judged and flagged samples of one log, counted block by block: samples at a zero-phase
-    filter's edge are not judged, and samples labelled as collisions (when the log has labels)
-    are left out of both counts, so a labelled collision never makes a log "mostly flagged"."""
+    """Judged and flagged samples of one log, counted block by block: samples at a filter's
+    edge (``twincd.signal.filters.edge_span``) are not judged, and samples labelled as
+    collisions (when the log has labels) are left out of both counts, so a labelled collision
+    never makes a log "mostly flagged"."""
 
     judged: int = 0  # judged samples, labelled ones included
     clean: int = 0  # judged samples not labelled as collisions
@@ -169,7 +170,7 @@ class DetectionSummary:
     threshold: float
     samples: int = 0
     collision_samples: int = 0
-    judged_samples: int = 0  # samples outside the zero-phase filter's edge spans
+    judged_samples: int = 0  # samples outside the filter's edge spans (the only ones that flag)
     events: list[Event] = field(default_factory=list)
     joint_names: tuple[str, ...] = ()
     first_stamp_ns: int = 0

@@ -2,10 +2,16 @@
 
 The detector runs the calibration's causal chain, built by ``twincd.chain.build_chain`` as for
 a log on disk — causal Savitzky–Golay derivative (the window ends at the newest sample), RNEA,
-causal Butterworth filter — and the same scoring and event stages as batch detection, so
+causal low-pass filter — and the same scoring and event stages as batch detection, so
 pushing a log in any chunking gives the scores, flags and events of ``twincd detect`` with that
 (causal) calibration. Every stage keeps bounded state: a few samples of derivative context, the
 filter's second-order sections, one open event.
+
+Start-up: the first samples of the stream, and of every stretch after a gap (an interval over 5
+periods), are scored but never flagged, for the filter's settling time
+(``twincd.signal.filters.edge_span``: 0.3 s for the critically damped 3 Hz filter of
+``fit --causal``), where the filter and the derivative start on a few samples;
+``counts.judged`` counts the samples that were judged.
 
 Latency: no stage holds a sample back, so each push returns a score for every sample it
 carried. What delays a detection is the causal low-pass filter itself: a step in effort shows

@@ -237,8 +237,8 @@ def _val_stats(
 
 
 def _judged(method: ScoringMethod, lg: PreparedLog, units: int) -> BoolArray:
-    """The units of ``lg`` that count: all but the samples at a zero-phase filter's edges,
-    which ``detect`` never flags (their transients differ between measured and twin effort)."""
+    """The units of ``lg`` that count: all but the samples within the filter's edge spans,
+    which ``detect`` never flags (where start-up transients may still show)."""
     if method.unit == "sample" and lg.edge is not None and len(lg.edge) == units:
         return ~np.asarray(lg.edge, dtype=bool)
     return np.ones(units, dtype=bool)
@@ -330,7 +330,7 @@ def _run_once(
     start = time.perf_counter()
     scores = [method.score(lg) for lg in test]
     test_s = time.perf_counter() - start
-    # what detect judges: never a sample within the zero-phase filter's edge span
+    # what detect judges: never a sample within the filter's edge span
     judged = [_judged(method, lg, len(score)) for lg, score in zip(test, scores, strict=True)]
     y_score = np.concatenate([s[j] for s, j in zip(scores, judged, strict=True)] or [np.zeros(0)])
     y_true = np.concatenate([method.unit_labels(lg)[j] for lg, j in zip(test, judged, strict=True)])

@@ -12,7 +12,15 @@ from twincd.signal.derivatives import (
     StreamingDerivative,
     differentiate,
 )
-from twincd.signal.filters import DECAY_TOLERANCE, LowPass, StreamingLowPass, decay_margin
+from twincd.signal.filters import (
+    DECAY_TOLERANCE,
+    SETTLING_TOLERANCE,
+    LowPass,
+    StreamingLowPass,
+    decay_margin,
+    edge_span,
+    settling_samples,
+)
 from twincd.signal.stream import (
     DEFAULT_GAP_FACTOR,
     SegmentedStage,
@@ -27,6 +35,7 @@ __all__ = [
     "DEFAULT_GAP_FACTOR",
     "DEFAULT_POLYORDER",
     "DEFAULT_WINDOW",
+    "SETTLING_TOLERANCE",
     "LowPass",
     "SegmentedStage",
     "Segmenter",
@@ -34,7 +43,9 @@ __all__ = [
     "StreamingLowPass",
     "decay_margin",
     "differentiate",
+    "edge_span",
     "nominal_period",
     "seconds_to_ns",
     "segment_bounds",
+    "settling_samples",
 ]

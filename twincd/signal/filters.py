@@ -1,12 +1,23 @@
 """Low-pass filtering of effort signals (the paper's τ̃ and τ̂̃), whole or streamed.
 
 A Butterworth (or critically damped, ``kind="critical"``) filter as second-order sections, run
-zero-phase (the result of
-``scipy.signal.sosfiltfilt`` with an odd-extension pad of ``padlen`` samples at each segment's
-ends; the default for offline logs) or causal (forward only, started in steady state
-at each segment's first value: what a live detector sees). Streams are cut at gaps
-(twincd.signal.stream.Segmenter) and each segment is filtered on its own; the sampling rate is
-the nominal one given by the caller, never estimated from a whole log.
+zero-phase (``scipy.signal.sosfiltfilt``'s forward-backward pass over each segment with an odd
+extension of ``padlen`` samples at its ends; the default for offline logs) or causal (forward
+only, started in steady state at each segment's first value: what a live detector sees).
+Streams are cut at gaps (twincd.signal.stream.Segmenter) and each segment is filtered on its own;
+the sampling rate is the nominal one given by the caller, never estimated from a whole log.
+
+Edges. sosfiltfilt pivots its odd extension on the end sample itself, so that sample's raw noise
+becomes an offset of the filtered value at the segment's end, where it decays over the filter's
+settling time; at 1 kHz the filtered noise is far below the raw noise and that offset alone
+crossed the threshold on clean logs. Here the extension pivots on the end value of a quadratic
+least-squares fit through the samples it reflects (``end_value``): exact for a line or a
+parabola, and with a fraction of one sample's noise. What is left of a start-up transient —
+the pivot's remaining error, the causal filter's start at rest on one sample, the
+differentiator's shorter windows at a segment's ends — is gone within the filter's settling
+time (its step response within ``SETTLING_TOLERANCE`` of its final value, ``settling_samples``):
+those samples at each end of a segment (at its start only, for the causal filter, which has no
+end transient) are filtered but never judged (``edge_span``, ``EdgeMarker``).
 
 ``StreamingLowPass`` is the one implementation; ``LowPass.apply`` runs it on a whole log.
 Streamed zero-phase filtering runs the forward pass exactly (state carried between pushes) and
@@ -14,7 +25,7 @@ the backward pass over overlapping blocks: each block's backward pass starts ``m
 beyond the samples it emits, in steady state, where ``margin`` is long enough for the start-up
 transient to decay below 1e-12 (``decay_margin``); at a segment's end the true end extension is
 used. So a sample is emitted ``margin`` samples late, memory stays bounded by block + margin,
-and the result equals the whole-segment ``sosfiltfilt`` to ~1e-12 of the signal's range.
+and the result equals the whole-segment forward-backward pass to ~1e-12 of the signal's range.
 
 The design and the recursion are twincd.signal.iir's (scipy.signal's results without its
 import cost).
@@ -54,16 +65,26 @@ __all__ = [
     "DEFAULT_CUTOFF_HZ",
     "DEFAULT_ORDER",
     "FILTER_KINDS",
+    "PIVOT_DEGREE",
+    "SETTLING_TOLERANCE",
     "EdgeMarker",
     "LowPass",
     "StreamingLowPass",
     "decay_margin",
     "edge_span",
+    "end_value",
+    "settling_samples",
 ]
 
 # the streamed backward pass starts where its start-up transient will have decayed below this
 # (relative to the size of the state error, itself of the order of the signal's range)
 DECAY_TOLERANCE = 1e-12
+# a segment's samples are judged once the filter's step response stays within this of its final
+# value: any start-up error has then shrunk below 1e-3 of itself (``settling_samples``)
+SETTLING_TOLERANCE = 1e-3
+# the zero-phase extension's pivot: a least-squares polynomial of this degree through the samples
+# the extension reflects, taken at the end sample (``end_value``)
+PIVOT_DEGREE = 2
 # samples emitted per backward pass when much is ready at once: cost (block + margin) / block
 _BLOCK = 16384
 # values (rows × channels) per call of the recursion: its temporaries stay a few MB however
@@ -169,6 +190,67 @@ class LowPass:
         )
 
 
+def settling_samples(sos: FloatArray, tolerance: float = SETTLING_TOLERANCE) -> int:
+    """Samples the filter ``sos`` takes to settle: from this many samples after a step on, its
+    step response (from rest at 0) stays within ``tolerance`` of its final value (the DC
+    gain). A start at rest on a wrong value (the causal filter's start on one sample) is the
+    same response scaled, so its error has then shrunk below ``tolerance`` of itself; so has the
+    zero-phase extension's, whose pivot's influence decays faster still (checked in
+    tests/test_signal_filters.py). Cached, as ``decay_margin``."""
+    sos = np.ascontiguousarray(sos, dtype=np.float64)
+    return _settling(sos.tobytes(), len(sos), float(tolerance))
+
+
+@lru_cache(maxsize=64)
+def _settling(sos_bytes: bytes, sections: int, tolerance: float) -> int:
+    sos = np.frombuffer(sos_bytes, dtype=np.float64).reshape(sections, 6)
+    gain = float(np.prod(sos[:, :3].sum(axis=1) / sos[:, 3:].sum(axis=1)))
+    radius = _pole_radius(sos)
+    # a first guess: four times the samples in which the slowest pole shrinks by e
+    length = 64 if radius == 0 else max(64, 4 * math.ceil(-1.0 / math.log(radius)))
+    while True:
+        step, _ = sosfilt(sos, np.ones((length, 1)), rest_state(sos, np.zeros(1)))
+        above = np.flatnonzero(np.abs(step[:, 0] - gain) > tolerance * abs(gain))
+        last = int(above[-1]) + 1 if len(above) else 0
+        if last < length * 3 // 4:  # the tail of the simulation is well within: settled
+            return last
+        length *= 2
+
+
+def _pole_radius(sos: FloatArray) -> float:
+    """The largest pole magnitude of ``sos`` (UsageError when it is not below 1)."""
+    poles = np.concatenate([np.roots(section[3:]) for section in sos])
+    radius = float(np.abs(poles).max()) if len(poles) else 0.0
+    if radius >= 1:
+        raise UsageError("the filter is unstable", "filter settings", "pick another cut-off")
+    return radius
+
+
+def end_value(x: FloatArray, degree: int = PIVOT_DEGREE) -> FloatArray:
+    """The value at ``x[0]`` (rows: a segment's samples from one end inwards, (n, channels)) of
+    the least-squares polynomial of ``degree`` (at most n − 1) through all of them, per channel:
+    a robust estimate of the segment's end value, where ``x[0]`` alone carries one sample's
+    noise. Each channel's value depends on its own column alone, to the bit."""
+    weights = _end_weights(len(x), min(degree, len(x) - 1))
+    # row by row in a fixed order: the same bits whatever the number of channels
+    acc: FloatArray = weights[0] * x[0]
+    for w, row in zip(weights[1:], x[1:], strict=True):
+        acc = acc + w * row
+    return acc
+
+
+@lru_cache(maxsize=64)
+def _end_weights(count: int, degree: int) -> FloatArray:
+    """Weights of ``count`` samples (from the end inwards) giving the least-squares polynomial
+    of ``degree`` at the end sample: row 0 of the pseudo-inverse of its Vandermonde matrix."""
+    if count < 1:
+        raise ValueError("no sample to take an end value from")
+    u = np.arange(count, dtype=np.float64) / max(count - 1, 1)  # [0, 1]: well conditioned
+    weights: FloatArray = np.linalg.pinv(np.polynomial.polynomial.polyvander(u, degree))[0]
+    weights.setflags(write=False)
+    return weights
+
+
 def decay_margin(sos: FloatArray, tolerance: float = DECAY_TOLERANCE) -> int:
     """Samples after which any start-up transient of ``sos`` stays below ``tolerance`` × the
     initial state error: the last sample where the summed |zero-input response| to a unit error
@@ -182,10 +264,7 @@ def decay_margin(sos: FloatArray, tolerance: float = DECAY_TOLERANCE) -> int:
 @lru_cache(maxsize=64)
 def _decay_margin(sos_bytes: bytes, sections: int, tolerance: float) -> int:
     sos = np.frombuffer(sos_bytes, dtype=np.float64).reshape(sections, 6)
-    poles = np.concatenate([np.roots(section[3:]) for section in sos])
-    radius = float(np.abs(poles).max()) if len(poles) else 0.0
-    if radius >= 1:
-        raise UsageError("the filter is unstable", "filter settings", "pick another cut-off")
+    radius = _pole_radius(sos)
     if radius == 0:
         return len(sos) * 2
     states = 4 * len(sos)
@@ -203,7 +282,7 @@ def _decay_margin(sos_bytes: bytes, sections: int, tolerance: float) -> int:
 
 
 class StreamingLowPass(SegmentedStage):
-    """The Butterworth low-pass, pushed in chunks of any size (mode from ``lowpass.causal``).
+    """The low-pass filter, pushed in chunks of any size (mode from ``lowpass.causal``).
 
     ``push(stamp_ns, values)`` takes int64 ns stamps (n,) and values (n,) or (n, channels) and
     returns the filtered values of the oldest samples not emitted yet, in order; ``finish()``
@@ -212,8 +291,9 @@ class StreamingLowPass(SegmentedStage):
     Causal: ``lookahead`` = 0; every sample is emitted at once and chunked runs equal one run
     exactly (the final state of a push is the initial state of the next). Zero-phase:
     ``lookahead`` = ``margin`` samples; a sample is emitted once ``margin`` later samples of its
-    segment are known, or its segment has ended; the result equals ``sosfiltfilt`` on each
-    segment with ``padlen`` samples of odd extension, to ~1e-12 of the signal's range.
+    segment are known, or its segment has ended; the result equals the forward-backward pass
+    over each segment with ``padlen`` samples of odd extension pivoted on ``end_value`` at both
+    ends, to ~1e-12 of the signal's range.
     ``buffered`` never exceeds ``margin`` + 1 samples.
     """
 
@@ -295,11 +375,12 @@ class StreamingLowPass(SegmentedStage):
         return out
 
     def _start_forward(self, pad: int) -> None:
-        """Forward pass from the odd extension before the segment's start, as sosfiltfilt."""
+        """Forward pass from the odd extension before the segment's start, as sosfiltfilt but
+        pivoted on ``end_value`` of the samples it reflects."""
         assert self._base == 0
         x = self._x
         self._pad = pad
-        left = 2 * x[0] - x[pad:0:-1]
+        left = 2 * end_value(x[: pad + 1]) - x[pad:0:-1]
         _, zf = self._filter(left, self._steady(left[0]))
         self._yf, self._zf = self._filter(x, zf)
 
@@ -349,9 +430,9 @@ class StreamingLowPass(SegmentedStage):
                 return lone
             self._start_forward(min(self.padlen, self._n - 1))
         assert self._yf is not None and self._zf is not None
-        # the true end extension, then the backward pass from its end, as sosfiltfilt
+        # the true end extension (pivoted on end_value), then the backward pass from its end
         x, pad = self._x, self._pad
-        right = 2 * x[-1] - x[-2 : -(pad + 2) : -1]
+        right = 2 * end_value(x[: -(pad + 2) : -1]) - x[-2 : -(pad + 2) : -1]
         yr, _ = self._filter(right, self._zf)
         tail = np.concatenate((self._yf[self._next - self._base :], yr))
         yb, _ = self._filter(tail[::-1], self._steady(tail[-1]))
@@ -361,37 +442,44 @@ class StreamingLowPass(SegmentedStage):
 
 
 def edge_span(lowpass: LowPass, period_s: float) -> int:
-    """Samples at each end of a segment that a zero-phase filter's edges may distort: half a
-    period of the cut-off. sosfiltfilt's odd extension treats measured and twin effort alike
-    but their edge transients differ: these samples are filtered but never flag a
-    collision and never enter a fit or μ, σ. Causal filtering has no end edge and 0 here."""
-    if lowpass.causal:
-        return 0
-    return max(1, math.ceil(0.5 / (lowpass.cutoff_hz * period_s) - 1e-9))
+    """Samples at a segment's ends that are filtered but never judged: the filter's settling
+    time at this rate (``settling_samples`` of its sections), where what is left of a start-up
+    transient (see the module's docstring) may still show. They never flag a collision and never
+    enter a fit or μ, σ. At both ends of a segment for the zero-phase filter, at its start only
+    for the causal one (it has no end transient)."""
+    return settling_samples(lowpass.sos(1.0 / period_s))
 
 
 class EdgeMarker(SegmentedStage):
-    """1.0 for samples within ``span`` samples of their segment's start or end, else 0.0 (the
-    values pushed are ignored; segments cut at gaps as every stage does). A sample is emitted
-    once ``span`` later samples of its segment are known, or its segment has ended."""
+    """1.0 for samples within ``span`` samples of their segment's start or (``ends``) its end,
+    else 0.0 (the values pushed are ignored; segments cut at gaps as every stage does). With
+    ``ends``, a sample is emitted once ``span`` later samples of its segment are known, or its
+    segment has ended; without (the causal filter's edges), at once."""
 
-    def __init__(self, span: int, period_s: float, gap_factor: float = DEFAULT_GAP_FACTOR):
+    def __init__(
+        self,
+        span: int,
+        period_s: float,
+        gap_factor: float = DEFAULT_GAP_FACTOR,
+        ends: bool = True,
+    ):
         super().__init__(period_s, gap_factor)
         self.span = span
-        self.lookahead = span
+        self.ends = ends
+        self.lookahead = span if ends else 0
         self._n = 0  # samples of the current segment seen
         self._next = 0  # segment index of the next sample to emit
 
     def _marks(self, stop: int, end: bool) -> FloatArray:
         index = np.arange(self._next, stop)
-        near = (index < self.span) | end
+        near = (index < self.span) | (end and self.ends)
         self._next = stop
         out: FloatArray = near.astype(np.float64)[:, None]
         return out
 
     def _extend(self, t: IntArray, y: FloatArray) -> FloatArray:
         self._n += len(t)
-        return self._marks(max(self._next, self._n - self.span), end=False)
+        return self._marks(max(self._next, self._n - self.lookahead), end=False)
 
     def _end_segment(self) -> FloatArray:
         out = self._marks(self._n, end=True)
