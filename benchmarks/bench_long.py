@@ -22,7 +22,9 @@ What it does, in one run:
    /joint_states message through ``reader.deserialize``: the floor of any rosbags-based reader),
    ``twincd detect LOG -c AFFINE_CAL`` (``detect -c affine``), the same ``-o OUT.mcap``,
    ``simulate LOG -o OUT.twin.mcap``, ``fit LOG --model affine -o CAL2.json``, and at the
-   defaults ``fit LOG -o CAL2.json`` and ``detect LOG -c DEFAULT_CAL``; on the sqlite3 copy,
+   defaults ``fit LOG -o CAL2.json``, ``detect LOG -c DEFAULT_CAL`` and ``evaluate LOG -c
+   DEFAULT_CAL --json`` (the logs are labelled collision-free, which evaluate accepts: it warns
+   that F1 is 0 and AUC undefined, and still counts the false alarms); on the sqlite3 copy,
    rosbags and ``detect -c affine``.
 4. Start-up: ``twincd --version`` against ``python -c "import numpy"``, best of 5 each.
 
@@ -108,6 +110,8 @@ SPEED_TARGETS = {
 # per sample to fit, its Yθ to score): ratios and peak RSS (≤ RSS_LIMIT_MB), no speed target
 FIT_DEFAULT = "fit"
 DETECT_DEFAULT = "detect"
+EVALUATE_DEFAULT = "evaluate"
+EVALUATE_LIMIT = 2.0  # evaluate's seconds over detect's at the defaults, for information
 SPEED_MINUTES = 20.0
 RSS_LIMIT_MB = 300.0
 STARTUP_LIMIT = 3.0
@@ -542,11 +546,20 @@ def default_lines(runs: Sequence[Run]) -> list[str]:
     """One verdict line per command at the defaults: its ratio to rosbags and peak RSS."""
     lines = []
     for r in runs:
-        if r.command in (FIT_DEFAULT, DETECT_DEFAULT) and r.log == "mcap":
+        if r.command in (FIT_DEFAULT, DETECT_DEFAULT, EVALUATE_DEFAULT) and r.log == "mcap":
             lines.append(
                 f"{r.command} at {r.minutes:g} min ({r.log}): {fmt(r.ratio, '.2f')}× rosbags, "
                 f"{r.rss_mb:.0f} MB ≤ {RSS_LIMIT_MB:g} MB: {r.rss_verdict or '—'}"
             )
+        detect = [
+            d
+            for d in runs
+            if (d.minutes, d.log, d.command) == (r.minutes, r.log, DETECT_DEFAULT) and d.ok
+        ]
+        if r.command == EVALUATE_DEFAULT and r.ok and detect and detect[0].seconds > 0:
+            times = r.seconds / detect[0].seconds
+            verdict = "pass" if times <= EVALUATE_LIMIT else "over"
+            lines.append(f"  evaluate / detect: {times:.2f}× (≤ {EVALUATE_LIMIT:g}×: {verdict})")
     return ["", *lines] if lines else []
 
 
@@ -661,6 +674,7 @@ def measure(
         f"fit --model {PAPER_MODEL}": [twincd, "fit", str(log), *PAPER, "-o", "cal2.json"],
         FIT_DEFAULT: [twincd, "fit", str(log), "-o", "cal2.json"],
         DETECT_DEFAULT: [twincd, "detect", str(log), "-c", str(default)],
+        EVALUATE_DEFAULT: [twincd, "evaluate", str(log), "-c", str(default), "--json"],
     }
     floor = bench.rosbags(minutes, "mcap", log)
     samples = round(minutes * 60 * RATE_HZ)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -55,7 +55,6 @@ from .options import (
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.evaluation.runner import Evaluation
-    from twincd.pipeline import PreparedLog, Setup
 
 log = logging.getLogger("twincd")
 
@@ -194,9 +193,7 @@ def evaluate(
     )
     from twincd.evaluation.runner import evaluate as run_evaluation
     from twincd.evaluation.runner import method_for, parse_methods
-    from twincd.executors import Bound
     from twincd.io.logs import expand_logs
-    from twincd.pipeline import prepare_log
 
     cal = Calibration.load(calibration) if calibration is not None else None
     names = parse_methods(methods, method_for(cal.kind) if cal is not None else "proposed")
@@ -224,12 +221,17 @@ def evaluate(
 
     every_log = [*test_paths, *train_paths, *val_paths]
     with open_executor(jobs, scheduler, every_log) as executor:
-        failed: LogRun[PreparedLog] = LogRun()
+        failed: LogRun[Any] = LogRun()
 
-        def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:
-            work = Bound(prepare_log, setup)
-            run = run_per_log(work, paths, desc, quiet, executor=executor, keep_going=keep_going)
-            failed.failures.extend(run.failures)  # with --keep-going: reported, the rest goes on
+        def run(func: Callable[[Path], Any], paths: Sequence[Path], desc: str) -> list[Any]:
+            if not paths:
+                return []
+            run = run_per_log(
+                func, paths, f"reading {desc}", quiet, executor=executor, keep_going=keep_going
+            )
+            for failure in run.failures:  # with --keep-going: reported, the rest goes on
+                if failure.path not in {f.path for f in failed.failures}:  # once per log
+                    failed.failures.append(failure)
             return list(run.results)
 
         result = run_evaluation(
@@ -242,8 +244,9 @@ def evaluate(
             k_sigma=sigma,
             repeats=repeats,
             progress=bar,
-            load=load,
+            run=run,
             link_topic=link_topic,
+            batch=max(1, getattr(executor, "workers", 1) or 1),
         )
     if result.positives == 0:
         log.warning(

@@ -37,7 +37,7 @@ from twincd.calibration import Calibration, clean_rows
 from twincd.detection.events import runs
 from twincd.pipeline import Setup
 from twincd.tail import ExcursionCounter
-from twincd.threshold import AlarmCounter, ScoreStats, budget_threshold
+from twincd.threshold import ScoreStats, budget_threshold
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "doosan_m0609"
 TOLERANCE_S = 0.2  # as evaluate's event metrics: a flag ≤ 200 ms after a push finds it
@@ -91,12 +91,11 @@ def thresholds(val: Scored, budgets: list[float]) -> dict[str, float]:
     tail's estimate and its interval's upper end."""
     usable = val.clean
     stats = ScoreStats.from_scores(val.scores, usable)
-    peaks, alarms = ExcursionCounter(val.period_s), AlarmCounter(val.period_s)
+    peaks = ExcursionCounter(val.period_s)
     peaks.push(val.scores, usable)
-    alarms.push(val.scores, usable)
     out = {"mu+4sigma": stats.mu + 4 * stats.sigma}
     for budget in budgets:
-        th = budget_threshold(peaks.excursions, alarms.counts, stats, budget)
+        th = budget_threshold(peaks.excursions, stats, budget)
         assert th.tail is not None
         out[f"pot {budget:g}/h"] = th.value
         out[f"high {budget:g}/h"] = np.inf if th.tail.high is None else th.tail.high

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,7 +14,11 @@ from test_baselines_mob import pushed_log  # noqa: E402
 
 from twincd.errors import NotFittedError  # noqa: E402
 from twincd.evaluation.baselines.autoencoder import PointAE, WindowAE  # noqa: E402
-from twincd.evaluation.baselines.lstm import LstmMob  # noqa: E402
+from twincd.evaluation.baselines.lstm import LstmMob, training_pieces  # noqa: E402
+from twincd.evaluation.baselines.windows import (  # noqa: E402
+    DEFAULT_MAX_TRAIN_UNITS,
+    DEFAULT_SUBSAMPLE_SEED,
+)
 from twincd.evaluation.methods import make_method  # noqa: E402
 
 pytestmark = pytest.mark.torch
@@ -67,3 +73,26 @@ def test_lstm_mob_learns_the_model_error() -> None:
     short = pushed_log(30, seconds=0.5)
     assert method.score(short).shape == (len(short),)
     np.testing.assert_array_equal(method.score(test), score)
+
+
+def test_long_training_sets_are_subsampled_by_a_documented_seed() -> None:
+    # the cap and the seed the guide documents; every training log here fits under the cap
+    assert (DEFAULT_MAX_TRAIN_UNITS, DEFAULT_SUBSAMPLE_SEED) == (200_000, 0)
+    guide = (Path(__file__).parents[1] / "docs" / "guide.md").read_text()
+    assert "200 000" in guide and "subsample_seed" in guide
+    train, test = data()  # 3 logs of 1000 samples
+    assert PointAE(epochs=1).fit(train).note is None
+    capped = PointAE(epochs=2, max_train=500, subsample_seed=1).fit(train)
+    assert capped.note is not None and "500 of 3000" in capped.note
+    again = PointAE(epochs=2, max_train=500, subsample_seed=1).fit(train)
+    np.testing.assert_array_equal(again.score(test), capped.score(test))  # same seed, same rows
+    other = PointAE(epochs=2, max_train=500, subsample_seed=2).fit(train)
+    assert not np.array_equal(other.score(test), capped.score(test))
+    # the LSTM keeps whole stretches of 10 sequences, drawn alike
+    pieces = training_pieces([1000, 1000, 1000], 1000, 200, 1)
+    assert pieces == training_pieces([1000, 1000, 1000], 1000, 200, 1)
+    assert pieces is not None and len(pieces) == 5 and all(b - a == 200 for _, a, b in pieces)
+    assert pieces != training_pieces([1000, 1000, 1000], 1000, 200, 2)
+    assert training_pieces([1000, 1000, 1000], 3000, 200, 1) is None
+    lstm = LstmMob(epochs=1, seq_len=20, max_train=1000, subsample_seed=1).fit(train)
+    assert lstm.note is not None and "1000 of 3000" in lstm.note

@@ -168,3 +168,14 @@ def test_without_methods_a_calibration_is_evaluated_with_its_own_model():
     assert result.exit_code == 0, result.output
     names = [m["name"] for m in json.loads(result.stdout)["methods"]]
     assert names == [json.loads(cal.read_text())["model"]["kind"]]
+
+
+def test_streamed_logs_give_the_same_figures_on_processes(cal, twin_dataset):
+    # the calibration's model judges each log in a worker; only its kept scores come back
+    serial = run("evaluate", twin_dataset / "test", "-c", cal, "--json", "-j", "1")
+    pooled = run("evaluate", twin_dataset / "test", "-c", cal, "--json", "-j", "2")
+    assert serial.exit_code == pooled.exit_code == 0, pooled.output
+    rows = [json.loads(r.stdout)["methods"][0] for r in (serial, pooled)]
+    for row in rows:
+        row.pop("test_s")
+    assert rows[0] == rows[1] and rows[0]["events_detected"] > 0

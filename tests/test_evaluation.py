@@ -3,15 +3,20 @@ Metrics, Methods)."""
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Sequence
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
 
-from twincd.calibration import fit_calibration
+from twincd.calibration import Threshold, fit_calibration
+from twincd.detection import detect_log
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, register
+from twincd.evaluation.metrics import EventCounts, at_threshold, auc, event_counts, f1_sweep
 from twincd.evaluation.runner import evaluate, parse_methods
+from twincd.evaluation.streamed import judge_log
 from twincd.io.logs import expand_logs
 from twincd.pipeline import PreparedLog, Setup
 from twincd.signal.filters import LowPass
@@ -190,3 +195,89 @@ def test_samples_at_the_filter_edges_are_not_judged(calibration, split):
     assert edges > 0
     (row,) = result.methods
     assert row.units == sum(len(lg) for lg in logs) - edges
+
+
+# ---------------------------------------------------------------- flat memory: what is kept
+
+
+@pytest.mark.parametrize("k_sigma", [None, 2.0])
+def test_metrics_equal_the_whole_arrays(calibration, split, k_sigma):
+    # the calibration's own model streams each log and keeps scores and labels: its figures are
+    # those of the whole logs' arrays, scored and grouped into events as detect does
+    setup = Setup.from_calibration(calibration)
+    (row,) = evaluate(split["test"], ["proposed"], setup, calibration, k_sigma=k_sigma).methods
+    th = calibration.threshold
+    mu, sigma = th.mean_sd
+    at = calibration
+    if k_sigma is not None:  # at μ + kσ of the clean scores' mean and sd
+        at = replace(calibration, threshold=Threshold(k_sigma, mu, sigma))
+    logs = sorted((setup.prepare(p) for p in split["test"]), key=lambda lg: lg.source)
+    found = [detect_log(lg, at) for lg in logs]
+    y = np.concatenate([lg.labels[~lg.edge] for lg in logs])
+    s = np.concatenate([d.scores[~lg.edge] for lg, d in zip(logs, found, strict=True)])
+    assert row.sweep == f1_sweep(y, s, mu, sigma)
+    want = at_threshold(y, s, at.threshold.value)
+    assert row.threshold == want.threshold
+    assert (row.f1_at_threshold, row.precision_at_threshold, row.recall_at_threshold) == (
+        want.f1,
+        want.precision,
+        want.recall,
+    )
+    assert row.auc == pytest.approx(auc(y, s), abs=1e-12, rel=0)
+    assert (row.units, row.positives) == (len(y), int(y.sum()))
+    events = EventCounts()
+    for lg, d in zip(logs, found, strict=True):
+        stamps = lg.states.stamp_ns
+        events = events + event_counts(stamps, lg.labels, stamps, d.flags, None, d.events)
+    assert row.events == {k: v for k, v in events.to_dict().items() if k in row.events}
+    assert row.events["events_detected"] > 0
+
+
+def test_a_judged_log_keeps_a_score_per_sample_filed_by_label(calibration, split):
+    setup = Setup.from_calibration(calibration)
+    path = split["test"][0]
+    judged = judge_log(path, calibration, setup)
+    # the only per-sample arrays: the judged samples' scores, those labelled and the others
+    arrays = [v for v in vars(judged.units).values() if isinstance(v, np.ndarray)]
+    assert not [f for f in fields(judged) if isinstance(getattr(judged, f.name), np.ndarray)]
+    assert [a.dtype for a in arrays] == [np.float64, np.float64] and len(arrays) == 2
+    whole = setup.prepare(path)
+    assert judged.samples == len(whole) and judged.positives == int(whole.labels.sum())
+    assert judged.judged == len(whole) - int(whole.edge.sum())  # the edges are not judged
+    scores = detect_log(whole, calibration).scores
+    y = whole.labels
+    np.testing.assert_array_equal(judged.units.positive, np.sort(scores[~whole.edge & y]))
+    np.testing.assert_array_equal(judged.units.negative, np.sort(scores[~whole.edge & ~y]))
+    # 8 bytes a judged sample, and nothing else that grows with the log (events are counted)
+    assert sum(a.nbytes for a in arrays) == 8 * judged.judged
+    assert len(pickle.dumps(judged)) < 8 * judged.judged + 4096
+    # counts only (the false alarms of validation logs): no per-sample array at all
+    counted = judge_log(path, calibration, setup, keep=False)
+    assert counted.judged == 0 and counted.events == judged.events
+
+
+def test_logs_are_judged_one_at_a_time(calibration, split):
+    calls: list[tuple[str, str, int]] = []
+
+    def run(func, paths, desc):
+        calls.append((func.func.__name__, desc, len(paths)))
+        return [func(p) for p in paths]
+
+    setup = Setup.from_calibration(calibration)
+    evaluate(split["test"], ["proposed"], setup, calibration, val_paths=split["val"], run=run)
+    # the calibration's model: every log streamed, none prepared whole
+    assert calls == [
+        ("score_log", "val logs", 2),
+        ("judge_log", "test logs", 2),
+        ("judge_log", "val false alarms", 2),
+    ]
+    calls.clear()
+    names = ["test-seeded", "test-window"]
+    evaluate(split["test"], names, setup, None, split["train"], split["val"], run=run, batch=1)
+    # whole logs: training and validation logs held; test logs prepared one at a time
+    assert calls == [
+        ("prepare_log", "train logs", 3),
+        ("prepare_log", "val logs", 2),
+        ("prepare_log", "test logs", 1),
+        ("prepare_log", "test logs", 1),
+    ]

@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import replace
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from sklearn.metrics import f1_score, precision_score, recall_score, roc_auc_score
+from sklearn.metrics import f1_score, precision_score, recall_score, roc_auc_score, roc_curve
 
 from twincd.detection.events import Event, EventRules, find_events, runs
 from twincd.evaluation.metrics import (
     SWEEP_K,
     EventCounts,
+    EventTally,
+    ScoredUnits,
     at_threshold,
     auc,
     best_of,
@@ -179,3 +182,85 @@ def test_event_count_invariants(labels: list[bool], flags: list[bool], extra: in
     more = flag.copy()
     more[extra % n] = True  # one more flag never loses an event
     assert event_counts(stamps, lab, stamps, more).events_detected >= counts.events_detected
+
+
+# ---------------------------------------------------------------- what evaluate keeps of long logs
+
+finite = st.floats(-10, 10, allow_nan=False, allow_infinity=False)
+tied = st.integers(-3, 3).map(float)  # few values: ties between and within the classes
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    units=st.lists(st.tuples(st.booleans(), st.one_of(tied, finite)), min_size=1, max_size=80),
+    cuts=st.lists(st.integers(0, 80), max_size=3),
+    mu=finite,
+    sigma=st.floats(0, 5),
+)
+def test_scored_units_give_the_whole_arrays_metrics(
+    units: list[tuple[bool, float]], cuts: list[int], mu: float, sigma: float
+) -> None:
+    # evaluate keeps each log's judged scores and labels and computes the metrics from them
+    # split by label and sorted: the numbers of the whole-array functions (scikit-learn's)
+    y = np.array([u[0] for u in units])
+    s = np.array([u[1] for u in units])
+    bounds = sorted({0, len(y), *(min(c, len(y)) for c in cuts)})
+    parts = [(y[a:b], s[a:b]) for a, b in itertools.pairwise(bounds)]
+    kept = ScoredUnits.from_parts(parts)
+    assert (kept.units, kept.positives) == (len(y), int(y.sum()))
+    assert kept.f1_sweep(mu, sigma) == f1_sweep(y, s, mu, sigma)
+    for threshold in (mu, *s[:4].tolist(), np.inf):
+        assert kept.at_threshold(threshold) == at_threshold(y, s, threshold)
+    got, want = kept.auc(), auc(y, s)
+    assert (got is None) == (want is None)
+    if got is not None and want is not None:
+        assert got == pytest.approx(want, abs=1e-12, rel=0)
+    points = kept.roc_points()
+    if want is None:
+        assert points == []
+    else:  # every point on the ROC curve, from (0, 0) to (1, 1)
+        assert points[0] == (0.0, 0.0) and points[-1] == (1.0, 1.0)
+        fpr, tpr, _ = roc_curve(y, s, drop_intermediate=False)
+        assert set(points) <= set(zip(fpr.tolist(), tpr.tolist(), strict=True))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    spans=st.lists(st.tuples(st.booleans(), st.integers(1, 25)), min_size=1, max_size=12),
+    flags=st.lists(st.booleans(), min_size=300, max_size=300),
+    steps=st.lists(
+        st.sampled_from([10_000_000, 10_000_000, 9_999_000, 30_000_000]), min_size=300, max_size=300
+    ),
+    named=st.lists(st.integers(-1, 2), min_size=300, max_size=300),
+    cuts=st.lists(st.integers(0, 300), max_size=4),
+    isolation=st.booleans(),
+)
+def test_event_tally_in_blocks_equals_event_counts(
+    spans: list[tuple[bool, int]],
+    flags: list[bool],
+    steps: list[int],
+    named: list[int],
+    cuts: list[int],
+    isolation: bool,
+) -> None:
+    # a log's event counts gathered block by block while it streams, whatever the blocks: the
+    # counts of its whole arrays
+    labels = np.concatenate([np.full(k, on) for on, k in spans])
+    n = len(labels)
+    stamps = 1_700_000_000_000_000_000 + np.cumsum(np.array(steps[:n], dtype=np.int64))
+    flag = np.array(flags[:n]) & (np.arange(n) % 7 != 0)
+    links = ("", "link3", "link5")
+    held = np.array(named[:n])
+    per_sample = tuple("" if h < 0 else links[h] for h in held.tolist())
+    merged = find_events(flag, flag * 1.0, np.zeros((n, 1)), stamps, ["j"], None, _MERGE)
+    named_events = [replace(e, link=links[1 + e.first % 2]) for e in merged]
+    want = event_counts(stamps, labels, stamps, flag, per_sample, named_events, isolation)
+    tally = EventTally(links)
+    bounds = sorted({0, n, *(min(c, n) for c in cuts)})
+    for a, b in itertools.pairwise(bounds):
+        tally.push(stamps[a:b], labels[a:b], flag[a:b], held[a:b])
+    assert tally.finish(named_events, isolation) == want
+    plain = EventTally()
+    for a, b in itertools.pairwise(bounds):
+        plain.push(stamps[a:b], labels[a:b], flag[a:b])
+    assert plain.finish(merged) == event_counts(stamps, labels, stamps, flag, None, merged)

@@ -4,8 +4,9 @@ sent down the chain of ``twincd.chain`` (twin, or the log's own ``/twincd/sim_ef
 low-pass filter).
 
 ``Setup.open(path)`` streams a log of any length at flat memory (what ``fit``, ``threshold``,
-``detect`` and ``simulate`` use); ``Setup.prepare(path)`` concatenates the same blocks into one
-``PreparedLog`` (what ``evaluate`` and the baselines use on sample-sized logs).
+``detect``, ``simulate`` and ``evaluate``'s calibration model use); ``Setup.prepare(path)``
+concatenates the same blocks into one ``PreparedLog`` (what the baselines and ``evaluate``'s
+methods that fit on training logs use, one log at a time).
 ``twincd.detection.OnlineDetector`` builds the same chain for live samples.
 
 Sampling rate and gaps: a log's nominal period is the calibration's (``Setup.period_s``) when
@@ -560,7 +561,7 @@ class Setup:
         return PreparedStream(path, self, **kwargs)
 
     def prepare(self, path: str | Path) -> PreparedLog:
-        """One whole log in memory (for sample-sized logs: evaluate, baselines, studies)."""
+        """One whole log in memory (for the baselines, evaluate's fitted methods, studies)."""
         with self.open(path) as stream:
             return stream.read_whole()
 

@@ -2,16 +2,22 @@
 
 Per unit (sample or window) over all evaluated logs together: F1 at μ + iσ for the paper's
 sweep of i, precision/recall/F1 at one threshold, and the ROC AUC of the raw score.
+scikit-learn is imported by the whole-array functions only (≈ 90 MB and 0.6 s).
+
+Two forms give the same numbers: functions of whole arrays of labels and scores, and
+``ScoredUnits``, the scores split by label and sorted (8 bytes a unit, what ``evaluate`` keeps
+of long logs), from which every count is a binary search. Event metrics likewise: ``event_counts``
+on a whole log's arrays, or ``EventTally`` fed block by block while a log streams.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from sklearn.metrics import precision_recall_fscore_support, roc_auc_score
 
 from twincd.detection.events import EVENT_TOLERANCE_NS, Event, false_alarms, runs
 from twincd.types import BoolArray, FloatArray
@@ -30,6 +36,8 @@ class AtThreshold:
 
 def at_threshold(labels: BoolArray, scores: FloatArray, threshold: float) -> AtThreshold:
     """Precision, recall and F1 of the flags score ≥ threshold (eq. 7)."""
+    from sklearn.metrics import precision_recall_fscore_support
+
     pred = np.asarray(scores) >= threshold
     p, r, f, _ = precision_recall_fscore_support(
         np.asarray(labels, dtype=bool), pred, average="binary", zero_division=0
@@ -52,10 +60,127 @@ def best_of(sweep: Sequence[tuple[float, float]]) -> tuple[float, float]:
 
 def auc(labels: BoolArray, scores: FloatArray) -> float | None:
     """ROC AUC of the raw score; None when only one class is present (it is undefined)."""
+    from sklearn.metrics import roc_auc_score
+
     y = np.asarray(labels, dtype=bool)
     if y.all() or not y.any():
         return None
     return float(roc_auc_score(y, np.asarray(scores, dtype=np.float64)))
+
+
+@dataclass(frozen=True)
+class ScoredUnits:
+    """The units' scores split by label, each part sorted: every per-unit metric of the arrays
+    they came from, computed from counts (two binary searches a threshold), at 8 bytes a unit.
+
+    ``at_threshold``, ``f1_sweep`` and ``auc`` give the numbers of the functions above on the
+    whole arrays: the counts are exact, precision, recall and F1 are scikit-learn's formulas on
+    them (the same floats), and the AUC is the Mann–Whitney statistic, P(positive > negative)
+    + ½ P(tie), as a ratio of exact integers (``roc_auc_score``'s trapezoids agree to rounding,
+    ~1e-16)."""
+
+    positive: FloatArray  # scores of the units labelled as collision, ascending
+    negative: FloatArray  # scores of the others, ascending
+
+    @classmethod
+    def from_parts(cls, parts: Iterable[tuple[BoolArray, FloatArray]]) -> ScoredUnits:
+        """From (labels, scores) pairs, e.g. one per log: one copy of the scores (into the two
+        parts, sorted in place), and one part's more while it is copied."""
+        pairs = [(np.asarray(y, dtype=bool), np.asarray(s, dtype=np.float64)) for y, s in parts]
+        if len(pairs) == 1:  # masks copy into arrays of their own (``np.compress`` takes twice)
+            ((y, s),) = pairs
+            positive, negative = s[y], s[~y]
+        else:
+            counts = [int(np.count_nonzero(y)) for y, _ in pairs]
+            positive = np.empty(sum(counts))
+            negative = np.empty(sum(len(y) for y, _ in pairs) - len(positive))
+            p = n = 0
+            for (y, s), k in zip(pairs, counts, strict=True):
+                positive[p : p + k] = s[y]
+                negative[n : n + len(y) - k] = s[~y]
+                p, n = p + k, n + len(y) - k
+        positive.sort()
+        negative.sort()
+        return cls(positive, negative)
+
+    @classmethod
+    def concat(cls, parts: Sequence[ScoredUnits]) -> ScoredUnits:
+        """The units of every part together (one part: itself, nothing copied)."""
+        if len(parts) == 1:
+            return parts[0]
+        positive = np.concatenate([np.zeros(0), *(p.positive for p in parts)])
+        negative = np.concatenate([np.zeros(0), *(p.negative for p in parts)])
+        positive.sort()
+        negative.sort()
+        return cls(positive, negative)
+
+    @classmethod
+    def from_arrays(cls, labels: BoolArray, scores: FloatArray) -> ScoredUnits:
+        return cls.from_parts([(labels, scores)])
+
+    @property
+    def units(self) -> int:
+        return len(self.positive) + len(self.negative)
+
+    @property
+    def positives(self) -> int:
+        return len(self.positive)
+
+    @property
+    def finite(self) -> bool:
+        """No score is NaN or infinite (sorted: the ends say; NaN sorts last)."""
+        ends = [part[[0, -1]] for part in (self.positive, self.negative) if len(part)]
+        return bool(np.isfinite(np.concatenate([np.zeros(0), *ends])).all())
+
+    def flagged(self, threshold: float) -> tuple[int, int]:
+        """(positives, negatives) with score ≥ ``threshold``."""
+        tp = len(self.positive) - int(np.searchsorted(self.positive, threshold, side="left"))
+        fp = len(self.negative) - int(np.searchsorted(self.negative, threshold, side="left"))
+        return tp, fp
+
+    def at_threshold(self, threshold: float) -> AtThreshold:
+        """``at_threshold`` of the arrays: scikit-learn's precision, recall and F1
+        (``zero_division=0``; F1 = 2·tp / (2·tp + fp + fn), as ``precision_recall_fscore_support``
+        computes it) on the exact counts, so the same floats; written out because importing
+        scikit-learn costs ≈ 90 MB, a third of what a long log's evaluation may take."""
+        tp, fp = self.flagged(threshold)
+        fn = len(self.positive) - tp
+        precision = tp / (tp + fp) if tp + fp else 0.0
+        recall = tp / (tp + fn) if tp + fn else 0.0
+        f1 = 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn else 0.0
+        return AtThreshold(float(threshold), float(precision), float(recall), float(f1))
+
+    def f1_sweep(
+        self, mu: float, sigma: float, ks: Sequence[float] = SWEEP_K
+    ) -> list[tuple[float, float]]:
+        """``f1_sweep`` of the arrays."""
+        return [(float(k), self.at_threshold(mu + k * sigma).f1) for k in ks]
+
+    def auc(self) -> float | None:
+        """``auc`` of the arrays (None when only one class is present)."""
+        if not len(self.positive) or not len(self.negative):
+            return None
+        below = np.searchsorted(self.negative, self.positive, side="left")
+        at_most = np.searchsorted(self.negative, self.positive, side="right")
+        twice_u = 2 * int(below.sum()) + int((at_most - below).sum())
+        return twice_u / (2 * len(self.positive) * len(self.negative))
+
+    def roc_points(self, most: int = 300) -> list[tuple[float, float]]:
+        """(false positive rate, true positive rate) at about ``most`` thresholds, evenly
+        spaced in rank among each class's scores, ends included; empty when AUC is undefined.
+        Every point lies on the exact ROC curve (for figures)."""
+        if not len(self.positive) or not len(self.negative):
+            return []
+        picks = []
+        for part in (self.positive, self.negative):
+            at = np.unique(np.linspace(0, len(part) - 1, max(2, most // 2)).round().astype(int))
+            picks.append(part[at])
+        thresholds = np.unique(np.concatenate(picks))
+        n_pos, n_neg = len(self.positive), len(self.negative)
+        tpr = (n_pos - np.searchsorted(self.positive, thresholds, side="left")) / n_pos
+        fpr = (n_neg - np.searchsorted(self.negative, thresholds, side="left")) / n_neg
+        points = {(0.0, 0.0), *zip(fpr.tolist(), tpr.tolist(), strict=True)}
+        return sorted(points)
 
 
 # ------------------------------------------------------------------ event metrics (contract:
@@ -159,8 +284,9 @@ def event_counts(
     ``stamp_ns``/``labels``: the samples and their labels; ``flag_ns``/``flags``: when each
     unit's decision is known (a sample's stamp, a window's last sample) and the flags;
     ``events``: the events ``detect`` reports for those flags (default: the maximal runs of
-    flags). ``links``: the true link per sample ("" where none); ``isolation``: judge the link
-    the events name.
+    flags). ``links``: the true link per sample ("" where none); an event's true link is the one
+    named on most of its samples (a tie: the one named first); ``isolation``: judge the link the
+    events name.
     """
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
     labels = np.asarray(labels, dtype=bool)
@@ -169,52 +295,212 @@ def event_counts(
     if events is None:
         events = [_run_event(flag_ns, a, b) for a, b in runs(flags)]
     flag_times = flag_ns[flags]
-    labelled = runs(labels)
-    windows = [(int(stamp_ns[a]), int(stamp_ns[b]) + tolerance_ns) for a, b in labelled]
+    labelled = []
+    for a, b in runs(labels):
+        lo = int(stamp_ns[a])
+        k = int(np.searchsorted(flag_times, lo, side="left"))
+        first_flag = int(flag_times[k]) if k < len(flag_times) else None
+        named = Counter(x for x in links[a : b + 1] if x) if links is not None else Counter()
+        labelled.append(_Labelled(lo, int(stamp_ns[b]), named, first_flag))
+    period_s = float(np.median(np.diff(stamp_ns))) / 1e9 if len(stamp_ns) > 1 else 0.0
+    unlabelled_s = int((~labels).sum()) * period_s
+    return _counts(labelled, events, isolation, unlabelled_s, links is not None, tolerance_ns)
+
+
+@dataclass
+class _Labelled:
+    """One labelled event of a log: its first and last labelled sample's stamps, the links named
+    on its samples (counted in the order first named) and the first flag at or after its start."""
+
+    start_ns: int
+    last_ns: int
+    links: Counter[str] = field(default_factory=Counter)
+    first_flag_ns: int | None = None
+
+    @property
+    def true_link(self) -> str:
+        return self.links.most_common(1)[0][0] if self.links else ""
+
+
+def _counts(
+    labelled: Sequence[_Labelled],
+    events: Sequence[Event],
+    isolation: bool,
+    unlabelled_s: float,
+    has_links: bool,
+    tolerance_ns: int,
+) -> EventCounts:
+    """The counts of one log from its labelled events and detect's events."""
+    windows = [(ev.start_ns, ev.last_ns + tolerance_ns) for ev in labelled]
     detected = force_total = force_detected = iso_total = iso_named = iso_right = 0
     delay_list: list[float] = []
     force_delays: list[float] = []
-    for (a, b), (lo, hi) in zip(labelled, windows, strict=True):
-        k = int(np.searchsorted(flag_times, lo, side="left"))
-        hit = k < len(flag_times) and flag_times[k] <= hi
-        true_link = ""
-        if links is not None:
-            named = [x for x in links[a : b + 1] if x]
-            true_link = max(set(named), key=named.count) if named else ""
+    for ev, (lo, hi) in zip(labelled, windows, strict=True):
+        flag = ev.first_flag_ns
+        true_link = ev.true_link
         if true_link:
             force_total += 1
-        if not hit:
+        if flag is None or flag > hi:
             continue
         detected += 1
-        delay = (int(flag_times[k]) - lo) / 1e6
+        delay = (flag - lo) / 1e6
         delay_list.append(delay)
         if true_link:
             force_detected += 1
             force_delays.append(delay)
             if isolation:
-                link = _link_at(events, int(flag_times[k]))
+                link = _link_at(events, flag)
                 iso_total += 1
                 iso_named += link is not None
                 iso_right += link == true_link
     # detect's events against the labelled events widened by the tolerance both ways
-    spans = [(int(stamp_ns[a]), int(stamp_ns[b])) for a, b in labelled]
-    alarms = false_alarms(events, spans, tolerance_ns)
-    period_s = float(np.median(np.diff(stamp_ns))) / 1e9 if len(stamp_ns) > 1 else 0.0
+    alarms = false_alarms(events, [(ev.start_ns, ev.last_ns) for ev in labelled], tolerance_ns)
     return EventCounts(
         events_total=len(labelled),
         events_detected=detected,
         delays_ms=tuple(delay_list),
         false_alarms=alarms,
         events_on_labels=len(events) - alarms,
-        unlabelled_s=float((~labels).sum()) * period_s,
+        unlabelled_s=unlabelled_s,
         force_total=force_total,
         force_detected=force_detected,
         force_delays_ms=tuple(force_delays),
         isolation_total=iso_total,
         isolation_named=iso_named,
         isolation_right=iso_right,
-        has_links=links is not None,
+        has_links=has_links,
     )
+
+
+class EventTally:
+    """``event_counts`` of one log whose samples arrive block by block (units are samples, as
+    for every calibration model): it keeps each labelled event (two stamps, its links, its
+    first flag) and the distinct sampling intervals with their counts (for the median
+    interval), never a per-sample array. ``finish`` takes detect's events of the whole log.
+
+    ``links``: the link names the log's ``/collision_link`` messages hold (None: the log has
+    none); ``push`` then takes each sample's index into them (−1: none yet)."""
+
+    def __init__(
+        self, links: Sequence[str] | None = None, tolerance_ns: int = EVENT_TOLERANCE_NS
+    ) -> None:
+        self.links = None if links is None else tuple(links)
+        self.tolerance_ns = tolerance_ns
+        self._named = np.array([bool(x) for x in self.links or ()], dtype=bool)
+        self._labelled: list[_Labelled] = []
+        self._waiting: list[_Labelled] = []  # no flag yet at or after their start
+        self._open = False  # the last sample pushed was labelled
+        self._unlabelled = 0
+        self._intervals = _IntervalCounts()
+
+    def push(
+        self,
+        stamp_ns: NDArray[np.int64],
+        labels: BoolArray,
+        flags: BoolArray,
+        held: NDArray[np.intp] | None = None,
+    ) -> None:
+        """The next samples: stamps (increasing), labels, flags and (with ``links``) each
+        sample's link index."""
+        stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+        if not len(stamp_ns):
+            return
+        labels = np.asarray(labels, dtype=bool)
+        flags = np.asarray(flags, dtype=bool)
+        self._intervals.push(stamp_ns)
+        self._unlabelled += len(labels) - int(np.count_nonzero(labels))
+        for a, b in runs(labels):
+            if a == 0 and self._open:  # the event of the previous block goes on
+                ev = self._labelled[-1]
+                ev.last_ns = int(stamp_ns[b])
+            else:
+                ev = _Labelled(int(stamp_ns[a]), int(stamp_ns[b]))
+                self._labelled.append(ev)
+                self._waiting.append(ev)
+            if held is not None and self.links is not None:
+                self._count_links(ev, np.asarray(held[a : b + 1]))
+        self._open = bool(labels[-1])
+        if self._waiting and flags.any():
+            flag_ns = stamp_ns[flags]
+            at = np.searchsorted(flag_ns, [ev.start_ns for ev in self._waiting], side="left")
+            waiting = []
+            for ev, k in zip(self._waiting, at.tolist(), strict=True):
+                if k < len(flag_ns):
+                    ev.first_flag_ns = int(flag_ns[k])
+                else:
+                    waiting.append(ev)
+            self._waiting = waiting
+
+    def _count_links(self, ev: _Labelled, held: NDArray[np.intp]) -> None:
+        assert self.links is not None
+        named = held[held >= 0]
+        named = named[self._named[named]]
+        values, first, counts = np.unique(named, return_index=True, return_counts=True)
+        for i in np.argsort(first, kind="stable"):  # in the order first named
+            ev.links[self.links[int(values[i])]] += int(counts[i])
+
+    def finish(self, events: Sequence[Event], isolation: bool = False) -> EventCounts:
+        """The log's counts, with detect's ``events`` (``isolation``: judge the links they
+        name)."""
+        unlabelled_s = self._unlabelled * self._intervals.median_s()
+        has_links = self.links is not None
+        return _counts(
+            self._labelled, events, isolation, unlabelled_s, has_links, self.tolerance_ns
+        )
+
+
+class _IntervalCounts:
+    """How often each interval between consecutive stamps occurs, for their exact median.
+    Intervals within ``WINDOW_NS`` of the log's first one are counted in a dense histogram (a
+    jittered clock spreads them over hundreds of thousands of distinct nanosecond values; only
+    the pages it touches take memory), the others (gaps, clock jumps: few) by value."""
+
+    WINDOW_NS = 1 << 19  # ±0.52 ms around the first interval
+
+    def __init__(self) -> None:
+        self._last: int | None = None
+        self._low = 0  # the interval counted in the histogram's first bin
+        self._dense: NDArray[np.int64] | None = None
+        self._values = np.zeros(0, dtype=np.int64)  # the others, ascending, and their counts
+        self._counts = np.zeros(0, dtype=np.int64)
+
+    def push(self, stamp_ns: NDArray[np.int64]) -> None:
+        steps = np.diff(stamp_ns, prepend=stamp_ns[:1] if self._last is None else self._last)
+        if self._last is None:
+            steps = steps[1:]
+        self._last = int(stamp_ns[-1])
+        if not len(steps):
+            return
+        if self._dense is None:
+            self._low = int(steps[0]) - self.WINDOW_NS
+            self._dense = np.zeros(2 * self.WINDOW_NS, dtype=np.int64)
+        at = steps - self._low
+        inside = (at >= 0) & (at < len(self._dense))
+        np.add.at(self._dense, at[inside], 1)
+        if not inside.all():
+            values, counts = np.unique(steps[~inside], return_counts=True)
+            merged, where = np.unique(np.concatenate([self._values, values]), return_inverse=True)
+            weights = np.concatenate([self._counts, counts])
+            self._counts = np.bincount(where, weights, len(merged)).astype(np.int64)
+            self._values = merged
+
+    def median_s(self) -> float:
+        """``np.median`` of the intervals, in seconds (0 for fewer than two stamps)."""
+        if self._dense is None:
+            return 0.0
+        bins = np.flatnonzero(self._dense)
+        values = np.concatenate([self._values, bins + self._low])
+        counts = np.concatenate([self._counts, self._dense[bins]])
+        order = np.argsort(values, kind="stable")
+        values, ends = values[order], np.cumsum(counts[order])
+        total = int(ends[-1])
+
+        def nth(k: int) -> int:  # the k-th smallest interval (from 0)
+            return int(values[int(np.searchsorted(ends, k, side="right"))])
+
+        half = total // 2
+        middle = np.array([nth(half)] if total % 2 else [nth(half - 1), nth(half)], np.int64)
+        return float(np.mean(middle)) / 1e9
 
 
 def _run_event(flag_ns: NDArray[np.int64], first: int, last: int) -> Event:

@@ -5,6 +5,15 @@ Each method fits on the training logs, μ and σ of its score come from the vali
 its scores on the test logs give the F1 sweep over μ + iσ, F1/precision/recall at μ + kσ (k the
 calibration's) and the ROC AUC. Training time is the time of ``fit``; test time the time to
 score every test log. Randomised methods run ``repeats`` times (seeds 0..N-1): mean and std.
+
+Memory: test logs are judged one at a time and only each judged unit's score and label are
+kept (float64 and bool, 9 bytes a unit per run; ``ScoredUnits`` computes the metrics from them),
+with each log's event counts. The calibration's own model (``-c`` without training logs, what
+``evaluate`` runs by default) streams every test and validation log block by block down
+``detect``'s chain (``twincd.evaluation.streamed``), so its memory stays flat whatever the
+log's length and it flags and groups events exactly as ``detect`` does. The other methods
+work on whole prepared logs: the training and validation logs are held while they fit and set
+their thresholds, and the test logs are prepared ``batch`` at a time.
 """
 
 from __future__ import annotations
@@ -12,37 +21,32 @@ from __future__ import annotations
 import inspect
 import logging
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
 
-from twincd.calibration import Calibration
+from twincd.calibration import Calibration, Threshold
 from twincd.calibration.models import EPSILON_GRID, MODEL_KINDS, model_class
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 from twincd.detection.detect import FlagCount
 from twincd.detection.events import EventRules
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
-from twincd.evaluation.metrics import (
-    EventCounts,
-    at_threshold,
-    auc,
-    best_of,
-    event_counts,
-    f1_sweep,
-    roc_points,
-)
+from twincd.evaluation.metrics import EventCounts, ScoredUnits, best_of, event_counts
+from twincd.evaluation.streamed import JudgedLog, judge_log
+from twincd.executors import Bound
 from twincd.io.links import read_links
-from twincd.pipeline import PreparedLog, Setup, agreed_joints
-from twincd.threshold import ScoreStats, same_rule, threshold_prepared_logs
+from twincd.pipeline import PreparedLog, Setup, agreed_joints, prepare_log
+from twincd.threshold import LogScores, ScoreStats, same_rule, score_log, threshold_from_parts
 from twincd.types import BoolArray, FloatArray
 
 T = TypeVar("T")
 Progress = Callable[[Sequence[Any], str], Iterable[Any]]
-Loader = Callable[[Sequence[Path], Setup, str], list[PreparedLog]]
+# maps a per-log function over logs: (func, paths, what they are) -> results in paths' order
+Mapper = Callable[[Callable[[Path], Any], Sequence[Path], str], list[Any]]
 
 log = logging.getLogger("twincd")
 
@@ -206,9 +210,9 @@ class Evaluation:
         return missed
 
 
-def require_labels(logs: Sequence[PreparedLog], option: str) -> None:
+def require_labels(logs: Sequence[PreparedLog | JudgedLog], option: str) -> None:
     for lg in logs:
-        if lg.labels is None:
+        if (lg.labels is None) if isinstance(lg, PreparedLog) else not lg.labelled:
             raise DataError(
                 "the log has no collision labels",
                 f"{lg.source}, {option}",
@@ -287,91 +291,37 @@ class _Run:
     roc: list[tuple[float, float]] = field(default_factory=list)
 
 
-def _run_once(
-    method: ScoringMethod,
-    train: Sequence[PreparedLog],
-    val: Sequence[PreparedLog],
-    test: Sequence[PreparedLog],
-    calibration: Calibration | None,
-    k_sigma: float,
-    links: Links,
-    own_rule: bool = False,
+def _figures(
+    units: ScoredUnits,
+    mu: float,
+    sigma: float,
+    threshold: float,
+    times: tuple[float | None, float],
+    events: EventCounts,
+    val_events: EventCounts | None,
+    note: str | None,
 ) -> _Run:
-    """One run of a method; ``own_rule``: a model that comes from the calibration is judged at
-    the calibration's threshold, or with validation logs at what its rule sets on them (else
-    at μ + ``k_sigma``·σ)."""
-    from_calibration = method.calibrated and not train
-    train_s: float | None = None
-    if from_calibration:
-        assert calibration is not None
-        train_s = calibration.fit_s
-    elif method.learns:
-        start = time.perf_counter()
-        method.fit(train)
-        train_s = time.perf_counter() - start
-    else:
-        method.fit(train)
-    val_scores: list[FloatArray] = []
-    threshold: float | None = None
-    if from_calibration and not val:
-        assert calibration is not None
-        # μ + iσ of the metrics is the clean scores' mean and standard deviation, whatever
-        # estimator set the threshold itself; the threshold itself is the calibration's
-        mu, sigma = calibration.require_threshold().mean_sd
-        threshold = calibration.require_threshold().value if own_rule else None
-    else:
-        stats, val_scores = _val_stats(method, val)
-        mu, sigma = stats.mu, stats.sigma
-        if from_calibration and own_rule:
-            # the calibration's own model on other validation logs: its threshold rule there
-            assert calibration is not None
-            again = threshold_prepared_logs(val, calibration, *same_rule(calibration))
-            threshold = again.require_threshold().value
-    start = time.perf_counter()
-    scores = [method.score(lg) for lg in test]
-    test_s = time.perf_counter() - start
-    # what detect judges: never a sample within the filter's edge span
-    judged = [_judged(method, lg, len(score)) for lg, score in zip(test, scores, strict=True)]
-    y_score = np.concatenate([s[j] for s, j in zip(scores, judged, strict=True)] or [np.zeros(0)])
-    y_true = np.concatenate([method.unit_labels(lg)[j] for lg, j in zip(test, judged, strict=True)])
-    if len(y_score) != len(y_true) or not np.isfinite(y_score).all():
-        raise DataError(
-            f"method {method.name!r} gave {len(y_score)} scores for {len(y_true)} units, "
-            "or non-finite ones",
-            ", ".join(lg.source for lg in test[:3]),
-            "report this as a bug in the method",
-        )
-    sweep = f1_sweep(y_true, y_score, mu, sigma)
+    """One run's figures from its test units' scores and labels (``times``: train and test
+    seconds) and its event counts on the test (and validation) logs."""
+    sweep = units.f1_sweep(mu, sigma)
     best_k, f1_best = best_of(sweep)
-    if threshold is None:
-        threshold = mu + k_sigma * sigma
-    at = at_threshold(y_true, y_score, threshold)
+    at = units.at_threshold(threshold)
     figures: dict[str, float | None] = {
         "f1_best": f1_best,
         "best_k": best_k,
         "f1_at_threshold": at.f1,
         "precision_at_threshold": at.precision,
         "recall_at_threshold": at.recall,
-        "auc": auc(y_true, y_score),
-        "train_s": train_s,
-        "test_s": test_s,
+        "auc": units.auc(),
+        "train_s": times[0],
+        "test_s": times[1],
     }
-    figures.update(_events(method, test, scores, threshold, mu, links).to_dict())
-    if val_scores:
-        on_val = _events(method, val, val_scores, threshold, mu, {})
-        figures["val_false_alarms"] = on_val.false_alarms
-        figures["val_false_alarms_per_hour"] = on_val.false_alarms_per_hour
-    note = getattr(method, "note", None)
+    figures.update(events.to_dict())
+    if val_events is not None:
+        figures["val_false_alarms"] = val_events.false_alarms
+        figures["val_false_alarms_per_hour"] = val_events.false_alarms_per_hour
     return _Run(
-        sweep,
-        figures,
-        mu,
-        sigma,
-        threshold,
-        len(y_true),
-        int(y_true.sum()),
-        note,
-        roc_points(y_true, y_score),
+        sweep, figures, mu, sigma, threshold, units.units, units.positives, note, units.roc_points()
     )
 
 
@@ -412,80 +362,285 @@ def _combine(name: str, unit: str, k_sigma: float, runs: list[_Run]) -> MethodRe
     return result
 
 
-def evaluate_method(
-    name: str,
-    train: Sequence[PreparedLog],
-    val: Sequence[PreparedLog],
-    test: Sequence[PreparedLog],
-    calibration: Calibration | None = None,
-    k_sigma: float = DEFAULT_K_SIGMA,
-    repeats: int = DEFAULT_REPEATS,
-    links: Links | None = None,
-    own_rule: bool = False,
-) -> MethodResult:
-    """One method's figures; a method that cannot run comes back with ``skipped`` set.
+def _skipped(name: str, unit: str, exc: MethodSkipped) -> MethodResult:
+    return MethodResult(name=name, unit=unit, skipped=str(exc) or "cannot run on these logs")
 
-    ``links``: the true contact link per sample of each test log (by source), for isolation.
-    ``own_rule``: the calibration's own model is judged by the calibration's threshold (its
-    value, or its rule on ``val``); ``evaluate`` sets it unless ``k_sigma`` was given.
-    """
+
+def _plan(
+    name: str, calibration: Calibration | None, train: bool, val: bool
+) -> tuple[ScoringMethod, bool]:
+    """The method to run and whether it is the calibration's own model (read from the file,
+    judged streamed); MethodSkipped when it cannot run with the logs and file given (whatever
+    the logs hold: ``check`` judges that once they are read)."""
     probe = make_method(name)
-    unit = probe.unit
-    try:
-        # a calibrated method without training logs is the calibration's own model
-        own = probe.calibrated and not train
-        if own and calibration is None:
-            raise MethodSkipped("needs a calibration, or training and validation logs")
-        if own:
-            assert calibration is not None
-            if calibration.kind != probe.model_kind:
-                raise MethodSkipped(
-                    f"the calibration holds the {calibration.kind} model, not "
-                    f"{probe.model_kind}; give training and validation logs to fit it"
-                )
-            probe = probe.from_calibration(calibration)
-        probe.check([*train, *val, *test])
-        if probe.learns and not train and not own:
-            raise MethodSkipped("needs collision-free training logs")
-        if not val and not own:
-            raise MethodSkipped("needs collision-free validation logs to set its threshold")
-        if own and not val:
-            assert calibration is not None
-            calibration.require_threshold()
-        seeded = _has_seed(probe)
-        runs = []
-        for seed in range(repeats if seeded else 1):
-            method = make_method(name, seed=seed) if seeded else probe
-            runs.append(
-                _run_once(method, train, val, test, calibration, k_sigma, links or {}, own_rule)
+    # a calibrated method without training logs is the calibration's own model
+    own = probe.calibrated and not train
+    if own and calibration is None:
+        raise MethodSkipped("needs a calibration, or training and validation logs")
+    if own:
+        assert calibration is not None
+        if calibration.kind != probe.model_kind:
+            raise MethodSkipped(
+                f"the calibration holds the {calibration.kind} model, not "
+                f"{probe.model_kind}; give training and validation logs to fit it"
             )
-    except MethodSkipped as exc:
-        return MethodResult(name=name, unit=unit, skipped=str(exc) or "cannot run on these logs")
-    result = _combine(name, unit, k_sigma, runs)
-    th = calibration.threshold if calibration is not None and own and own_rule else None
-    if th is not None and th.estimator != "mean-sd" and result.sigma:
-        # judged by the calibration's threshold rule, on other μ and σ: its k over the metrics'
-        result.k_sigma = ((result.threshold or 0.0) - (result.mu or 0.0)) / result.sigma
-    return result
+        return probe.from_calibration(calibration), True
+    if probe.learns and not train:
+        raise MethodSkipped("needs collision-free training logs")
+    if not val:
+        raise MethodSkipped("needs collision-free validation logs to set its threshold")
+    return probe, False
 
 
-def load_logs(
-    paths: Sequence[Path], setup: Setup, progress: Progress = _no_progress, desc: str = "reading"
-) -> list[PreparedLog]:
-    return list(progress_iter(setup.prepare_all(paths), len(paths), desc, progress))
+def _source(item: PreparedLog | JudgedLog | LogScores) -> str:
+    return item.source
 
 
-def _by_source(logs: Iterable[PreparedLog]) -> list[PreparedLog]:
+def _by_source(logs: Iterable[T]) -> list[T]:
     """Logs in one order whatever order they were given or prepared in: methods that learn
     (and sums over logs) then see the same sequence on every run."""
-    return sorted(logs, key=lambda lg: lg.source)
+    return sorted(logs, key=_source)  # type: ignore[arg-type]
 
 
-def progress_iter(items: Iterable[T], total: int, desc: str, progress: Progress) -> Iterable[T]:
-    """Drive a lazy iterable through a progress callback that wants a sized sequence."""
-    iterator = iter(items)
-    for _ in progress(range(total), desc):
-        yield next(iterator)
+def _sorted_paths(paths: Sequence[Path]) -> list[Path]:
+    """Paths in the order of their logs' sources (``str(Path(p))``)."""
+    return sorted((Path(p) for p in paths), key=str)
+
+
+def _at_k(calibration: Calibration, k_sigma: float, mu: float, sigma: float) -> Calibration:
+    """The calibration judging at μ + kσ of the metrics' μ and σ (flags and events alike)."""
+    return replace(calibration, threshold=Threshold(k_sigma, mu, sigma, estimator="mean-sd"))
+
+
+def _require_scores(source: str, name: str, scores: int, units: int, finite: bool) -> None:
+    if scores != units or not finite:
+        raise DataError(
+            f"method {name!r} gave {scores} scores for {units} units, or non-finite ones",
+            source,
+            "report this as a bug in the method",
+        )
+
+
+@dataclass
+class _Sources:
+    """The logs read (those that failed with ``--keep-going`` left out) and the test samples:
+    what the Evaluation reports of them."""
+
+    samples: int = 0
+    positives: int = 0
+    test: list[str] = field(default_factory=list)
+    train: list[str] = field(default_factory=list)
+    val: list[str] = field(default_factory=list)
+
+
+def _evaluate_own(
+    name: str,
+    method: ScoringMethod,
+    calibration: Calibration,
+    setup: Setup,
+    test_paths: Sequence[Path],
+    val_paths: Sequence[Path],
+    k_sigma: float,
+    own_rule: bool,
+    link_topic: str,
+    run: Mapper,
+) -> tuple[MethodResult, _Sources]:
+    """The calibration's own model, every log streamed (``judge_log``): judged at the
+    calibration's threshold (``own_rule``; with validation logs, at what its rule sets on them),
+    else at μ + ``k_sigma``·σ."""
+    # what the model scores from is the calibration's (detect's chain), whatever other methods
+    # of this evaluation fit on
+    setup = replace(
+        setup,
+        coulomb_eps=calibration.coulomb_eps,
+        regressor=calibration.regressor,
+        regressor_weights=calibration.regressor_weights,
+    )
+    th = calibration.require_threshold()
+    sources = _Sources()
+    if val_paths:
+        scoring: Bound[Path, LogScores] = Bound(score_log, calibration, setup)
+        parts = _by_source(run(scoring, val_paths, "val logs"))
+        stats = ScoreStats()
+        for part in parts:
+            stats = stats + part.stats
+        mu, sigma = stats.mu, stats.sigma
+        if own_rule:  # the calibration's own model on other validation logs: its rule there
+            judge = threshold_from_parts(parts, calibration, *same_rule(calibration))
+        sources.val = [part.source for part in parts]
+    else:
+        # μ + iσ of the metrics is the clean scores' mean and standard deviation, whatever
+        # estimator set the threshold itself; the threshold itself is the calibration's
+        mu, sigma = th.mean_sd
+        judge = calibration
+    if not own_rule:
+        judge = _at_k(calibration, k_sigma, mu, sigma)
+    work: Bound[Path, JudgedLog] = Bound(judge_log, judge, setup, link_topic, name, method.isolates)
+    tests = _by_source(run(work, test_paths, "test logs"))
+    require_labels(tests, "test")
+    for lg in tests:
+        _require_scores(lg.source, name, lg.judged, lg.judged, lg.units.finite)
+    val_events = None
+    if val_paths:
+        counting: Bound[Path, JudgedLog] = Bound(
+            judge_log, judge, setup, None, name, method.isolates, False
+        )
+        val_events = EventCounts()
+        for lg in _by_source(run(counting, val_paths, "val false alarms")):
+            val_events = val_events + lg.events
+    events = EventCounts()
+    for lg in tests:
+        events = events + lg.events
+    units = ScoredUnits.concat([lg.units for lg in tests])
+    times = (calibration.fit_s, sum(lg.score_s for lg in tests))
+    threshold = judge.require_threshold().value
+    figures = _figures(units, mu, sigma, threshold, times, events, val_events, None)
+    result = _combine(name, method.unit, k_sigma, [figures])
+    if own_rule and th.estimator != "mean-sd" and result.sigma:
+        # judged by the calibration's threshold rule, on other μ and σ: its k over the metrics'
+        result.k_sigma = ((result.threshold or 0.0) - (result.mu or 0.0)) / result.sigma
+    sources.samples = sum(lg.samples for lg in tests)
+    sources.positives = sum(lg.positives for lg in tests)
+    sources.test = [lg.source for lg in tests]
+    return result, sources
+
+
+@dataclass
+class _Active:
+    """One run (a method, a seed) fitted and thresholded, gathering its test units log by log."""
+
+    method: ScoringMethod
+    mu: float
+    sigma: float
+    threshold: float
+    train_s: float | None
+    val_events: EventCounts | None
+    test_s: float = 0.0
+    parts: list[tuple[BoolArray, FloatArray]] = field(default_factory=list)
+    events: EventCounts = field(default_factory=EventCounts)
+
+    @classmethod
+    def fit(
+        cls,
+        method: ScoringMethod,
+        train: Sequence[PreparedLog],
+        val: Sequence[PreparedLog],
+        k_sigma: float,
+    ) -> _Active:
+        train_s: float | None = None
+        if method.learns:
+            start = time.perf_counter()
+            method.fit(train)
+            train_s = time.perf_counter() - start
+        else:
+            method.fit(train)
+        stats, val_scores = _val_stats(method, val)
+        mu, sigma = stats.mu, stats.sigma
+        threshold = mu + k_sigma * sigma
+        val_events = _events(method, val, val_scores, threshold, mu, {}) if val_scores else None
+        return cls(method, mu, sigma, threshold, train_s, val_events)
+
+    def judge(self, lg: PreparedLog, links: tuple[str, ...] | None) -> None:
+        """Score one test log; keep its judged units' labels and scores, count its events."""
+        start = time.perf_counter()
+        score = np.asarray(self.method.score(lg), dtype=np.float64)
+        self.test_s += time.perf_counter() - start
+        labels = np.asarray(self.method.unit_labels(lg), dtype=bool)
+        finite = bool(np.isfinite(score).all())
+        _require_scores(lg.source, self.method.name, len(score), len(labels), finite)
+        judged = _judged(self.method, lg, len(score))
+        self.parts.append((labels[judged], score[judged]))
+        self.events = self.events + _events(
+            self.method, [lg], [score], self.threshold, self.mu, {lg.source: links}
+        )
+
+    def result(self) -> _Run:
+        units = ScoredUnits.from_parts(self.parts)
+        times = (self.train_s, self.test_s)
+        note = getattr(self.method, "note", None)
+        return _figures(
+            units, self.mu, self.sigma, self.threshold, times, self.events, self.val_events, note
+        )
+
+
+@dataclass(frozen=True)
+class _Joints:
+    source: str
+    joint_names: tuple[str, ...]
+
+
+def _chunks(paths: Sequence[Path], size: int) -> Iterator[list[Path]]:
+    for start in range(0, len(paths), max(1, size)):
+        yield list(paths[start : start + max(1, size)])
+
+
+def _evaluate_whole(
+    methods: dict[str, ScoringMethod],
+    setup: Setup,
+    train_paths: Sequence[Path],
+    val_paths: Sequence[Path],
+    test_paths: Sequence[Path],
+    k_sigma: float,
+    repeats: int,
+    link_topic: str,
+    run: Mapper,
+    progress: Progress,
+    batch: int,
+) -> tuple[dict[str, MethodResult], _Sources]:
+    """Methods on whole prepared logs: each fits (every seed) on the training logs and takes
+    μ, σ from the validation logs; then the test logs, ``batch`` at a time, are scored by every
+    run and let go."""
+    models = [model_class(name)[0] for name in methods if name in MODEL_KINDS]
+    if any(m.needs_coulomb for m in models):
+        setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
+    if any(m.needs_regressor for m in models):
+        # the whole regressor, which the identified methods fit on (not a calibration's Ỹθ)
+        setup = replace(setup, regressor=True, regressor_optional=True, regressor_weights=None)
+    prepare: Bound[Path, PreparedLog] = Bound(prepare_log, setup)
+    train: list[PreparedLog] = _by_source(run(prepare, train_paths, "train logs"))
+    val: list[PreparedLog] = _by_source(run(prepare, val_paths, "val logs"))
+    # every method must see the same columns: the order comes from the robot model or the
+    # calibration, so logs of one robot agree whatever their message order
+    seen = [_Joints(lg.source, lg.joint_names) for lg in [*train, *val]]
+    agreed_joints(seen)
+    tested = _Sources(train=[lg.source for lg in train], val=[lg.source for lg in val])
+    skipped: dict[str, MethodResult] = {}
+    active: dict[str, list[_Active]] = {}
+    for name in progress(list(methods), "fitting"):
+        probe = methods[name]
+        try:
+            probe.check([*train, *val])
+            seeded = _has_seed(probe)
+            seeds = range(repeats) if seeded else range(1)
+            fitted = [make_method(name, seed=seed) if seeded else probe for seed in seeds]
+            active[name] = [_Active.fit(m, train, val, k_sigma) for m in fitted]
+        except MethodSkipped as exc:
+            skipped[name] = _skipped(name, probe.unit, exc)
+    del train, val
+    for chunk in _chunks(test_paths, batch):
+        logs: list[PreparedLog] = _by_source(run(prepare, chunk, "test logs"))
+        require_labels(logs, "test")
+        seen += [_Joints(lg.source, lg.joint_names) for lg in logs]
+        agreed_joints(seen)
+        for lg in logs:
+            tested.samples += len(lg)
+            tested.positives += int(np.sum(lg.labels)) if lg.labels is not None else 0
+            tested.test.append(lg.source)
+            links = read_links(lg.source, link_topic, lg.states.log_time_ns)
+            for name in list(active):
+                try:
+                    methods[name].check([lg])
+                except MethodSkipped as exc:
+                    skipped[name] = _skipped(name, methods[name].unit, exc)
+                    del active[name]
+                    continue
+                for one in active[name]:
+                    one.judge(lg, links)
+        del logs
+    results = dict(skipped)
+    for name, runs in active.items():
+        results[name] = _combine(name, methods[name].unit, k_sigma, [r.result() for r in runs])
+    return results, tested
 
 
 def _warn_on_overlap(
@@ -515,14 +670,17 @@ def evaluate(
     k_sigma: float | None = None,
     repeats: int = DEFAULT_REPEATS,
     progress: Progress = _no_progress,
-    load: Loader | None = None,
+    run: Mapper | None = None,
     link_topic: str = DEFAULT_LINK_TOPIC,
+    batch: int = 1,
 ) -> Evaluation:
-    """Every method in ``methods`` over the same prepared logs; isolation is judged where the
+    """Every method in ``methods`` over the same test logs; isolation is judged where the
     test logs carry the contact link on ``link_topic``.
 
-    ``load(paths, setup, description)`` prepares logs (default: one after another here; the
-    CLI passes one that maps ``prepare_log`` over local processes or a cluster)."""
+    ``run(func, paths, description)`` maps a per-log function over logs, results in the order
+    of ``paths`` (default: one after another here; the CLI passes one that runs them on local
+    processes or a cluster, ``--keep-going`` leaving failed logs out). ``batch``: test logs
+    prepared at once for the methods that score whole logs (the executor's workers)."""
     if not test_paths:
         raise UsageError("no test logs given", "evaluate", "pass labelled logs with collisions")
     if repeats < 1:
@@ -537,43 +695,48 @@ def evaluate(
         # Metrics), whatever estimator set it; other methods at μ + kσ of their validation
         own_rule = th is not None
     _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
-    models = [model_class(name)[0] for name in methods if name in MODEL_KINDS]
-    if any(m.needs_coulomb for m in models):
-        setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
-    if any(m.needs_regressor for m in models):
-        # the whole regressor, which the identified methods fit on (not a calibration's Ỹθ)
-        setup = replace(setup, regressor=True, regressor_optional=True, regressor_weights=None)
-    if load is None:
+    if run is None:
 
-        def load(paths: Sequence[Path], setup: Setup, desc: str) -> list[PreparedLog]:
-            return load_logs(paths, setup, progress, desc)
+        def run(func: Callable[[Path], Any], paths: Sequence[Path], desc: str) -> list[Any]:
+            return [func(p) for p in progress(list(paths), f"reading {desc}")]
 
-    test = _by_source(load(test_paths, setup, "reading test logs"))
-    require_labels(test, "test")
-    links = {lg.source: read_links(lg.source, link_topic, lg.states.log_time_ns) for lg in test}
-    train = _by_source(load(train_paths, setup, "reading train logs"))
-    val = _by_source(load(val_paths, setup, "reading val logs"))
-    # every method must see the same columns: the order comes from the robot model or the
-    # calibration, so logs of one robot agree whatever their message order
-    agreed_joints([*test, *train, *val])
-    results = [
-        evaluate_method(name, train, val, test, calibration, k_sigma, repeats, links, own_rule)
-        for name in progress(list(methods), "evaluating")
-    ]
-    if all(r.skipped is not None for r in results):
-        reasons = "; ".join(f"{r.name}: {r.skipped}" for r in results)
+    tests, train, val = (_sorted_paths(p) for p in (test_paths, train_paths, val_paths))
+    results: dict[str, MethodResult] = {}
+    whole: dict[str, ScoringMethod] = {}
+    tested: _Sources | None = None
+    for name in methods:
+        try:
+            method, own = _plan(name, calibration, bool(train), bool(val))
+            if own:
+                assert calibration is not None
+                args = (calibration, setup, tests, val, k_sigma, own_rule, link_topic, run)
+                results[name], tested = _evaluate_own(name, method, *args)
+            else:
+                whole[name] = method
+        except MethodSkipped as exc:
+            results[name] = _skipped(name, make_method(name).unit, exc)
+    if whole:
+        more, judged = _evaluate_whole(
+            whole, setup, train, val, tests, k_sigma, repeats, link_topic, run, progress, batch
+        )
+        results.update(more)
+        tested = tested or judged
+    ordered = [results[name] for name in methods]
+    if all(r.skipped is not None for r in ordered):
+        reasons = "; ".join(f"{r.name}: {r.skipped}" for r in ordered)
         raise UsageError(
             f"no method could run ({reasons})",
             "evaluate",
             "give a calibration, or collision-free training and validation logs",
             option="calibration,train,val",
         )
+    assert tested is not None
     return Evaluation(
-        samples=sum(len(lg) for lg in test),
-        positives=sum(int(np.sum(lg.labels)) for lg in test if lg.labels is not None),
-        methods=results,
-        test_logs=[lg.source for lg in test],
-        train_logs=[lg.source for lg in train],
-        val_logs=[lg.source for lg in val],
+        samples=tested.samples,
+        positives=tested.positives,
+        methods=ordered,
+        test_logs=tested.test,
+        train_logs=tested.train,
+        val_logs=tested.val,
         lowpass=setup.lowpass.to_dict(),
     )

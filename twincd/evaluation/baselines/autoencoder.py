@@ -21,6 +21,11 @@ plateau; window-ae still improves slowly after 800 epochs, and 800 is what the b
 five seeds of all three deep methods plus the other methods in about six minutes of
 ``evaluate --methods all --repeats 5`` on the 2-core development machine (point-ae ≈ 20 s,
 window-ae ≈ 15 s per seed there). Pass ``epochs`` to train longer.
+
+Long training logs: at most ``max_train`` rows (``DEFAULT_MAX_TRAIN_UNITS``, 200 000 samples or
+windows) train the network, a seeded uniform random subsample (``subsample_seed``, 0, the same
+for every ``seed``) when there are more; the min–max range still comes from every row, and
+``note`` says so.
 """
 
 from __future__ import annotations
@@ -34,7 +39,11 @@ import numpy as np
 
 from twincd.errors import NotFittedError
 from twincd.evaluation.baselines.mob import DEFAULT_GAIN, MobFeatureMethod
-from twincd.evaluation.baselines.windows import WINDOW_SIZE
+from twincd.evaluation.baselines.windows import (
+    DEFAULT_MAX_TRAIN_UNITS,
+    DEFAULT_SUBSAMPLE_SEED,
+    WINDOW_SIZE,
+)
 from twincd.evaluation.methods import MethodSkipped
 from twincd.pipeline import PreparedLog
 from twincd.signal.filters import LowPass
@@ -115,8 +124,12 @@ class _Autoencoder(MobFeatureMethod):
         gain: float = DEFAULT_GAIN,
         lowpass: LowPass | None = None,
         stride: int = WINDOW_SIZE,
+        max_train: int | None = DEFAULT_MAX_TRAIN_UNITS,
+        subsample_seed: int = DEFAULT_SUBSAMPLE_SEED,
     ) -> None:
         super().__init__(gain=gain, lowpass=lowpass, stride=stride)
+        self.max_train = max_train
+        self.subsample_seed = subsample_seed
         self.seed = seed
         self.epochs = epochs
         self.batch_size = batch_size
@@ -133,6 +146,7 @@ class _Autoencoder(MobFeatureMethod):
         torch = import_torch()
         epochs = self.default_epochs if self.epochs is None else self.epochs
         batch = self.default_batch if self.batch_size is None else self.batch_size
+        x = self._training_rows(x, self.max_train, self.subsample_seed, "max_train")
         data = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(self.seed)

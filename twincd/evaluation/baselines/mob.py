@@ -35,6 +35,7 @@ from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.baselines.windows import (
     WINDOW_SIZE,
     MinMaxScaler,
+    subsample,
     window_labels,
     window_starts,
     windows,
@@ -286,6 +287,19 @@ class MobFeatureMethod(ScoringMethod):
         if len(x) == 0:
             return np.zeros(0)
         return self._score_scaled(x)
+
+    def _training_rows(self, x: FloatArray, cap: int | None, seed: int, why: str) -> FloatArray:
+        """``x``, or a seeded random ``cap`` of its rows (in order) when it has more; the
+        method's ``note`` then says so (``why``: the parameter that caps it)."""
+        rows = subsample(len(x), cap, seed)
+        if rows is None:
+            return x
+        self.note = (
+            f"trained on a random {len(rows)} of {len(x)} training "
+            f"{'windows' if self.window > 1 else 'samples'} ({why}, subsample_seed {seed})"
+        )
+        out: FloatArray = x[rows]
+        return out
 
     @abstractmethod
     def _fit_scaled(self, x: FloatArray) -> None:

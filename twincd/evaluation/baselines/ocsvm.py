@@ -18,7 +18,7 @@ import numpy as np
 
 from twincd.errors import NotFittedError
 from twincd.evaluation.baselines.mob import DEFAULT_GAIN, MobFeatureMethod
-from twincd.evaluation.baselines.windows import WINDOW_SIZE, subsample
+from twincd.evaluation.baselines.windows import WINDOW_SIZE
 from twincd.signal.filters import LowPass
 from twincd.types import FloatArray
 
@@ -45,14 +45,7 @@ class _Ocsvm(MobFeatureMethod):
     def _fit_scaled(self, x: FloatArray) -> None:
         from sklearn.svm import OneClassSVM
 
-        rows = subsample(len(x), self.max_train, self.subsample_seed)
-        if rows is not None:
-            self.note = (
-                f"trained on a random {len(rows)} of {len(x)} training "
-                f"{'windows' if self.window > 1 else 'samples'} "
-                f"(max_train, subsample_seed {self.subsample_seed})"
-            )
-            x = x[rows]
+        x = self._training_rows(x, self.max_train, self.subsample_seed, "max_train")
         self.svm_ = OneClassSVM(kernel="rbf", nu=self.nu).fit(x)
 
     def _score_scaled(self, x: FloatArray) -> FloatArray:
