@@ -550,7 +550,10 @@ def evaluate(
 
     test = _by_source(load(test_paths, setup, "reading test logs"))
     require_labels(test, "test")
-    links = {lg.source: read_links(lg.source, link_topic, lg.states.log_time_ns) for lg in test}
+    links = {
+        lg.source: read_links(lg.source, link_topic, lg.states.log_time_ns, setup.strict)
+        for lg in test
+    }
     train = _by_source(load(train_paths, setup, "reading train logs"))
     val = _by_source(load(val_paths, setup, "reading val logs"))
     # every method must see the same columns: the order comes from the robot model or the
