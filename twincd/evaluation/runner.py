@@ -36,6 +36,7 @@ from twincd.evaluation.metrics import (
     roc_points,
 )
 from twincd.io.links import read_links
+from twincd.io.logs import expand_logs
 from twincd.pipeline import PreparedLog, Setup, agreed_joints
 from twincd.threshold import ScoreStats, same_rule, threshold_prepared_logs
 from twincd.types import BoolArray, FloatArray
@@ -489,10 +490,13 @@ def progress_iter(items: Iterable[T], total: int, desc: str, progress: Progress)
 
 
 def _warn_on_overlap(
-    test_paths: Sequence[Path], learn_paths: Sequence[Path], calibration: Calibration | None
+    test_paths: Sequence[Path],
+    train_paths: Sequence[Path],
+    val_paths: Sequence[Path],
+    calibration: Calibration | None,
 ) -> None:
     """Test logs that also trained or thresholded a method make its figures optimistic."""
-    learned = {Path(p).resolve() for p in learn_paths}
+    learned = {Path(p).resolve() for p in (*train_paths, *val_paths)}
     if calibration is not None:
         learned |= {Path(p).resolve() for p in calibration.fit_logs}
         if calibration.threshold is not None:
@@ -502,6 +506,13 @@ def _warn_on_overlap(
         log.warning(
             "test log(s) also used for fitting or thresholds: %s; the figures are optimistic",
             ", ".join(shared),
+        )
+    train = {Path(p).resolve() for p in train_paths}
+    both = [str(p) for p in val_paths if Path(p).resolve() in train]
+    if both:
+        log.warning(
+            "validation log(s) also used for training: %s; the thresholds are optimistic",
+            ", ".join(both),
         )
 
 
@@ -525,6 +536,10 @@ def evaluate(
     CLI passes one that maps ``prepare_log`` over local processes or a cluster)."""
     if not test_paths:
         raise UsageError("no test logs given", "evaluate", "pass labelled logs with collisions")
+    # each set's logs once (a log given twice would count its events twice)
+    test_paths = expand_logs(test_paths)
+    train_paths = expand_logs(train_paths) if train_paths else []
+    val_paths = expand_logs(val_paths) if val_paths else []
     if repeats < 1:
         raise UsageError(
             "repeats must be at least 1", f"repeats={repeats}", "give 1 or more", option="repeats"
@@ -536,7 +551,7 @@ def evaluate(
         # the calibration's own model is judged at the calibration's threshold (contract:
         # Metrics), whatever estimator set it; other methods at μ + kσ of their validation
         own_rule = th is not None
-    _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
+    _warn_on_overlap(test_paths, train_paths, val_paths, calibration)
     models = [model_class(name)[0] for name in methods if name in MODEL_KINDS]
     if any(m.needs_coulomb for m in models):
         setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
