@@ -12,12 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import DEFAULT_BUMPS, build_twin_log
-from support.builders import (
-    TS,
-    Message,
-    joint_recording,
-    write,
-)
+from support.builders import Message, joint_recording, write, write_by
 from support.clitools import run
 
 from twincd.io.logs import expand_logs
@@ -134,22 +129,10 @@ def _headless_sqlite3(folder: Path, recording: list[Message], parts: int = 1) ->
 def _headless_mcap(folder: Path, recording: list[Message], parts: int, writer: str) -> Path:
     """A split rosbag2 MCAP bag without its metadata.yaml, parts ``NAME_i.mcap`` written with
     rosbags' writer or twincd's own."""
-    from twincd.io.mcap import McapLogWriter
-
     folder.mkdir()
     bounds = np.linspace(0, len(recording), parts + 1).astype(int)
     for i in range(parts):
-        msgs = recording[bounds[i] : bounds[i + 1]]
-        target = folder / f"{folder.name}_{i}.mcap"
-        if writer == "rosbags":
-            write(target, "mcap", msgs)
-            continue
-        with McapLogWriter(target) as out:
-            channels: dict[str, int] = {}
-            for m in msgs:
-                if m.topic not in channels:
-                    channels[m.topic] = out.add_topic(m.topic, m.msgtype)
-                out.write(channels[m.topic], m.log_time, TS.serialize_cdr(m.msg, m.msgtype))
+        write_by(writer, folder / f"{folder.name}_{i}.mcap", recording[bounds[i] : bounds[i + 1]])
     return folder
 
 

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from twincd.errors import CalibrationError
+from twincd.errors import CalibrationError, UsageError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
@@ -39,6 +39,26 @@ def model_joints(robot: str) -> tuple[str, ...]:
     from twincd.twin.robot import load_robot
 
     return load_robot(robot).joint_names
+
+
+def require_default_robot(joints: Sequence[str], source: str) -> None:
+    """The default robot model stands in for a robot nobody named only on a log of its joints
+    (extra joints, a gripper's, are ignored as for any model): a log that lacks one of them is
+    another arm, and a reduced model is for a robot the user named (contract: Robot models).
+    A ``UsageError`` that says to name it."""
+    from twincd.defaults import DEFAULT_ROBOT
+
+    model = model_joints(DEFAULT_ROBOT)
+    missing = [j for j in model if j not in joints]
+    if missing:
+        shown = ", ".join(list(joints)[:10]) or "none"
+        raise UsageError(
+            f"no robot model was given and the log's joints are not those of the default "
+            f"{DEFAULT_ROBOT} (it lacks {', '.join(missing)})",
+            f"{source}: log joints {shown}",
+            "name the robot the log was recorded on (an example-robot-data name or a URDF)",
+            option="robot",
+        )
 
 
 def robot_for(robot: str, joints: tuple[str, ...]) -> RobotModel:

@@ -25,7 +25,15 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from twincd.chain import JointLayout, TwinChain, build_chain, check_urdf, model_joints, robot_for
+from twincd.chain import (
+    JointLayout,
+    TwinChain,
+    build_chain,
+    check_urdf,
+    model_joints,
+    require_default_robot,
+    robot_for,
+)
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import DataError, JointMismatchError
 from twincd.frames import Frame, prefetched
@@ -211,12 +219,8 @@ class PreparedStream:
         build the chain."""
         assert self._log is not None
         names = tuple(self._log.joint_names)
-        if self.need_effort and "effort" not in first:
-            raise DataError(
-                "the log has no measured effort",
-                f"{self.source}, {self.topic}",
-                "record JointState.effort; twincd compares it with the twin",
-            )
+        if self.need_effort:
+            require_effort("effort" in first, self.source, self.topic)
         twin_names, model = self._twin_source(first.get("sim_effort"), names)
         regressor = self._regressor(twin_names)
         self.joint_names = self._output_joints(twin_names)
@@ -256,6 +260,8 @@ class PreparedStream:
             warn_ignored_joints(self.source, names, twin_names, "the log's twin effort")
             model = None
         else:
+            if setup.robot is None:  # nobody named a robot: the default, on its own joints only
+                require_default_robot(names, self.source)
             self.robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
             twin_names = model.joint_names
             warn_ignored_joints(self.source, names, twin_names, "the robot model")
@@ -455,6 +461,17 @@ def warn_velocity_from_position(
     )
 
 
+def require_effort(has_effort: bool, source: str, topic: str) -> None:
+    """A log without measured effort is refused by every command that compares it with the
+    twin (and by ``inspect``, which says what those would do)."""
+    if not has_effort:
+        raise DataError(
+            "the log has no measured effort",
+            f"{source}, {topic}",
+            "record JointState.effort; twincd compares it with the twin",
+        )
+
+
 def require_enough_samples(samples: int, source: str) -> None:
     """A log with fewer than ``MIN_SAMPLES`` usable samples is refused, never scored."""
     if samples < MIN_SAMPLES:
@@ -554,6 +571,16 @@ class Setup:
             regressor=calibration.regressor,
             regressor_weights=calibration.regressor_weights,
         )
+
+    def for_logs(self, paths: Sequence[str | Path]) -> Setup:
+        """This setup for one run over ``paths``: a named log option that none of them has is
+        an error; one that some lack is said and read as unnamed there
+        (``twincd.io.named.settle_named``)."""
+        from dataclasses import replace
+
+        from twincd.io.named import settle_named
+
+        return replace(self, options=settle_named([Path(p) for p in paths], self.options))
 
     def open(self, path: str | Path, **kwargs: Any) -> PreparedStream:
         """Stream one log (a context manager; iterate it for Frames)."""

@@ -335,7 +335,9 @@ def threshold_calibration(
     each streamed (see ``threshold_from_parts``)."""
     from twincd.io.logs import expand_logs
 
-    parts = [score_log(p, calibration, setup) for p in expand_logs(paths)]
+    logs = expand_logs(paths)
+    setup = setup.for_logs(logs)
+    parts = [score_log(p, calibration, setup) for p in logs]
     return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
 
 

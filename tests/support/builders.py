@@ -212,3 +212,21 @@ def rewrite_mcap(source: Path, target: Path, writer: str = "mcap", qos: str | No
             out.add_message(channels[topic], when, data, published)
         out.finish()
     return target
+
+
+def write_with_twincd(path: Path, msgs: Sequence[Message]) -> Path:
+    """``msgs`` as a bare MCAP written by twincd's own writer (``McapLogWriter``)."""
+    from twincd.io.mcap import McapLogWriter
+
+    with McapLogWriter(path) as out:
+        channels: dict[str, int] = {}
+        for m in msgs:
+            if m.topic not in channels:
+                channels[m.topic] = out.add_topic(m.topic, m.msgtype)
+            out.write(channels[m.topic], m.log_time, TS.serialize_cdr(m.msg, m.msgtype))
+    return path
+
+
+def write_by(writer: str, path: Path, msgs: Sequence[Message]) -> Path:
+    """A bare MCAP of ``msgs`` by ``writer``: ``"rosbags"`` or ``"twincd"``."""
+    return write(path, "mcap", msgs) if writer == "rosbags" else write_with_twincd(path, msgs)

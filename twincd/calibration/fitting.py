@@ -220,5 +220,6 @@ def fit_calibration(
     samples)."""
     from twincd.io.logs import expand_logs
 
-    setup = setup_for_model(setup, model)
-    return merge_fits([fit_log(path, setup) for path in expand_logs(paths)], setup, model)
+    logs = expand_logs(paths)
+    setup = setup_for_model(setup, model).for_logs(logs)
+    return merge_fits([fit_log(path, setup) for path in logs], setup, model)

@@ -37,6 +37,8 @@ from twincd.evaluation.metrics import (
 )
 from twincd.io.links import read_links
 from twincd.io.logs import expand_logs
+from twincd.io.named import settle_named
+from twincd.io.options import LogOptions
 from twincd.pipeline import PreparedLog, Setup, agreed_joints
 from twincd.threshold import ScoreStats, same_rule, threshold_prepared_logs
 from twincd.types import BoolArray, FloatArray
@@ -527,10 +529,11 @@ def evaluate(
     repeats: int = DEFAULT_REPEATS,
     progress: Progress = _no_progress,
     load: Loader | None = None,
-    link_topic: str = DEFAULT_LINK_TOPIC,
+    link_topic: str | None = None,
 ) -> Evaluation:
     """Every method in ``methods`` over the same prepared logs; isolation is judged where the
-    test logs carry the contact link on ``link_topic``.
+    test logs carry the contact link on ``link_topic`` (None: the default topic, where logs
+    have it; a topic named that no test log has is an error, ``twincd.io.named``).
 
     ``load(paths, setup, description)`` prepares logs (default: one after another here; the
     CLI passes one that maps ``prepare_log`` over local processes or a cluster)."""
@@ -540,6 +543,11 @@ def evaluate(
     test_paths = expand_logs(test_paths)
     train_paths = expand_logs(train_paths) if train_paths else []
     val_paths = expand_logs(val_paths) if val_paths else []
+    # a named option that none of the logs has is refused before any work
+    setup = setup.for_logs([*test_paths, *train_paths, *val_paths])
+    if link_topic is not None:
+        settle_named(test_paths, LogOptions(), link_topic)
+    link_topic = link_topic or DEFAULT_LINK_TOPIC
     if repeats < 1:
         raise UsageError(
             "repeats must be at least 1", f"repeats={repeats}", "give 1 or more", option="repeats"
