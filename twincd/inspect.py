@@ -362,18 +362,26 @@ def _read_samples(
     """Ranges, sampling and the signal checks into ``found``; the samples fit and detect would
     use (finite position and effort, and the log's twin effort where it has one), and whether
     the log has measured effort (as the stream decides it)."""
+    from twincd.chain import warn_unwrapped
     from twincd.io.stream import iter_blocks
     from twincd.pipeline import warn_velocity_from_position
+    from twincd.signal import nominal_period
     from twincd.signal.checks import SignalChecks
+    from twincd.signal.unwrap import StreamingUnwrap
 
     acc = _Ranges(len(joints))
     limits = model.position_limits if model is not None else {}
     checks = SignalChecks(joints, limits)
     has_velocity = np.ones(len(joints), dtype=bool)
     usable = 0
+    unwrap: StreamingUnwrap | None = None  # what the derivative of position would see
     with iter_blocks(path, options, joints=joints, strict=strict) as stream:
         has_effort = stream.has_effort
         for block in stream:
+            if unwrap is None and len(block) > 1:
+                unwrap = StreamingUnwrap(nominal_period(block.stamp_ns))
+            if unwrap is not None:
+                unwrap.push(block.stamp_ns, block.position)
             acc.add(block.stamp_ns, block.position, block.effort)
             checks.push(block.position, block.effort)
             has_velocity &= np.isfinite(block.velocity).all(axis=0)
@@ -389,6 +397,7 @@ def _read_samples(
     if not has_velocity.all():
         velocity = np.where(has_velocity, 0.0, np.nan)[None]
         warn_velocity_from_position(found.path, velocity, joints)
+        warn_unwrapped(found.path, unwrap, joints)
     std = np.sqrt(acc.eff_m2 / max(acc.eff_n, 1))
     has_effort = acc.eff_n > 0
     found.joints = [

@@ -33,6 +33,7 @@ from twincd.chain import (
     model_joints,
     require_default_robot,
     robot_for,
+    warn_unwrapped,
 )
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import DataError, JointMismatchError
@@ -375,6 +376,7 @@ class PreparedStream:
                 self.dropped_bad,
             )
         require_enough_samples(self.samples, self.source)
+        warn_unwrapped(self.source, built.unwrap, built.layout.twin)
         checks.warn(self.source)
         if self.filtered:
             seconds = 0.0 if first_ns is None or last_ns is None else (last_ns - first_ns) * 1e-9
@@ -627,7 +629,10 @@ def read_log(path: str | Path, options: LogOptions | None = None) -> JointStates
     t_s = (stamp - stamp[0]).astype(np.float64) * 1e-9
     from_position = not np.isfinite(velocity).all()
     if from_position:
-        velocity = np.where(np.isfinite(velocity), velocity, differentiate(t_s, position))
+        from twincd.signal.unwrap import unwrap_positions
+
+        unwrapped = unwrap_positions(stamp, position)
+        velocity = np.where(np.isfinite(velocity), velocity, differentiate(t_s, unwrapped))
     has_effort = effort is not None and bool(np.isfinite(effort).all())
     return JointStates(
         source=str(path),
