@@ -126,6 +126,7 @@ def fit(
         strict=strict,
     )
     setup, model = fit_setup(asked, model)
+    setup = setup.for_logs(paths)  # a named option no log has: refused before any work
     figure = report is not None and report.suffix.lower() == ".html"
     if figure:
         from twincd.reports.traces import fit_log_with_pairs
@@ -230,6 +231,7 @@ def threshold(
         strict=strict,
         allow_urdf_change=allow_urdf_change,
     ).resolve(cal)
+    setup = setup.for_logs(paths)
     work = Bound(score_log, cal, setup)
     done = run_per_log(
         work, paths, "scoring", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going

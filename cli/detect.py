@@ -154,6 +154,7 @@ def detect(
         strict=strict,
         allow_urdf_change=allow_urdf_change,
     ).resolve(cal)
+    setup = setup.for_logs(paths)  # a named option no log has: refused before any work
     targets = detect_targets(paths, output)
     inputs = [*paths, calibration]
     # one log at a time: only the small summaries are kept, so memory stays flat

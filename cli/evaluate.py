@@ -158,12 +158,13 @@ def evaluate(
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
     link_topic: Annotated[
-        str,
+        str | None,
         typer.Option(
             "--link-topic",
-            help="std_msgs/String contact link (isolation ground truth), when logs have it.",
+            help="std_msgs/String contact link (isolation ground truth), when logs have it "
+            f"[default: {DEFAULT_LINK_TOPIC}].",
         ),
-    ] = DEFAULT_LINK_TOPIC,
+    ] = None,
     strict: Strict = False,
     keep_going: KeepGoing = False,
     allow_urdf_change: AllowUrdfChange = False,

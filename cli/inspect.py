@@ -145,10 +145,9 @@ def inspect(
         joint_map=joint_map,
         strict=strict,
     )
-    setup = asked.resolve(cal)
-    found = [
-        inspect_log(path, setup.options, setup.robot, cal, strict) for path in expand_logs(logs)
-    ]
+    paths = expand_logs(logs)
+    setup = asked.resolve(cal).for_logs(paths)  # as fit and detect: named options checked
+    found = [inspect_log(path, setup.options, setup.robot, cal, strict) for path in paths]
     if json_:
         warnings = [*WARNINGS, *(w for f in found for w in f.warnings)]
         doc = {"logs": [f.to_dict() for f in found], "warnings": warnings}

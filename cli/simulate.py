@@ -7,7 +7,6 @@ from typing import Annotated
 
 import typer
 
-from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import UsageError
 from twincd.run import all_or_nothing
 
@@ -94,7 +93,10 @@ def simulate(
     asked = setup_options(
         topic=topic, label_topic=label_topic, sim_topic=sim_topic, joint_map=joint_map
     )
-    options = asked.log_options()
+    from twincd.io.named import settle_named
+
+    # the twin's topic is what simulate writes, not something a log must have
+    options = settle_named(paths, asked.log_options().unnamed("sim_topic"))
     targets: list[Path | None] = [None] * len(paths)
     if not in_place:
         folder = output if several else None
@@ -108,7 +110,7 @@ def simulate(
     items = list(zip(paths, targets, strict=True))
     with all_or_nothing() as written:
         written.extend(t for t in targets if t is not None)
-        work = Bound(simulate_item, robot or DEFAULT_ROBOT, options, in_place, strict)
+        work = Bound(simulate_item, robot, options, in_place, strict)
         done = run_per_log(
             work, items, "simulating", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
         )

@@ -54,7 +54,17 @@ def complete(target: Path) -> bool:
 
 def commands(log: Path, cal: Path, out: Path) -> dict[str, list[str]]:
     return {
-        "simulate": ["simulate", str(log), "-o", str(out / "sim.mcap"), "--joint-map", XARM_MAP],
+        # a 3-joint arm on the xArm model reduced: a reduced model is for a robot named
+        "simulate": [
+            "simulate",
+            str(log),
+            "-o",
+            str(out / "sim.mcap"),
+            "--joint-map",
+            XARM_MAP,
+            "--robot",
+            "xarm7",
+        ],
         "detect": ["detect", str(log), "-c", str(cal), "-o", str(out / "det.mcap")],
         "fit": ["fit", str(log), "-o", str(out / "fit.json")],
     }

@@ -19,12 +19,13 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from twincd.errors import CalibrationError
+from twincd.errors import CalibrationError, UsageError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
+    from twincd.signal.unwrap import StreamingUnwrap
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
@@ -39,6 +40,26 @@ def model_joints(robot: str) -> tuple[str, ...]:
     from twincd.twin.robot import load_robot
 
     return load_robot(robot).joint_names
+
+
+def require_default_robot(joints: Sequence[str], source: str) -> None:
+    """The default robot model stands in for a robot nobody named only on a log of its joints
+    (extra joints, a gripper's, are ignored as for any model): a log that lacks one of them is
+    another arm, and a reduced model is for a robot the user named (contract: Robot models).
+    A ``UsageError`` that says to name it."""
+    from twincd.defaults import DEFAULT_ROBOT
+
+    model = model_joints(DEFAULT_ROBOT)
+    missing = [j for j in model if j not in joints]
+    if missing:
+        shown = ", ".join(list(joints)[:10]) or "none"
+        raise UsageError(
+            f"no robot model was given and the log's joints are not those of the default "
+            f"{DEFAULT_ROBOT} (it lacks {', '.join(missing)})",
+            f"{source}: log joints {shown}",
+            "name the robot the log was recorded on (an example-robot-data name or a URDF)",
+            option="robot",
+        )
 
 
 def robot_for(robot: str, joints: tuple[str, ...]) -> RobotModel:
@@ -112,7 +133,8 @@ def twin_stages(
     threads: int | None = None,
     regressor: RobotModel | None = None,
 ) -> list[Stage]:
-    """Velocity (from position where the log has none), acceleration, τ̂ = RNEA(q, q̇, q̈), and
+    """Velocity (from position where the log has none, unwrapped first: a joint reported in
+    (−π, π] does not jump by 2π; ``twincd.signal.unwrap``), acceleration, τ̂ = RNEA(q, q̇, q̈), and
     with ``regressor`` the joint-torque regressor Y(q, q̇, q̈) (column ``regressor``, (N, D, P);
     the ``identified`` models).
 
@@ -120,12 +142,17 @@ def twin_stages(
     ``sim_effort`` already, only the velocity (and the regressor) is completed.
     """
     from twincd.signal.derivatives import StreamingDerivative
+    from twincd.signal.unwrap import StreamingUnwrap
     from twincd.twin.dynamics import inverse_dynamics, torque_regressor
 
     stages: list[Stage] = []
     if fill_velocity:
         dq = StreamingDerivative(period_s=period_s, causal=causal)
-        stages += [Derived(dq, "position", "dq"), Mapped(_fill_velocity)]
+        stages += [
+            Derived(StreamingUnwrap(period_s), "position", "unwrapped"),
+            Derived(dq, "unwrapped", "dq", keep=False),
+            Mapped(_fill_velocity),
+        ]
     if robot is None and regressor is None:
         return stages
     ddq = StreamingDerivative(period_s=period_s, causal=causal)
@@ -265,6 +292,51 @@ class TwinChain:
     @property
     def joint_names(self) -> tuple[str, ...]:
         return self.layout.output
+
+    @property
+    def unwrap(self) -> StreamingUnwrap | None:
+        """The stage that unwraps positions before their derivative (None: velocity logged);
+        what it found is for the caller to say (``warn_unwrapped``)."""
+        from twincd.signal.unwrap import StreamingUnwrap
+
+        for stage in self.chain.stages:
+            if isinstance(stage, Derived) and isinstance(stage.signal, StreamingUnwrap):
+                return stage.signal
+        return None
+
+
+def warn_unwrapped(source: str, unwrap: StreamingUnwrap | None, joints: Sequence[str]) -> None:
+    """One warning for the joints whose positions wrapped (unwrapped before differentiating),
+    one naming the steps that cannot be a wrap."""
+    if unwrap is None or not len(unwrap.wraps):
+        return
+    wrapped = [f"{j} ({n})" for j, n in zip(joints, unwrap.wraps.tolist(), strict=True) if n]
+    if wrapped:
+        log.warning(
+            "%s: positions wrap by a whole turn (2π) on %s; unwrapped before differentiating "
+            "them into velocity",
+            source,
+            ", ".join(wrapped),
+        )
+    jumps = [
+        f"{j} ({n}×, up to {big:.3g} rad, first at stamp {first})"
+        for j, n, big, first in zip(
+            joints,
+            unwrap.jumps.tolist(),
+            unwrap.largest_jump.tolist(),
+            unwrap.first_jump_ns.tolist(),
+            strict=True,
+        )
+        if n
+    ]
+    if jumps:
+        log.warning(
+            "%s: positions jump by more than π between two samples, and not by a whole turn: "
+            "%s; no joint moves that fast, so the velocity differentiated there is wrong; check "
+            "the log",
+            source,
+            "; ".join(jumps),
+        )
 
 
 def build_chain(

@@ -178,10 +178,12 @@ def _inspect(
     allow_urdf_change: bool,
     found: Inspection,
 ) -> None:
+    from twincd.io.named import require_named
     from twincd.io.stream import TopicReader, choose_topic
 
     with TopicReader(path, strict=strict) as reader:
         found.topics = [TopicInfo(n, t) for n, t in sorted(reader.topics.items())]
+        require_named(options, reader.topics, str(path))
         found.joint_topic = choose_topic(reader.topics, options.topic, str(path))
         has_sim = options.sim_topic in reader.topics
         _read_topics(reader, found, options)
@@ -216,9 +218,14 @@ def _inspect(
             str(path),
             "use a calibration or robot model made for this robot, or a joint map",
         )
-    _read_samples(path, options, tuple(joints), strict, model, found)
+    usable, has_effort = _read_samples(path, options, tuple(joints), strict, model, found, has_sim)
     if found.sampling is not None:
         _warn_if_too_short(found.path, found.sampling, calibration)
+    # what fit and detect refuse, refused here alike (the same checks, the same words)
+    from twincd.pipeline import require_effort, require_enough_samples
+
+    require_effort(has_effort, found.path, found.joint_topic or options.topic)
+    require_enough_samples(usable, found.path)
 
 
 def _read_topics(reader: TopicReader, found: Inspection, options: LogOptions) -> None:
@@ -264,6 +271,10 @@ def _match_robot(
     found.matched = tuple(j for j in full.joint_names if j in in_log)
     found.ignored = tuple(j for j in in_log if j not in full.joint_names)
     found.locked = tuple(j for j in full.joint_names if j not in in_log)
+    if found.robot_is_default:  # as fit and detect: the default model only on its own joints
+        from twincd.chain import require_default_robot
+
+        require_default_robot(in_log, found.path)
     if calibration is not None and not has_own_twin:
         from twincd.chain import check_urdf
 
@@ -346,27 +357,47 @@ def _read_samples(
     strict: bool,
     model: RobotModel | None,
     found: Inspection,
-) -> None:
+    has_sim: bool = False,
+) -> tuple[int, bool]:
+    """Ranges, sampling and the signal checks into ``found``; the samples fit and detect would
+    use (finite position and effort, and the log's twin effort where it has one), and whether
+    the log has measured effort (as the stream decides it)."""
+    from twincd.chain import warn_unwrapped
     from twincd.io.stream import iter_blocks
     from twincd.pipeline import warn_velocity_from_position
+    from twincd.signal import nominal_period
     from twincd.signal.checks import SignalChecks
+    from twincd.signal.unwrap import StreamingUnwrap
 
     acc = _Ranges(len(joints))
     limits = model.position_limits if model is not None else {}
     checks = SignalChecks(joints, limits)
     has_velocity = np.ones(len(joints), dtype=bool)
+    usable = 0
+    unwrap: StreamingUnwrap | None = None  # what the derivative of position would see
     with iter_blocks(path, options, joints=joints, strict=strict) as stream:
+        has_effort = stream.has_effort
         for block in stream:
+            if unwrap is None and len(block) > 1:
+                unwrap = StreamingUnwrap(nominal_period(block.stamp_ns))
+            if unwrap is not None:
+                unwrap.push(block.stamp_ns, block.position)
             acc.add(block.stamp_ns, block.position, block.effort)
             checks.push(block.position, block.effort)
             has_velocity &= np.isfinite(block.velocity).all(axis=0)
+            if block.effort is not None:
+                ok = np.isfinite(block.position).all(axis=1) & np.isfinite(block.effort).all(1)
+                if has_sim and block.sim_effort is not None:
+                    ok &= np.isfinite(block.sim_effort).all(axis=1)
+                usable += int(np.count_nonzero(ok))
     if acc.first is None:
-        return
+        return usable, has_effort
     found.sampling = acc.sampling()
     checks.warn(found.path)
     if not has_velocity.all():
         velocity = np.where(has_velocity, 0.0, np.nan)[None]
         warn_velocity_from_position(found.path, velocity, joints)
+        warn_unwrapped(found.path, unwrap, joints)
     std = np.sqrt(acc.eff_m2 / max(acc.eff_n, 1))
     has_effort = acc.eff_n > 0
     found.joints = [
@@ -382,6 +413,7 @@ def _read_samples(
         )
         for i, name in enumerate(joints)
     ]
+    return usable, has_effort
 
 
 def _warn_if_too_short(source: str, sampling: Sampling, calibration: Calibration | None) -> None:

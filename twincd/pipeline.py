@@ -26,7 +26,16 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from twincd.chain import JointLayout, TwinChain, build_chain, check_urdf, model_joints, robot_for
+from twincd.chain import (
+    JointLayout,
+    TwinChain,
+    build_chain,
+    check_urdf,
+    model_joints,
+    require_default_robot,
+    robot_for,
+    warn_unwrapped,
+)
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import DataError, JointMismatchError
 from twincd.frames import Frame, prefetched
@@ -212,12 +221,8 @@ class PreparedStream:
         build the chain."""
         assert self._log is not None
         names = tuple(self._log.joint_names)
-        if self.need_effort and "effort" not in first:
-            raise DataError(
-                "the log has no measured effort",
-                f"{self.source}, {self.topic}",
-                "record JointState.effort; twincd compares it with the twin",
-            )
+        if self.need_effort:
+            require_effort("effort" in first, self.source, self.topic)
         twin_names, model = self._twin_source(first.get("sim_effort"), names)
         regressor = self._regressor(twin_names)
         self.joint_names = self._output_joints(twin_names)
@@ -257,6 +262,8 @@ class PreparedStream:
             warn_ignored_joints(self.source, names, twin_names, "the log's twin effort")
             model = None
         else:
+            if setup.robot is None:  # nobody named a robot: the default, on its own joints only
+                require_default_robot(names, self.source)
             self.robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
             twin_names = model.joint_names
             warn_ignored_joints(self.source, names, twin_names, "the robot model")
@@ -370,6 +377,7 @@ class PreparedStream:
                 self.dropped_bad,
             )
         require_enough_samples(self.samples, self.source)
+        warn_unwrapped(self.source, built.unwrap, built.layout.twin)
         checks.warn(self.source)
         if self.filtered:
             seconds = 0.0 if first_ns is None or last_ns is None else (last_ns - first_ns) * 1e-9
@@ -454,6 +462,17 @@ def warn_velocity_from_position(
         source,
         ", ".join(lacking) if lacking else "some samples",
     )
+
+
+def require_effort(has_effort: bool, source: str, topic: str) -> None:
+    """A log without measured effort is refused by every command that compares it with the
+    twin (and by ``inspect``, which says what those would do)."""
+    if not has_effort:
+        raise DataError(
+            "the log has no measured effort",
+            f"{source}, {topic}",
+            "record JointState.effort; twincd compares it with the twin",
+        )
 
 
 def require_enough_samples(samples: int, source: str) -> None:
@@ -556,6 +575,16 @@ class Setup:
             regressor_weights=calibration.regressor_weights,
         )
 
+    def for_logs(self, paths: Sequence[str | Path]) -> Setup:
+        """This setup for one run over ``paths``: a named log option that none of them has is
+        an error; one that some lack is said and read as unnamed there
+        (``twincd.io.named.settle_named``)."""
+        from dataclasses import replace
+
+        from twincd.io.named import settle_named
+
+        return replace(self, options=settle_named([Path(p) for p in paths], self.options))
+
     def open(self, path: str | Path, **kwargs: Any) -> PreparedStream:
         """Stream one log (a context manager; iterate it for Frames)."""
         return PreparedStream(path, self, **kwargs)
@@ -601,7 +630,10 @@ def read_log(path: str | Path, options: LogOptions | None = None) -> JointStates
     t_s = (stamp - stamp[0]).astype(np.float64) * 1e-9
     from_position = not np.isfinite(velocity).all()
     if from_position:
-        velocity = np.where(np.isfinite(velocity), velocity, differentiate(t_s, position))
+        from twincd.signal.unwrap import unwrap_positions
+
+        unwrapped = unwrap_positions(stamp, position)
+        velocity = np.where(np.isfinite(velocity), velocity, differentiate(t_s, unwrapped))
     has_effort = effort is not None and bool(np.isfinite(effort).all())
     return JointStates(
         source=str(path),

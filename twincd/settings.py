@@ -45,7 +45,8 @@ class SetupOptions:
     allow_urdf_change: bool = False  # accept a changed URDF whose dynamics did not change
 
     def log_options(self, defaults: LogOptions | None = None) -> LogOptions:
-        """The topics and joint map given; those not given fall back to ``defaults``."""
+        """The topics and joint map given; those not given fall back to ``defaults``. The ones
+        given are ``named`` (a log must have them; ``twincd.io.named``)."""
         from twincd.io.options import LogOptions
 
         base = defaults or LogOptions()
@@ -54,7 +55,14 @@ class SetupOptions:
             label_topic=self.label_topic or base.label_topic,
             sim_topic=self.sim_topic or base.sim_topic,
             joint_map=self.joint_map or base.joint_map,
+            named=self.named(),
         )
+
+    def named(self) -> frozenset[str]:
+        """The log options given (``LogOptions.named``)."""
+        from twincd.io.options import named_options
+
+        return named_options(self.topic, self.label_topic, self.sim_topic, self.joint_map)
 
     def resolve(self, calibration: Calibration | None = None) -> Setup:
         """The ``Setup`` these options ask for, on top of ``calibration``'s when given."""
@@ -63,8 +71,10 @@ class SetupOptions:
         self._check_against(calibration)
         from twincd.pipeline import Setup
 
+        setup = Setup.from_calibration(calibration)
         setup = replace(
-            Setup.from_calibration(calibration),
+            setup,
+            options=replace(setup.options, named=self.named()),  # given: the recorded ones
             strict=self.strict,
             allow_urdf_change=self.allow_urdf_change,
         )

@@ -34,12 +34,13 @@ def default_output(source: Path) -> Path:
 def simulate_log(
     source: Path,
     output: Path | None,
-    robot: str,
+    robot: str | None,
     options: LogOptions | None = None,
     in_place: bool = False,
     setup: Setup | None = None,
 ) -> SimulateResult:
-    """Write ``output``: ``source`` copied losslessly plus ``options.sim_topic`` with τ̂."""
+    """Write ``output``: ``source`` copied losslessly plus ``options.sim_topic`` with τ̂.
+    ``robot`` None: the default robot model, on a log of its joints only."""
     from twincd.io.cdr import joint_state_block
     from twincd.io.mcap import AugmentedMcap
 
@@ -86,7 +87,7 @@ def simulate_log(
 
 def simulate_item(
     item: tuple[Path, Path | None],
-    robot: str,
+    robot: str | None,
     options: LogOptions | None = None,
     in_place: bool = False,
     strict: bool = False,

@@ -331,8 +331,13 @@ def threshold_calibration(
     k_sigma: float | None = None,
     false_alarms_per_hour: float | None = None,
 ) -> Calibration:
-    """The threshold from collision-free logs, each streamed (see ``threshold_from_parts``)."""
-    parts = [score_log(p, calibration, setup) for p in paths]
+    """The threshold from collision-free logs (files, bags, folders of logs; each log once),
+    each streamed (see ``threshold_from_parts``)."""
+    from twincd.io.logs import expand_logs
+
+    logs = expand_logs(paths)
+    setup = setup.for_logs(logs)
+    parts = [score_log(p, calibration, setup) for p in logs]
     return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
 
 

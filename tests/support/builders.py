@@ -170,3 +170,63 @@ def write_humble_sqlite3(path: Path, msgs: Sequence[Message]) -> Path:
     lines = [ln for ln in text.splitlines() if not any(d in ln for d in dropped)]
     meta.write_text("\n".join(lines) + "\n")
     return path
+
+
+# QoS as some recorders write it: no deadline nor lifespan (rosbags' reader needs both)
+QOS_WITHOUT_DEADLINE = (
+    "- history: 1\n  depth: 10\n  reliability: 1\n  durability: 2\n  liveliness: 1\n"
+    "  avoid_ros_namespace_conventions: false"
+)
+
+
+def rewrite_mcap(source: Path, target: Path, writer: str = "mcap", qos: str | None = None) -> Path:
+    """The messages of the MCAP ``source`` written again to ``target``: with mcap's own writer
+    (``writer="mcap"``; every channel's ``offered_qos_profiles`` replaced by ``qos`` when given)
+    or with rosbags' (``writer="rosbags"``, its bare-MCAP form; ``qos`` not supported)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer as McapWriter
+
+    with open(source, "rb") as f:
+        reader = make_reader(f)
+        items = [(s.name, c.topic, m.log_time, m.publish_time, m.data, c.metadata)
+                 for s, c, m in reader.iter_messages(log_time_order=False)]  # fmt: skip
+    if writer == "rosbags":
+        assert qos is None
+        msgs = [Message(t, name, when, TS.deserialize_cdr(data, name))
+                for name, t, when, _, data, _ in items]  # fmt: skip
+        return write(target, "mcap", msgs)
+    with open(target, "wb") as f:
+        out = McapWriter(f)
+        out.start(profile="ros2", library="test")
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+        for name, topic, when, published, data, meta in items:
+            if name not in schemas:
+                text = TS.generate_msgdef(name, ros_version=2)[0]
+                schemas[name] = out.register_schema(name, "ros2msg", text.encode())
+            if topic not in channels:
+                meta = dict(meta)
+                if qos is not None:
+                    meta["offered_qos_profiles"] = qos
+                channels[topic] = out.register_channel(topic, "cdr", schemas[name], meta)
+            out.add_message(channels[topic], when, data, published)
+        out.finish()
+    return target
+
+
+def write_with_twincd(path: Path, msgs: Sequence[Message]) -> Path:
+    """``msgs`` as a bare MCAP written by twincd's own writer (``McapLogWriter``)."""
+    from twincd.io.mcap import McapLogWriter
+
+    with McapLogWriter(path) as out:
+        channels: dict[str, int] = {}
+        for m in msgs:
+            if m.topic not in channels:
+                channels[m.topic] = out.add_topic(m.topic, m.msgtype)
+            out.write(channels[m.topic], m.log_time, TS.serialize_cdr(m.msg, m.msgtype))
+    return path
+
+
+def write_by(writer: str, path: Path, msgs: Sequence[Message]) -> Path:
+    """A bare MCAP of ``msgs`` by ``writer``: ``"rosbags"`` or ``"twincd"``."""
+    return write(path, "mcap", msgs) if writer == "rosbags" else write_with_twincd(path, msgs)

@@ -735,7 +735,7 @@ def calibration_from_fit(
         a=model.a_,
         b=model.b_,
         lowpass=lowpass,
-        options=options,
+        options=options.unnamed(*options.named),  # what the logs were read with, not how asked
         robot=robot,
         urdf_sha256=urdf_sha256,
         simulated=simulated,

@@ -39,6 +39,9 @@ from twincd.evaluation.metrics import EventCounts, ScoredUnits, best_of, event_c
 from twincd.evaluation.streamed import JudgedLog, judge_log
 from twincd.executors import Bound
 from twincd.io.links import read_links
+from twincd.io.logs import expand_logs
+from twincd.io.named import settle_named
+from twincd.io.options import LogOptions
 from twincd.pipeline import PreparedLog, Setup, agreed_joints, prepare_log
 from twincd.threshold import LogScores, ScoreStats, same_rule, score_log, threshold_from_parts
 from twincd.types import BoolArray, FloatArray
@@ -626,7 +629,7 @@ def _evaluate_whole(
             tested.samples += len(lg)
             tested.positives += int(np.sum(lg.labels)) if lg.labels is not None else 0
             tested.test.append(lg.source)
-            links = read_links(lg.source, link_topic, lg.states.log_time_ns)
+            links = read_links(lg.source, link_topic, lg.states.log_time_ns, setup.strict)
             for name in list(active):
                 try:
                     methods[name].check([lg])
@@ -644,10 +647,13 @@ def _evaluate_whole(
 
 
 def _warn_on_overlap(
-    test_paths: Sequence[Path], learn_paths: Sequence[Path], calibration: Calibration | None
+    test_paths: Sequence[Path],
+    train_paths: Sequence[Path],
+    val_paths: Sequence[Path],
+    calibration: Calibration | None,
 ) -> None:
     """Test logs that also trained or thresholded a method make its figures optimistic."""
-    learned = {Path(p).resolve() for p in learn_paths}
+    learned = {Path(p).resolve() for p in (*train_paths, *val_paths)}
     if calibration is not None:
         learned |= {Path(p).resolve() for p in calibration.fit_logs}
         if calibration.threshold is not None:
@@ -657,6 +663,13 @@ def _warn_on_overlap(
         log.warning(
             "test log(s) also used for fitting or thresholds: %s; the figures are optimistic",
             ", ".join(shared),
+        )
+    train = {Path(p).resolve() for p in train_paths}
+    both = [str(p) for p in val_paths if Path(p).resolve() in train]
+    if both:
+        log.warning(
+            "validation log(s) also used for training: %s; the thresholds are optimistic",
+            ", ".join(both),
         )
 
 
@@ -671,11 +684,12 @@ def evaluate(
     repeats: int = DEFAULT_REPEATS,
     progress: Progress = _no_progress,
     run: Mapper | None = None,
-    link_topic: str = DEFAULT_LINK_TOPIC,
+    link_topic: str | None = None,
     batch: int = 1,
 ) -> Evaluation:
     """Every method in ``methods`` over the same test logs; isolation is judged where the
-    test logs carry the contact link on ``link_topic``.
+    test logs carry the contact link on ``link_topic`` (None: the default topic, where logs
+    have it; a topic named that no test log has is an error, ``twincd.io.named``).
 
     ``run(func, paths, description)`` maps a per-log function over logs, results in the order
     of ``paths`` (default: one after another here; the CLI passes one that runs them on local
@@ -683,6 +697,15 @@ def evaluate(
     prepared at once for the methods that score whole logs (the executor's workers)."""
     if not test_paths:
         raise UsageError("no test logs given", "evaluate", "pass labelled logs with collisions")
+    # each set's logs once (a log given twice would count its events twice)
+    test_paths = expand_logs(test_paths)
+    train_paths = expand_logs(train_paths) if train_paths else []
+    val_paths = expand_logs(val_paths) if val_paths else []
+    # a named option that none of the logs has is refused before any work
+    setup = setup.for_logs([*test_paths, *train_paths, *val_paths])
+    if link_topic is not None:
+        settle_named(test_paths, LogOptions(), link_topic)
+    link_topic = link_topic or DEFAULT_LINK_TOPIC
     if repeats < 1:
         raise UsageError(
             "repeats must be at least 1", f"repeats={repeats}", "give 1 or more", option="repeats"
@@ -694,7 +717,7 @@ def evaluate(
         # the calibration's own model is judged at the calibration's threshold (contract:
         # Metrics), whatever estimator set it; other methods at μ + kσ of their validation
         own_rule = th is not None
-    _warn_on_overlap(test_paths, [*train_paths, *val_paths], calibration)
+    _warn_on_overlap(test_paths, train_paths, val_paths, calibration)
     if run is None:
 
         def run(func: Callable[[Path], Any], paths: Sequence[Path], desc: str) -> list[Any]:

@@ -90,7 +90,7 @@ def judge_log(
     ``method``: who is said to flag a log mostly; ``keep``: keep the judged samples' scores
     (False: counts only, e.g. the false alarms of validation logs)."""
     source = str(Path(path))
-    links = read_link_messages(path, link_topic) if link_topic else None
+    links = read_link_messages(path, link_topic, setup.strict) if link_topic else None
     tally = EventTally(None if links is None else links.values)
     stage = ScoringStage(calibration)
     events: list[Event] = []

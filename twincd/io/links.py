@@ -1,6 +1,6 @@
 """Contact-link ground truth (contract: Inputs ``/collision_link``): std_msgs/String, held like the
-label onto the joint-state samples. A small topic (a few messages per press), so it is read with
-rosbags' reader on its own rather than through the block reader of the joint states."""
+label onto the joint-state samples. A small topic (a few messages per press), read by the same
+topic reader as the joint states (``twincd.io.stream.TopicReader``)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ from numpy.typing import NDArray
 
 from twincd.errors import LogReadError
 from twincd.io.cdr import STRING
-from twincd.io.sources import first_line, open_reader
 from twincd.types import IntArray
 
 
@@ -48,39 +47,38 @@ def hold_links(message_ns: IntArray, links: list[str], log_time_ns: IntArray) ->
     return LinkMessages.of(message_ns, links).hold(log_time_ns)
 
 
-def read_links(path: str | Path, topic: str, log_time_ns: IntArray) -> tuple[str, ...] | None:
+def read_links(
+    path: str | Path, topic: str, log_time_ns: IntArray, strict: bool = False
+) -> tuple[str, ...] | None:
     """The touched link per sample, held onto ``log_time_ns``; None: the log lacks ``topic``."""
-    messages = read_link_messages(path, topic)
+    messages = read_link_messages(path, topic, strict)
     return None if messages is None else messages.hold(log_time_ns)
 
 
-def read_link_messages(path: str | Path, topic: str) -> LinkMessages | None:
-    """The log's messages on the link ``topic``; None: the log lacks ``topic``."""
-    reader = open_reader(Path(path))
-    try:
-        conns = [c for c in reader.connections if c.topic == topic]
-        if not conns:
+def read_link_messages(path: str | Path, topic: str, strict: bool = False) -> LinkMessages | None:
+    """The log's messages on the link ``topic``; None: the log lacks ``topic``.
+
+    Read by the block stream's topic reader, the one every command reads a log with (a log
+    that reads for ``detect`` reads here alike); ``strict``: a damaged log is an error, else
+    read up to the damage as the joint states were."""
+    from twincd.io.stream import StringBatch, TopicReader
+
+    with TopicReader(Path(path), strict=strict) as reader:
+        msgtype = reader.topics.get(topic)
+        if msgtype is None:
             return None
-        if any(c.msgtype != STRING for c in conns):
+        if msgtype != STRING:
             raise LogReadError(
-                f"link topic {topic} is {conns[0].msgtype}, not {STRING}",
+                f"link topic {topic} is {msgtype}, not {STRING}",
                 str(path),
                 "pick another link topic",
                 option="link_topic",
             )
-        stamps: list[int] = []
+        stamps: list[IntArray] = []
         links: list[str] = []
-        try:
-            for conn, when, raw in reader.messages(conns):
-                stamps.append(int(when))
-                links.append(str(reader.deserialize(raw, conn.msgtype).data))
-        except Exception as exc:  # the I/O edge: a damaged topic becomes one line
-            raise LogReadError(
-                f"cannot read link topic {topic}: {first_line(exc)}",
-                str(path),
-                "check the log, or pick another link topic",
-                option="link_topic",
-            ) from exc
-    finally:
-        reader.close()
-    return LinkMessages.of(np.asarray(stamps, dtype=np.int64), links)
+        for _, batch in reader.batches([topic]):
+            if isinstance(batch, StringBatch):
+                stamps.append(batch.log_time_ns)
+                links.extend(batch.values)
+    times = np.concatenate(stamps) if stamps else np.zeros(0, dtype=np.int64)
+    return LinkMessages.of(times, links)

@@ -92,37 +92,83 @@ class JointStates:
 # ---------------------------------------------------------------- finding logs
 
 
-def _is_rosbag2_dir(path: Path) -> bool:
-    return path.is_dir() and (path / "metadata.yaml").is_file()
+def _is_bag(path: Path) -> bool:
+    """A rosbag2 folder: its metadata.yaml, or parts named as rosbag2 names them without it."""
+    from twincd.io.sources import headless_storage
+
+    if not path.is_dir():
+        return False
+    return (path / "metadata.yaml").is_file() or headless_storage(path) is not None
 
 
 def expand_logs(paths: Iterable[str | Path]) -> list[Path]:
-    """Every log the arguments stand for: files, rosbag2 folders, and folders of logs."""
+    """Every log the arguments stand for: files, rosbag2 folders (with their metadata.yaml, or
+    without it: ``twincd.io.sources.headless_storage``), and folders of logs; each log once
+    (``unique_logs``: a log named twice, or a log and a folder holding it, counts once)."""
     found: list[Path] = []
     for raw in paths:
         path = Path(raw)
         if not path.exists():
             raise LogReadError("no such file or folder", str(path), "check the path")
-        if path.is_file() or _is_rosbag2_dir(path):
+        if path.is_file() or _is_bag(path):
             found.append(path)
             continue
         below = _without_copies(sorted(_logs_below(path)))
         if not below:
             raise LogReadError(
-                "no logs in folder", str(path), "give .mcap, .bag or rosbag2 folders"
+                "no logs in folder", str(path), "give .mcap, .db3, .bag or rosbag2 folders"
             )
         found.extend(below)
-    return found
+    return unique_logs(found)
 
 
 def _logs_below(folder: Path) -> Iterator[Path]:
     for sub in folder.iterdir():
-        if _is_rosbag2_dir(sub):
+        if _is_bag(sub):
             yield sub  # the folder stands for its storage files
         elif sub.is_dir():
             yield from _logs_below(sub)
-        elif sub.suffix in (".mcap", ".bag"):
+        elif sub.suffix in (".mcap", ".bag", ".db3"):
             yield sub
+
+
+def log_files(path: Path) -> frozenset[Path]:
+    """What a log is made of, resolved: a file itself; a bag folder, itself and its storage
+    files (so that a bag's own file given beside it is the same log)."""
+    from twincd.io.sources import storage_of
+
+    resolved = path.resolve()
+    if not path.is_dir():
+        return frozenset({resolved})
+    storage = storage_of(path)
+    files = storage.files if storage is not None else ()
+    return frozenset({resolved, *(f.resolve() for f in files)})
+
+
+def unique_logs(paths: Sequence[Path], what: str = "") -> list[Path]:
+    """``paths`` with each log once, in the order given: a path that resolves to a log already
+    listed (the same file twice, through another spelling or a link; a log and the folder that
+    holds it; a bag's storage file beside the bag) is left out, with one warning naming the
+    repeats. A bag's storage file given before its bag gives way to the whole bag."""
+    files = [log_files(p) for p in paths]
+    kept: list[int] = []
+    repeats: list[Path] = []
+    for i, mine in enumerate(files):
+        if any(mine <= files[k] for k in kept):
+            repeats.append(paths[i])
+            continue
+        inside = [k for k in kept if files[k] < mine]  # a part given before its whole bag
+        repeats.extend(paths[k] for k in inside)
+        kept = [k for k in kept if k not in inside] + [i]
+    if repeats:
+        names = ", ".join(str(p) for p in repeats[:4]) + (", …" if len(repeats) > 4 else "")
+        log.warning(
+            "%d log(s) given more than once%s, used once each: %s",
+            len(repeats),
+            f" among the {what}" if what else "",
+            names,
+        )
+    return [paths[k] for k in sorted(kept)]
 
 
 def source_of_copy(path: Path) -> str | None:

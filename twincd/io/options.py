@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from twincd.defaults import DEFAULT_LABEL_TOPIC, DEFAULT_SIM_TOPIC, DEFAULT_TOPIC
 from twincd.errors import UsageError
@@ -13,18 +13,48 @@ __all__ = [
     "DEFAULT_SIM_TOPIC",
     "DEFAULT_TOPIC",
     "LogOptions",
+    "named_options",
     "parse_joint_map",
 ]
 
 
 @dataclass(frozen=True)
 class LogOptions:
-    """How to read joint states from a log; recorded in the calibration by ``fit``."""
+    """How to read joint states from a log; recorded in the calibration by ``fit``.
+
+    ``named``: the options the user named (``topic``, ``label_topic``, ``sim_topic``, and
+    ``joint_map:OLD`` per joint-map entry), as opposed to defaulted: a log that lacks a named
+    one is refused (``twincd.io.named``), never read with a default in its place. Not part of
+    the options' identity, nor recorded.
+    """
 
     topic: str = DEFAULT_TOPIC
     label_topic: str = DEFAULT_LABEL_TOPIC
     sim_topic: str = DEFAULT_SIM_TOPIC
     joint_map: Mapping[str, str] | None = None
+    named: frozenset[str] = field(default=frozenset(), compare=False)
+
+    def names(self, option: str) -> bool:
+        """Whether ``option`` (``topic``, ``joint_map:OLD``, …) was named by the user."""
+        return option in self.named
+
+    def unnamed(self, *options: str) -> LogOptions:
+        """The same options with ``options`` no longer counted as named."""
+        from dataclasses import replace
+
+        return replace(self, named=self.named - set(options))
+
+
+def named_options(
+    topic: str | None = None,
+    label_topic: str | None = None,
+    sim_topic: str | None = None,
+    joint_map: Mapping[str, str] | None = None,
+) -> frozenset[str]:
+    """``LogOptions.named`` for the options given (None: not given)."""
+    given = {"topic": topic, "label_topic": label_topic, "sim_topic": sim_topic}
+    entries = {f"joint_map:{old}" for old in joint_map or {}}
+    return frozenset({k for k, v in given.items() if v is not None} | entries)
 
 
 def parse_joint_map(text: str | None) -> dict[str, str]:

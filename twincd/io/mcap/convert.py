@@ -1,13 +1,17 @@
-"""A log that is not plain MCAP copied into an MCAP output through rosbags.
+"""A log that is not plain MCAP copied into an MCAP output.
 
-rosbag2 sqlite3 (and rosbag2 MCAP whose files or messages rosbag2 compressed): raw CDR bytes
-pass through; publish time is the log time (sqlite3 keeps one). ROS 1 bags: messages are
-converted to ROS 2 CDR with rosbags' own converter (the container format forces it); times are
-kept. Every channel gets a ``ros2msg`` schema and its recorded QoS (the default where none).
+rosbag2 sqlite3 (with or without its metadata.yaml, or a bare .db3): read in bulk by the same
+reader as every command's (``twincd.io.sqlite3``); raw CDR bytes pass through, each topic's QoS
+as the database recorded it; publish time is the log time (sqlite3 keeps one). Through
+rosbags: rosbag2 MCAP whose files or messages rosbag2 compressed (raw bytes pass through), and
+ROS 1 bags (messages converted to ROS 2 CDR with rosbags' own converter, as the container
+format forces; times are kept). Every channel gets a ``ros2msg`` schema and its recorded QoS
+(the default where none).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +24,48 @@ from twincd.io.mcap.messages import BATCH
 from twincd.io.mcap.output import McapOutput
 from twincd.io.sources import open_reader
 
-__all__ = ["copy_via_rosbags"]
+__all__ = ["copy_sqlite3", "copy_via_rosbags"]
+
+
+def copy_sqlite3(
+    files: Sequence[Path], source: Path, out: McapOutput, replaced: frozenset[str]
+) -> None:
+    """Every message of the rosbag2 sqlite3 storage ``files`` but those of ``replaced`` topics
+    into ``out``, in bulk (the reader every command reads these files with)."""
+    from twincd.io.sqlite3 import Sqlite3Storage, SqliteDamage
+
+    try:
+        storage = Sqlite3Storage(files)
+    except SqliteDamage as exc:
+        raise LogReadError(
+            f"cannot copy log: {exc}".splitlines()[0], str(source), "check that it is complete"
+        ) from exc
+    try:
+        channels: dict[str, int] = {}
+        for topic, msgtype in storage.topics.items():
+            if topic in replaced:
+                continue
+            try:
+                msgdef, _ = typestore().generate_msgdef(msgtype, ros_version=2)
+            except Exception:  # a custom type the store lacks: bytes still copy
+                msgdef = ""
+            schema_id = out.schema(msgtype, "ros2msg", msgdef.encode())
+            meta = {QOS_KEY: storage.qos.get(topic) or DEFAULT_QOS}
+            channels[topic] = out.channel(topic, schema_id, "cdr", meta)
+            out.declare(channels[topic])
+        for item in storage.read(list(channels)):
+            if isinstance(item, int):
+                continue
+            topic, times, payloads = item
+            # sequence 0: sqlite3 does not keep the publisher's
+            zero = np.zeros(len(times), dtype=np.uint32)
+            out.append(channels[topic], times, np.ascontiguousarray(payloads), None, zero)
+    except SqliteDamage as exc:
+        raise LogReadError(
+            f"cannot copy log: {exc}".splitlines()[0], str(source), "check that it is complete"
+        ) from exc
+    finally:
+        storage.close()
 
 
 def copy_via_rosbags(source: Path, out: McapOutput, replaced: frozenset[str]) -> None:

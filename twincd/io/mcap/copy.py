@@ -6,18 +6,18 @@ metadata, log time, publish time, sequence and bytes stay unchanged. Only chunks
 replaced topic (a log simulated before), or whose channel ids must change (split rosbag2 files
 numbering their channels differently, a channel without QoS metadata), are decompressed and
 rebuilt record by record. A truncated source may be copied up to its damage, as reading does.
-Every other source goes through rosbags (``twincd.io.mcap.convert``).
+Every other source goes through ``twincd.io.mcap.convert`` (sqlite3 in bulk, the rest through
+rosbags). Which files a source stands for is ``twincd.io.sources.storage_of``'s to say.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
-import re
 import struct
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
 import numpy as np
 import zstandard
@@ -30,7 +30,7 @@ from twincd.errors import LogReadError, TwincdError
 from twincd.io.atomic import MARKER
 from twincd.io.mcap.channels import QOS_KEY
 from twincd.io.mcap.chunks import chunk_records, records_before_cut
-from twincd.io.mcap.convert import copy_via_rosbags
+from twincd.io.mcap.convert import copy_sqlite3, copy_via_rosbags
 from twincd.io.mcap.messages import BATCH
 from twincd.io.mcap.output import McapOutput
 from twincd.io.mcap.records import (
@@ -41,7 +41,7 @@ from twincd.io.mcap.records import (
     parse_record,
     record_bytes,
 )
-from twincd.io.sources import rosbag2_storage
+from twincd.io.sources import storage_of
 
 __all__ = ["copy_log"]
 
@@ -49,11 +49,14 @@ __all__ = ["copy_log"]
 def copy_log(source: Path, out: McapOutput, replaced: frozenset[str], partial: bool) -> None:
     """Every message of ``source`` but those of ``replaced`` topics into ``out``; ``partial``:
     a truncated MCAP source is copied up to the damage (reading stops there too)."""
-    mcap_files = _mcap_storage_files(source)
-    if mcap_files is None:
+    storage = storage_of(source)
+    if storage is not None and storage.storage == "sqlite3":
+        copy_sqlite3(storage.files, source, out, replaced)
+        return
+    if storage is None or storage.storage != "mcap":
         copy_via_rosbags(source, out, replaced)
         return
-    for path in mcap_files:  # reading stops at a damaged file: so does the copy
+    for path in storage.files:  # reading stops at a damaged file: so does the copy
         if _copy_mcap(path, out, replaced, partial):
             break
 
@@ -278,23 +281,6 @@ class _McapCopy:
                 for cid, (t, o) in index.items()
             },
         )
-
-
-def _natural_key(path: Path) -> list[Any]:
-    """``bag_2.mcap`` before ``bag_10.mcap``."""
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
-
-
-def _mcap_storage_files(source: Path) -> list[Path] | None:
-    """The MCAP files behind a source, in recording order, or None when it is not MCAP-backed
-    (or compressed by rosbag2: rosbags then decompresses it while converting)."""
-    if source.is_file():
-        return [source] if source.suffix == ".mcap" else None
-    if (source / "metadata.yaml").is_file():
-        storage = rosbag2_storage(source)
-        return storage[1] if storage is not None and storage[0] == "mcap" else None
-    files = sorted(source.glob("*.mcap"), key=_natural_key)
-    return files or None
 
 
 def _copy_mcap(path: Path, out: McapOutput, replaced: frozenset[str], partial: bool) -> bool:

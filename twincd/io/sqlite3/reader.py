@@ -32,6 +32,7 @@ class Sqlite3Storage:
         self._cons: list[sqlite3.Connection] = []
         self._ids: list[dict[int, str]] = []
         self.topics: dict[str, str] = {}  # topic -> msgtype (CDR topics only)
+        self.qos: dict[str, str] = {}  # topic -> offered_qos_profiles as recorded (when kept)
         try:
             for p in self.paths:
                 # the reader may run on a prefetch thread; only one thread uses it at a time
@@ -46,9 +47,19 @@ class Sqlite3Storage:
                         self.topics.setdefault(str(name), str(msgtype))
                         ids[int(tid)] = str(name)
                 self._ids.append(ids)
+                self._read_qos(con)
         except sqlite3.Error as exc:
             self.close()
             raise SqliteDamage(str(exc)) from exc
+
+    def _read_qos(self, con: sqlite3.Connection) -> None:
+        """Each topic's recorded QoS (rosbag2 keeps it in the topics table since Foxy)."""
+        columns = {str(row[1]) for row in con.execute("PRAGMA table_info(topics)")}
+        if "offered_qos_profiles" not in columns:
+            return
+        for name, qos in con.execute("SELECT name, offered_qos_profiles FROM topics"):
+            if qos:
+                self.qos.setdefault(str(name), str(qos))
 
     def close(self) -> None:
         for con in self._cons:

@@ -18,7 +18,7 @@ import numpy as np
 from twincd.errors import LogReadError
 from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
 from twincd.io.mcap import MAGIC, McapDamage, McapFile
-from twincd.io.sources import first_line, open_reader, refuse_non_logs, rosbag2_storage
+from twincd.io.sources import first_line, open_reader, refuse_non_logs, storage_of
 from twincd.io.sqlite3 import FETCH, Sqlite3Storage, SqliteDamage
 from twincd.io.stream.batch import (
     END,
@@ -245,7 +245,8 @@ def _stack(rows: list[Any], k: int) -> FloatArray:
 
 
 def open_backend(path: Path, source: str, stats: CdrStats) -> Backend:
-    """The fastest backend that reads ``path``: MCAP, sqlite3, else rosbags."""
+    """The fastest backend that reads ``path``: MCAP, sqlite3, else rosbags. The storage files
+    come from ``storage_of``, the one place that says what a log path stands for."""
     refuse_non_logs(path)
     if path.is_file():
         with open(path, "rb") as f:
@@ -258,13 +259,14 @@ def open_backend(path: Path, source: str, stats: CdrStats) -> Backend:
                 source,
                 "check that it is an MCAP file and not damaged",
             )
+    storage = storage_of(path)
+    if storage is None:
         return RosbagsBackend(path, stats)
-    if (path / "metadata.yaml").is_file():
-        storage = rosbag2_storage(path)
-        if storage is not None and storage[0] == "mcap":
-            return McapBackend(storage[1], source)
-        if storage is not None and storage[0] == "sqlite3":
-            return SqliteBackend(storage[1], source)
+    storage.warn(source)
+    if storage.storage == "mcap":
+        return McapBackend(storage.files, source)
+    if storage.storage == "sqlite3":
+        return SqliteBackend(storage.files, source)
     return RosbagsBackend(path, stats)
 
 

@@ -211,7 +211,10 @@ class LogStream:
             raise
 
     def _open(self, options: LogOptions, known: Sequence[str] | None, exact: bool) -> None:
+        from twincd.io.named import require_named, require_named_joints
+
         topics = self._reader.topics
+        require_named(options, topics, self.source)  # a named topic the log lacks: refused
         self.topic = choose_topic(topics, options.topic, self.source)
         self.label_topic = options.label_topic
         self.has_labels = self.label_topic in topics
@@ -246,6 +249,8 @@ class LogStream:
             raise LogReadError(
                 f"topic {self.topic} has no messages", self.source, "record joint states"
             )
+        raw = {n for t, b, _ in self._head if isinstance(b, JointStateBatch) for n in b.names}
+        require_named_joints(options, raw, f"{self.source}, {self.topic}")
         layouts: dict[tuple[str, ...], int] = {}
         for b in first:
             key = self._mapped(b.names)
