@@ -21,10 +21,12 @@ import numpy as np
 
 from twincd.errors import CalibrationError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage
+from twincd.grid import GridStage, grid_period_ns
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
+    from twincd.calibration.models import ResidualModel
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
@@ -148,6 +150,7 @@ def filter_stages(
     coulomb_eps: Sequence[float] = (),
     regressor: BoolArray | None = None,
     theta: FloatArray | None = None,
+    on_grid: bool = False,
 ) -> list[Stage]:
     """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
 
@@ -162,9 +165,14 @@ def filter_stages(
     with a fitted identified model: its (D, P) weights), only each joint's Y_j θ_j goes through
     the filter, as ``regressor_effort_f`` (N, D): the filter is linear, so LP(Y) θ = LP(Y θ),
     and D channels are filtered instead of hundreds. Without either, nothing more is filtered:
-    the seed's model costs what it did."""
+    the seed's model costs what it did.
+
+    ``on_grid``: the frames are a grid's nodes (``twincd.grid``): their ``coulomb`` column
+    ((N, E, joints), the cells' means of tanh(q̇/ε)) is filtered instead of tanh of their
+    velocity, Y_j θ_j is summed over the whole regressor row (``inertial_effort``), and the
+    zero-phase edges are left to the samples."""
     from twincd.signal.filters import StreamingLowPass
-    from twincd.twin.dynamics import regressor_effort
+    from twincd.twin.dynamics import inertial_effort, regressor_effort
 
     eps = tuple(float(e) for e in coulomb_eps)
     extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
@@ -174,12 +182,20 @@ def filter_stages(
 
     def stack(frame: Frame) -> Frame:
         v = frame["velocity"]
-        friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
+        coulomb = frame.get("coulomb")
+        if not eps:
+            friction: tuple[FloatArray, ...] = ()
+        elif coulomb is not None:  # a grid's cell means of tanh(q̇/ε), one per ε
+            friction = (v, *np.moveaxis(coulomb, 1, 0))
+        else:
+            friction = (v, *(np.tanh(v / e) for e in eps))
         columns = [frame["effort"], frame["sim_effort"], *friction]
-        if regressor is not None:
+        if regressor is not None and theta is not None and on_grid:
+            columns.append(inertial_effort(frame["regressor"], theta))
+        elif regressor is not None:
             y = frame["regressor"][:, regressor]
             columns.append(y if theta is None else regressor_effort(y, theta, regressor))
-        rest = {k: x for k, x in frame.items() if k != "regressor"}
+        rest = {k: x for k, x in frame.items() if k not in ("regressor", "coulomb")}
         return Frame(rest, frame.n).with_columns(both=np.hstack(columns))
 
     def split(frame: Frame) -> Frame:
@@ -202,7 +218,7 @@ def filter_stages(
         Mapped(stack),
         Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f", keep=False),
         Mapped(split),
-        *edge_stages(lowpass, period_s),
+        *(() if on_grid else edge_stages(lowpass, period_s)),
     ]
 
 
@@ -260,6 +276,8 @@ class TwinChain:
     period_s: float
     # (D, P) the regressor entries the frames' ``regressor_f`` (N, kept) holds, output order
     regressor_mask: BoolArray | None = None
+    # the coarse grid the twin and the filter run on, when the log is sampled fast enough
+    grid: GridStage | None = None
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -275,26 +293,127 @@ def build_chain(
     regressor: RobotModel | None = None,
     threads: int | None = None,
     filtered: bool = True,
+    nodes: bool = False,
+    model: ResidualModel | None = None,
 ) -> TwinChain:
     """The one chain for ``settings`` (its filter: zero-phase or causal; the friction models'
     ε) on frames whose joints are laid out as ``layout``: pick the twin's columns, twin
     (``twin`` None: the frames carry ``sim_effort``; ``regressor``: the robot model whose
     joint-torque regressor the identified models need, ``layout.twin`` in its order), put the
     joints in the output order, and with ``filtered`` low-pass filter (``filtered=False`` stops
-    after the twin: what ``simulate`` writes)."""
+    after the twin: what ``simulate`` writes).
+
+    Where the log is sampled far faster than the filter keeps (``twincd.grid.grid_period_ns``:
+    a 1 kHz log), the twin and the filter run on a coarse grid's cell means and come back on
+    the samples by interpolation (``twincd.grid.GridStage``). What comes back on the samples:
+    every filtered column by default (what a ``PreparedLog`` holds); with ``nodes``, all but
+    the regressor's hundreds of entries, the grid keeping its filtered nodes for ``fit``
+    (``TwinChain.grid.take_nodes``); with a fitted ``model`` (scoring), its prediction
+    ``predicted``, computed on the nodes (every model is linear in its filtered inputs, so it
+    commutes with the interpolation), with ``effort_f`` and ``sim_effort_f`` only."""
     causal = settings.lowpass.causal
-    stages: list[Stage] = [
+    mask = None
+    if filtered and regressor is not None:
+        from twincd.twin.dynamics import regressor_mask
+
+        assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
+        mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
+    theta = None if mask is None else settings.regressor_weights
+    grid = grid_period_ns(settings.lowpass.cutoff_hz, period_s) if filtered else None
+    if grid is not None:
+        models = (twin, regressor, None if nodes else model)
+        stage = _grid_stage(settings, layout, grid, period_s, models, threads, nodes)
+        stages: list[Stage] = [
+            pick_columns(layout.to_twin),
+            *twin_stages(None, period_s, causal, fill_velocity),  # the velocity, if missing
+            pick_columns(layout.to_output),
+            *edge_stages(settings.lowpass, period_s),
+            stage,
+        ]
+        return TwinChain(Chain(stages), layout, period_s, mask, stage)
+    stages = [
         pick_columns(layout.to_twin),
         *twin_stages(twin, period_s, causal, fill_velocity, threads, regressor),
         pick_columns(layout.to_output),
     ]
-    mask = None
     if filtered:
-        if regressor is not None:
-            from twincd.twin.dynamics import regressor_mask
-
-            assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
-            mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
-        theta = None if mask is None else settings.regressor_weights
         stages += filter_stages(settings.lowpass, period_s, settings.coulomb_eps, mask, theta)
     return TwinChain(Chain(stages), layout, period_s, mask)
+
+
+def _grid_stage(
+    settings: ChainSettings,
+    layout: JointLayout,
+    grid_ns: int,
+    period_s: float,
+    models: tuple[RobotModel | None, RobotModel | None, ResidualModel | None],
+    threads: int | None,
+    nodes: bool,
+) -> GridStage:
+    """The grid's stage: on its nodes (joints in the output order) the twin's and the filter's
+    stages as ``build_chain`` runs them per sample, at the grid's period, then the fitted
+    model's prediction when there is one (``models``: the twin's robot model, the regressor's
+    and the fitted model, as ``build_chain`` takes them)."""
+    from twincd.twin.dynamics import regressor_mask
+
+    twin, regressor, model = models
+    lowpass, eps = settings.lowpass, settings.coulomb_eps
+    step = grid_ns * 1e-9
+    mask = None if regressor is None else regressor_mask(regressor)[layout.to_output]
+    theta = None if mask is None else settings.regressor_weights
+    node_stages: list[Stage] = [
+        pick_columns(np.argsort(layout.to_output).astype(np.intp)),  # output → twin order
+        *twin_stages(twin, step, lowpass.causal, False, threads, regressor),
+        pick_columns(layout.to_output),
+        *filter_stages(lowpass, step, eps, mask, theta, on_grid=True),
+    ]
+    pairs = None
+    interpolate = ["effort_f", "sim_effort_f"]
+    if model is not None:
+        node_stages.append(_predicting(model, eps, mask))
+        interpolate.append("predicted")
+        pairs = coulomb_pairs(model, eps, len(layout.output))
+    else:
+        if eps:
+            interpolate += ["velocity_f", "coulomb_f"]
+        if mask is not None and theta is not None:
+            interpolate.append("regressor_effort_f")
+        elif mask is not None and not nodes:
+            interpolate.append("regressor_f")
+        if twin is not None and not nodes:
+            interpolate.append("sim_effort")  # τ̂ on the grid, unfiltered
+    return GridStage(
+        Chain(node_stages),
+        grid_ns,
+        period_s,
+        lowpass.causal,
+        interpolate,
+        average_sim=twin is None,
+        coulomb_eps=eps,
+        coulomb_pairs=pairs,
+        keep_nodes=nodes,
+    )
+
+
+def _predicting(model: ResidualModel, eps: tuple[float, ...], mask: BoolArray | None) -> Mapped:
+    """The fitted model's prediction (``predicted``) of filtered frames."""
+
+    def predict(frame: Frame) -> Frame:
+        inputs = {**frame, "coulomb_eps": eps, "regressor_mask": mask}
+        return frame.with_columns(predicted=model.predict(inputs))
+
+    return Mapped(predict)
+
+
+def coulomb_pairs(model: ResidualModel, eps: Sequence[float], joints: int) -> BoolArray | None:
+    """(E, joints): the Coulomb features (ε of ``eps``, joint) a fitted friction model reads,
+    each joint its own ε (None: every one, for a model that reads none or all)."""
+    epsilon = getattr(model, "epsilon_", None)
+    if not eps or epsilon is None or len(epsilon) != joints:
+        return None
+    grid = [float(e) for e in eps]
+    if any(float(e) not in grid for e in epsilon):
+        return None  # the model's own error says so when it predicts
+    pairs = np.zeros((len(grid), joints), dtype=bool)
+    pairs[[grid.index(float(e)) for e in epsilon], np.arange(joints)] = True
+    return pairs

@@ -287,19 +287,21 @@ def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogSc
     """Stream one log into statistics of its calibrated score on collision-free samples, its
     excursions, and its runs at every threshold of the alarm grid."""
     stats = ScoreStats()
-    with setup.open(path) as stream:
+    model = calibration.model
+    with setup.open(path, model=model) as stream:
         counter: AlarmCounter | None = None
         peaks: ExcursionCounter | None = None
         for frame in stream:
             counter = counter or AlarmCounter(stream.period_s)
             peaks = peaks or ExcursionCounter(stream.period_s)
-            scores = calibration.model.scores(
-                {
-                    **frame,
-                    "coulomb_eps": stream.coulomb_eps,
-                    "regressor_mask": stream.regressor_mask,
-                }
-            )
+            inputs = {
+                **frame,
+                "coulomb_eps": stream.coulomb_eps,
+                "regressor_mask": stream.regressor_mask,
+            }
+            # a grid's frames carry the prediction, made on its nodes (twincd.chain)
+            residual = model.residual(inputs, frame.get("predicted"))
+            scores = model.score(residual, frame.get("velocity"))
             usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             stats = stats + ScoreStats.from_scores(scores, usable)
             counter.push(scores, usable)
