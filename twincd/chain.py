@@ -113,16 +113,25 @@ def twin_stages(
     fill_velocity: bool,
     threads: int | None = None,
     regressor: RobotModel | None = None,
+    on_grid: bool = False,
 ) -> list[Stage]:
     """Velocity (from position where the log has none), acceleration, τ̂ = RNEA(q, q̇, q̈), and
     with ``regressor`` the joint-torque regressor Y(q, q̇, q̈) (column ``regressor``, (N, D, P);
     the ``identified`` models).
 
     Columns must be in the robot's joint order. ``robot`` None: the frames carry
-    ``sim_effort`` already, only the velocity (and the regressor) is completed.
+    ``sim_effort`` already, only the velocity (and the regressor) is completed. ``on_grid``
+    (a grid's nodes, ``twincd.grid``): with the regressor of the twin's own model, τ̂ is
+    Y θ_URDF (RNEA is linear in the inertial parameters; equal to 1e-13) instead of a second
+    pass of the dynamics.
     """
     from twincd.signal.derivatives import StreamingDerivative
-    from twincd.twin.dynamics import inverse_dynamics, torque_regressor
+    from twincd.twin.dynamics import (
+        inertial_effort,
+        inertial_parameters,
+        inverse_dynamics,
+        torque_regressor,
+    )
 
     stages: list[Stage] = []
     if fill_velocity:
@@ -131,15 +140,20 @@ def twin_stages(
     if robot is None and regressor is None:
         return stages
     ddq = StreamingDerivative(period_s=period_s, causal=causal)
+    urdf = None  # θ_URDF per joint, (D, P), when τ̂ comes from the regressor
+    if on_grid and robot is not None and robot is regressor:
+        theta = inertial_parameters(robot)
+        urdf = np.ascontiguousarray(np.broadcast_to(theta, (robot.dof, len(theta))))
 
     def twin(frame: Frame) -> Frame:
         q, v, a = frame["position"], frame["velocity"], frame["ddq"]
         out = Frame({k: x for k, x in frame.items() if k != "ddq"})
-        if robot is not None:
+        y = None if regressor is None else torque_regressor(regressor, q, v, a)
+        if urdf is not None and y is not None:
+            out = out.with_columns(sim_effort=inertial_effort(y, urdf))
+        elif robot is not None:
             out = out.with_columns(sim_effort=inverse_dynamics(robot, q, v, a, threads=threads))
-        if regressor is not None:
-            out = out.with_columns(regressor=torque_regressor(regressor, q, v, a))
-        return out
+        return out if y is None else out.with_columns(regressor=y)
 
     return [*stages, Derived(ddq, "velocity", "ddq"), Mapped(twin)]
 
@@ -361,18 +375,20 @@ def _grid_stage(
     step = grid_ns * 1e-9
     mask = None if regressor is None else regressor_mask(regressor)[layout.to_output]
     theta = None if mask is None else settings.regressor_weights
+    # a fitted model reads one Coulomb feature per joint, at the joint's own ε: only those are
+    # averaged and filtered, and set among the others (zeros) before the model reads them
+    own = None if model is None else joint_epsilon(model, eps, len(layout.output))
     node_stages: list[Stage] = [
         pick_columns(np.argsort(layout.to_output).astype(np.intp)),  # output → twin order
-        *twin_stages(twin, step, lowpass.causal, False, threads, regressor),
+        # one thread: a few hundred nodes a call, and the reader's thread has the other core
+        *twin_stages(twin, step, lowpass.causal, False, 1, regressor, on_grid=True),
         pick_columns(layout.to_output),
-        *filter_stages(lowpass, step, eps, mask, theta, on_grid=True),
+        *filter_stages(lowpass, step, eps if own is None else eps[:1], mask, theta, on_grid=True),
     ]
-    pairs = None
     interpolate = ["effort_f", "sim_effort_f"]
     if model is not None:
-        node_stages.append(_predicting(model, eps, mask))
+        node_stages.append(_predicting(model, eps, mask, own))
         interpolate.append("predicted")
-        pairs = coulomb_pairs(model, eps, len(layout.output))
     else:
         if eps:
             interpolate += ["velocity_f", "coulomb_f"]
@@ -390,30 +406,38 @@ def _grid_stage(
         interpolate,
         average_sim=twin is None,
         coulomb_eps=eps,
-        coulomb_pairs=pairs,
+        joint_eps=own,
         keep_nodes=nodes,
     )
 
 
-def _predicting(model: ResidualModel, eps: tuple[float, ...], mask: BoolArray | None) -> Mapped:
-    """The fitted model's prediction (``predicted``) of filtered frames."""
+def _predicting(
+    model: ResidualModel,
+    eps: tuple[float, ...],
+    mask: BoolArray | None,
+    own: FloatArray | None,
+) -> Mapped:
+    """The fitted model's prediction (``predicted``) of filtered frames; ``own``: the frames
+    carry one Coulomb feature per joint, at its ε, set into ``eps``' features for the model."""
+    at = None if own is None else [eps.index(float(e)) for e in own]
 
     def predict(frame: Frame) -> Frame:
         inputs = {**frame, "coulomb_eps": eps, "regressor_mask": mask}
+        if at is not None:
+            features = np.zeros((frame.n, len(eps), len(at)))
+            features[:, at, np.arange(len(at))] = frame["coulomb_f"][:, 0, :]
+            inputs["coulomb_f"] = features
         return frame.with_columns(predicted=model.predict(inputs))
 
     return Mapped(predict)
 
 
-def coulomb_pairs(model: ResidualModel, eps: Sequence[float], joints: int) -> BoolArray | None:
-    """(E, joints): the Coulomb features (ε of ``eps``, joint) a fitted friction model reads,
-    each joint its own ε (None: every one, for a model that reads none or all)."""
+def joint_epsilon(model: ResidualModel, eps: Sequence[float], joints: int) -> FloatArray | None:
+    """Each joint's ε of a fitted friction model, when every one is among ``eps`` (else None:
+    the chain then prepares every ε's features, and the model says what is missing)."""
     epsilon = getattr(model, "epsilon_", None)
     if not eps or epsilon is None or len(epsilon) != joints:
         return None
-    grid = [float(e) for e in eps]
-    if any(float(e) not in grid for e in epsilon):
-        return None  # the model's own error says so when it predicts
-    pairs = np.zeros((len(grid), joints), dtype=bool)
-    pairs[[grid.index(float(e)) for e in epsilon], np.arange(joints)] = True
-    return pairs
+    if any(float(e) not in [float(x) for x in eps] for e in epsilon):
+        return None
+    return np.asarray(epsilon, dtype=np.float64)

@@ -40,7 +40,7 @@ import numpy as np
 
 from twincd.frames import Chain, Frame
 from twincd.signal.stream import DEFAULT_GAP_FACTOR, Segmenter
-from twincd.types import BoolArray, FloatArray, IntArray
+from twincd.types import FloatArray, IntArray
 
 __all__ = ["GRID_MIN_PERIODS", "GRID_OVERSAMPLING", "GridStage", "grid_period_ns"]
 
@@ -97,7 +97,11 @@ def _cell_sums(
         sums[0] = open_.sums + values[0]
         first[0] = open_.first
         offsets[0] = open_.offsets + (stamps[0] - open_.first)
-    for j in range(1, int(counts.max())):
+    every = int(counts.min())  # positions every cell has: no selection of cells needed
+    for j in range(1, every):
+        sums += values[starts + j]
+        offsets += stamps[starts + j] - first
+    for j in range(max(every, 1), int(counts.max())):
         live = np.flatnonzero(counts > j)
         sums[live] += values[starts[live] + j]
         offsets[live] += stamps[starts[live] + j] - first[live]
@@ -153,7 +157,8 @@ class GridStage:
     ``nodes`` is the chain run on the node frames (twin and filter, built by
     ``twincd.chain.build_chain``); it gets ``stamp_ns``, ``node`` (a serial number),
     ``position``, ``velocity``, ``effort``, optionally ``sim_effort`` and ``coulomb``
-    ((N, E, joints): the means of tanh(q̇/ε) for each of ``coulomb_eps``). Of its output,
+    ((N, E, joints): the means of tanh(q̇/ε) for each of ``coulomb_eps``, or (N, 1, joints) of
+    tanh(q̇_j/ε_j) for each joint's own ``joint_eps``, what a fitted model reads). Of its output,
     the columns named in ``interpolate`` come back on the samples. With ``keep_nodes`` the
     frames out carry each sample's ``node`` serial and the node frames are kept for
     ``take_nodes`` (what ``fit`` sums instead of the samples).
@@ -168,7 +173,7 @@ class GridStage:
         interpolate: Sequence[str],
         average_sim: bool = False,
         coulomb_eps: Sequence[float] = (),
-        coulomb_pairs: BoolArray | None = None,
+        joint_eps: FloatArray | None = None,
         keep_nodes: bool = False,
         gap_factor: float = DEFAULT_GAP_FACTOR,
     ) -> None:
@@ -180,7 +185,7 @@ class GridStage:
         self.interpolate = tuple(interpolate)
         self.average_sim = average_sim
         self.coulomb_eps = tuple(float(e) for e in coulomb_eps)
-        self.coulomb_pairs = None if coulomb_pairs is None else np.asarray(coulomb_pairs, bool)
+        self.joint_eps = None if joint_eps is None else np.asarray(joint_eps, dtype=np.float64)
         self.keep_nodes = keep_nodes
         self._segmenter = Segmenter(period_s, gap_factor)
         self._pending = _Pending()
@@ -272,9 +277,10 @@ class GridStage:
         if self.average_sim:
             columns.append(np.asarray(frame["sim_effort"], dtype=np.float64))
         velocity = columns[1]
-        pairs = self.coulomb_pairs
-        for i, e in enumerate(self.coulomb_eps):
-            columns.append(np.tanh((velocity if pairs is None else velocity[:, pairs[i]]) / e))
+        if self.joint_eps is not None:
+            columns.append(np.tanh(velocity / self.joint_eps))
+        else:
+            columns += [np.tanh(velocity / e) for e in self.coulomb_eps]
         return np.hstack(columns)
 
     def _node_frame(
@@ -284,25 +290,17 @@ class GridStage:
         stamps (the last cell's serial ``last``)."""
         means = sums / counts[:, None]
         names = [*_AVERAGED, *(["sim_effort"] if self.average_sim else [])]
-        pairs = self.coulomb_pairs
-        coulomb = len(self.coulomb_eps) if pairs is None else 0
-        joints = (means.shape[1] - (0 if pairs is None else int(pairs.sum()))) // (
-            len(names) + coulomb
-        )
+        coulomb = 1 if self.joint_eps is not None else len(self.coulomb_eps)
+        joints = means.shape[1] // (len(names) + coulomb)
         columns: dict[str, FloatArray | IntArray] = {
             "stamp_ns": first + offsets // counts,
             "node": np.arange(last - len(means) + 1, last + 1, dtype=np.int64),
         }
         for i, name in enumerate(names):
             columns[name] = means[:, i * joints : (i + 1) * joints]
-        if self.coulomb_eps:
-            at, e = len(names) * joints, len(self.coulomb_eps)
-            if pairs is None:
-                features = means[:, at : at + e * joints].reshape(len(means), e, joints)
-            else:  # only the (ε, joint) pairs a fitted model reads; zeros elsewhere
-                features = np.zeros((len(means), e, joints))
-                features[:, pairs] = means[:, at:]
-            columns["coulomb"] = features
+        if coulomb:
+            at = len(names) * joints
+            columns["coulomb"] = means[:, at:].reshape(len(means), coulomb, joints)
         return Frame(columns)
 
     def _feed(self, nodes: Frame) -> None:

@@ -119,7 +119,12 @@ def _finite_rows(frame: Frame, columns: Sequence[str], used: IndexArray) -> Bool
     ok = np.ones(frame.n, dtype=bool)
     for c in columns:
         if c in frame:
-            ok &= np.isfinite(frame[c][:, used]).all(axis=1)
+            values = frame[c]
+            if len(used) != values.shape[1] or np.any(used != np.arange(len(used))):
+                values = values[:, used]  # only the twin's joints (a copy)
+            finite = np.isfinite(values)
+            if not finite.all():  # row by row only when needed (a row-wise all is slower)
+                ok &= finite.all(axis=1)
     return ok
 
 

@@ -246,7 +246,8 @@ class FrictionStats:
         n = float(w.sum())
         mean = np.einsum("n,endk->edk", w, cols) / n
         centred = cols - mean[:, None]
-        cross = np.einsum("enda,n,endb->edab", centred, w, centred)
+        weighted = centred * w[None, :, None, None]
+        cross = np.einsum("enda,endb->edab", weighted, centred)
         return cls(int(n), mean, cross)
 
     def __add__(self, other: FrictionStats) -> FrictionStats:
