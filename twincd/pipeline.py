@@ -50,8 +50,8 @@ DEFAULT_BLOCK = 16384  # samples per block: bounded memory, per-block Python cos
 # samples per block with the joint-torque regressor (identified models): each sample then
 # carries hundreds of filtered values, and a block's copies must stay a few MB
 REGRESSOR_BLOCK = 2048
-# samples per block on a coarse grid (twincd.grid): a block's per-sample columns (tens of values)
-# and its nodes' regressor stay a few MB; larger blocks only cost memory
+# samples per block when fit sums a coarse grid's nodes (twincd.grid): the nodes' regressor and
+# its products stay a few MB (16384 took fit's peak RSS from 236 to 287 MB on a 1 kHz log)
 GRID_BLOCK = 8192
 # samples looked at before the stages are set up: enough for a stable nominal period
 PEEK_SAMPLES = 1001
@@ -268,7 +268,8 @@ class PreparedStream:
         self.grid = built.grid
         if built.grid is not None and self.regressor:
             # the samples no longer carry the regressor's entries, only the grid's nodes do
-            self._log.block_size = min(setup.block_size, GRID_BLOCK)
+            # (fit's nodes all of them: fewer samples a block keep its sums' memory small)
+            self._log.block_size = min(setup.block_size, GRID_BLOCK if self.nodes else 1 << 30)
         return built
 
     def take_nodes(self) -> Frame:
