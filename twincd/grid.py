@@ -18,15 +18,18 @@ filter would run on every sample. ``GridStage`` runs them on cells instead:
    the averaging, the noise folded in lands where a derivative is small), τ̂ = RNEA, the
    regressor, then the same low-pass filter designed for the grid's period.
 4. Back on the samples: every filtered column linearly interpolated between the nodes around
-   each sample's stamp (zero-phase), or, causal, between the node of its cell and the one
-   before (extrapolated by less than a cell after the last node's stamp), so that a sample waits
-   for its own cell to end and never longer: a causal chain or a live detector holds a sample
-   at most one grid period. A segment's first and last samples are extrapolated from its first
-   or last two nodes.
+   each sample's stamp (zero-phase; a segment's first and last samples extrapolated from its
+   first or last two nodes), or, causal, between the node of its cell and the one before
+   (extrapolated by less than a cell past the node's stamp; a segment's first cell held at its
+   node), so that a sample waits for its own cell to end and never longer: a causal chain or a
+   live detector holds a sample at most one grid period.
 
-Everything per node depends on the stamps and values of its own cell and of earlier nodes of
-its segment only, and the cell sums add samples in their order: chunked runs equal one run.
-The choice of the grid and the error it makes are in docs/models-and-results.md.
+``twincd.chain.build_chain`` builds the stage; scoring adds the fitted model's prediction to the
+node chain (the models are linear in their filtered inputs) and ``fit`` sums the nodes
+themselves (``keep_nodes``). A node depends on the stamps and values of its own cell and of
+earlier nodes of its segment (and, zero-phase, later ones) only, and the cell sums add samples
+in their order: chunked runs equal one run. The choice of the grid and the error it makes are
+in docs/models-and-results.md.
 """
 
 from __future__ import annotations
