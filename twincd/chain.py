@@ -21,10 +21,12 @@ import numpy as np
 
 from twincd.errors import CalibrationError, UsageError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage
+from twincd.grid import GridStage, grid_period_ns
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
+    from twincd.calibration.models import ResidualModel
     from twincd.signal.unwrap import StreamingUnwrap
     from twincd.twin.robot import RobotModel
 
@@ -132,6 +134,7 @@ def twin_stages(
     fill_velocity: bool,
     threads: int | None = None,
     regressor: RobotModel | None = None,
+    on_grid: bool = False,
 ) -> list[Stage]:
     """Velocity (from position where the log has none, unwrapped first: a joint reported in
     (−π, π] does not jump by 2π; ``twincd.signal.unwrap``), acceleration, τ̂ = RNEA(q, q̇, q̈), and
@@ -139,11 +142,19 @@ def twin_stages(
     the ``identified`` models).
 
     Columns must be in the robot's joint order. ``robot`` None: the frames carry
-    ``sim_effort`` already, only the velocity (and the regressor) is completed.
+    ``sim_effort`` already, only the velocity (and the regressor) is completed. ``on_grid``
+    (a grid's nodes, ``twincd.grid``): with the regressor of the twin's own model, τ̂ is
+    Y θ_URDF (RNEA is linear in the inertial parameters; equal to 1e-13) instead of a second
+    pass of the dynamics.
     """
     from twincd.signal.derivatives import StreamingDerivative
     from twincd.signal.unwrap import StreamingUnwrap
-    from twincd.twin.dynamics import inverse_dynamics, torque_regressor
+    from twincd.twin.dynamics import (
+        inertial_effort,
+        inertial_parameters,
+        inverse_dynamics,
+        torque_regressor,
+    )
 
     stages: list[Stage] = []
     if fill_velocity:
@@ -156,15 +167,20 @@ def twin_stages(
     if robot is None and regressor is None:
         return stages
     ddq = StreamingDerivative(period_s=period_s, causal=causal)
+    urdf = None  # θ_URDF per joint, (D, P), when τ̂ comes from the regressor
+    if on_grid and robot is not None and robot is regressor:
+        theta = inertial_parameters(robot)
+        urdf = np.ascontiguousarray(np.broadcast_to(theta, (robot.dof, len(theta))))
 
     def twin(frame: Frame) -> Frame:
         q, v, a = frame["position"], frame["velocity"], frame["ddq"]
         out = Frame({k: x for k, x in frame.items() if k != "ddq"})
-        if robot is not None:
+        y = None if regressor is None else torque_regressor(regressor, q, v, a)
+        if urdf is not None and y is not None:
+            out = out.with_columns(sim_effort=inertial_effort(y, urdf))
+        elif robot is not None:
             out = out.with_columns(sim_effort=inverse_dynamics(robot, q, v, a, threads=threads))
-        if regressor is not None:
-            out = out.with_columns(regressor=torque_regressor(regressor, q, v, a))
-        return out
+        return out if y is None else out.with_columns(regressor=y)
 
     return [*stages, Derived(ddq, "velocity", "ddq"), Mapped(twin)]
 
@@ -175,6 +191,7 @@ def filter_stages(
     coulomb_eps: Sequence[float] = (),
     regressor: BoolArray | None = None,
     theta: FloatArray | None = None,
+    on_grid: bool = False,
 ) -> list[Stage]:
     """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
 
@@ -189,9 +206,14 @@ def filter_stages(
     with a fitted identified model: its (D, P) weights), only each joint's Y_j θ_j goes through
     the filter, as ``regressor_effort_f`` (N, D): the filter is linear, so LP(Y) θ = LP(Y θ),
     and D channels are filtered instead of hundreds. Without either, nothing more is filtered:
-    the seed's model costs what it did."""
+    the seed's model costs what it did.
+
+    ``on_grid``: the frames are a grid's nodes (``twincd.grid``): their ``coulomb`` column
+    ((N, E, joints), the cells' means of tanh(q̇/ε)) is filtered instead of tanh of their
+    velocity, Y_j θ_j is summed over the whole regressor row (``inertial_effort``), and the
+    zero-phase edges are left to the samples."""
     from twincd.signal.filters import StreamingLowPass
-    from twincd.twin.dynamics import regressor_effort
+    from twincd.twin.dynamics import inertial_effort, regressor_effort
 
     eps = tuple(float(e) for e in coulomb_eps)
     extra = 1 + len(eps) if eps else 0  # velocity and one Coulomb feature per ε
@@ -201,12 +223,20 @@ def filter_stages(
 
     def stack(frame: Frame) -> Frame:
         v = frame["velocity"]
-        friction = (v, *(np.tanh(v / e) for e in eps)) if eps else ()
+        coulomb = frame.get("coulomb")
+        if not eps:
+            friction: tuple[FloatArray, ...] = ()
+        elif coulomb is not None:  # a grid's cell means of tanh(q̇/ε), one per ε
+            friction = (v, *np.moveaxis(coulomb, 1, 0))
+        else:
+            friction = (v, *(np.tanh(v / e) for e in eps))
         columns = [frame["effort"], frame["sim_effort"], *friction]
-        if regressor is not None:
+        if regressor is not None and theta is not None and on_grid:
+            columns.append(inertial_effort(frame["regressor"], theta))
+        elif regressor is not None:
             y = frame["regressor"][:, regressor]
             columns.append(y if theta is None else regressor_effort(y, theta, regressor))
-        rest = {k: x for k, x in frame.items() if k != "regressor"}
+        rest = {k: x for k, x in frame.items() if k not in ("regressor", "coulomb")}
         return Frame(rest, frame.n).with_columns(both=np.hstack(columns))
 
     def split(frame: Frame) -> Frame:
@@ -229,7 +259,7 @@ def filter_stages(
         Mapped(stack),
         Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f", keep=False),
         Mapped(split),
-        *edge_stages(lowpass, period_s),
+        *(() if on_grid else edge_stages(lowpass, period_s)),
     ]
 
 
@@ -288,6 +318,8 @@ class TwinChain:
     period_s: float
     # (D, P) the regressor entries the frames' ``regressor_f`` (N, kept) holds, output order
     regressor_mask: BoolArray | None = None
+    # the coarse grid the twin and the filter run on, when the log is sampled fast enough
+    grid: GridStage | None = None
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -348,26 +380,137 @@ def build_chain(
     regressor: RobotModel | None = None,
     threads: int | None = None,
     filtered: bool = True,
+    nodes: bool = False,
+    model: ResidualModel | None = None,
 ) -> TwinChain:
     """The one chain for ``settings`` (its filter: zero-phase or causal; the friction models'
     ε) on frames whose joints are laid out as ``layout``: pick the twin's columns, twin
     (``twin`` None: the frames carry ``sim_effort``; ``regressor``: the robot model whose
     joint-torque regressor the identified models need, ``layout.twin`` in its order), put the
     joints in the output order, and with ``filtered`` low-pass filter (``filtered=False`` stops
-    after the twin: what ``simulate`` writes)."""
+    after the twin: what ``simulate`` writes).
+
+    Where the log is sampled far faster than the filter keeps (``twincd.grid.grid_period_ns``:
+    a 1 kHz log), the twin and the filter run on a coarse grid's cell means and come back on
+    the samples by interpolation (``twincd.grid.GridStage``). What comes back on the samples:
+    every filtered column by default (what a ``PreparedLog`` holds); with ``nodes``, all but
+    the regressor's hundreds of entries, the grid keeping its filtered nodes for ``fit``
+    (``TwinChain.grid.take_nodes``); with a fitted ``model`` (scoring), its prediction
+    ``predicted``, computed on the nodes (every model is linear in its filtered inputs, so it
+    commutes with the interpolation), with ``effort_f`` and ``sim_effort_f`` only."""
     causal = settings.lowpass.causal
-    stages: list[Stage] = [
+    mask = None
+    if filtered and regressor is not None:
+        from twincd.twin.dynamics import regressor_mask
+
+        assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
+        mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
+    theta = None if mask is None else settings.regressor_weights
+    grid = grid_period_ns(settings.lowpass.cutoff_hz, period_s) if filtered else None
+    if grid is not None:
+        models = (twin, regressor, None if nodes else model)
+        stage = _grid_stage(settings, layout, grid, period_s, models, threads, nodes)
+        stages: list[Stage] = [
+            pick_columns(layout.to_twin),
+            *twin_stages(None, period_s, causal, fill_velocity),  # the velocity, if missing
+            pick_columns(layout.to_output),
+            *edge_stages(settings.lowpass, period_s),
+            stage,
+        ]
+        return TwinChain(Chain(stages), layout, period_s, mask, stage)
+    stages = [
         pick_columns(layout.to_twin),
         *twin_stages(twin, period_s, causal, fill_velocity, threads, regressor),
         pick_columns(layout.to_output),
     ]
-    mask = None
     if filtered:
-        if regressor is not None:
-            from twincd.twin.dynamics import regressor_mask
-
-            assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
-            mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
-        theta = None if mask is None else settings.regressor_weights
         stages += filter_stages(settings.lowpass, period_s, settings.coulomb_eps, mask, theta)
     return TwinChain(Chain(stages), layout, period_s, mask)
+
+
+def _grid_stage(
+    settings: ChainSettings,
+    layout: JointLayout,
+    grid_ns: int,
+    period_s: float,
+    models: tuple[RobotModel | None, RobotModel | None, ResidualModel | None],
+    threads: int | None,
+    nodes: bool,
+) -> GridStage:
+    """The grid's stage: on its nodes (joints in the output order) the twin's and the filter's
+    stages as ``build_chain`` runs them per sample, at the grid's period, then the fitted
+    model's prediction when there is one (``models``: the twin's robot model, the regressor's
+    and the fitted model, as ``build_chain`` takes them)."""
+    from twincd.twin.dynamics import regressor_mask
+
+    twin, regressor, model = models
+    lowpass, eps = settings.lowpass, settings.coulomb_eps
+    step = grid_ns * 1e-9
+    mask = None if regressor is None else regressor_mask(regressor)[layout.to_output]
+    theta = None if mask is None else settings.regressor_weights
+    # a fitted model reads one Coulomb feature per joint, at the joint's own ε: only those are
+    # averaged and filtered, and set among the others (zeros) before the model reads them
+    own = None if model is None else joint_epsilon(model, eps, len(layout.output))
+    node_stages: list[Stage] = [
+        pick_columns(np.argsort(layout.to_output).astype(np.intp)),  # output → twin order
+        # one thread: a few hundred nodes a call, and the reader's thread has the other core
+        *twin_stages(twin, step, lowpass.causal, False, 1, regressor, on_grid=True),
+        pick_columns(layout.to_output),
+        *filter_stages(lowpass, step, eps if own is None else eps[:1], mask, theta, on_grid=True),
+    ]
+    interpolate = ["effort_f", "sim_effort_f"]
+    if model is not None:
+        node_stages.append(_predicting(model, eps, mask, own))
+        interpolate.append("predicted")
+    else:
+        if eps:
+            interpolate += ["velocity_f", "coulomb_f"]
+        if mask is not None and theta is not None:
+            interpolate.append("regressor_effort_f")
+        elif mask is not None and not nodes:
+            interpolate.append("regressor_f")
+        if twin is not None and not nodes:
+            interpolate.append("sim_effort")  # τ̂ on the grid, unfiltered
+    return GridStage(
+        Chain(node_stages),
+        grid_ns,
+        period_s,
+        lowpass.causal,
+        interpolate,
+        average_sim=twin is None,
+        coulomb_eps=eps,
+        joint_eps=own,
+        keep_nodes=nodes,
+    )
+
+
+def _predicting(
+    model: ResidualModel,
+    eps: tuple[float, ...],
+    mask: BoolArray | None,
+    own: FloatArray | None,
+) -> Mapped:
+    """The fitted model's prediction (``predicted``) of filtered frames; ``own``: the frames
+    carry one Coulomb feature per joint, at its ε, set into ``eps``' features for the model."""
+    at = None if own is None else [eps.index(float(e)) for e in own]
+
+    def predict(frame: Frame) -> Frame:
+        inputs = {**frame, "coulomb_eps": eps, "regressor_mask": mask}
+        if at is not None:
+            features = np.zeros((frame.n, len(eps), len(at)))
+            features[:, at, np.arange(len(at))] = frame["coulomb_f"][:, 0, :]
+            inputs["coulomb_f"] = features
+        return frame.with_columns(predicted=model.predict(inputs))
+
+    return Mapped(predict)
+
+
+def joint_epsilon(model: ResidualModel, eps: Sequence[float], joints: int) -> FloatArray | None:
+    """Each joint's ε of a fitted friction model, when every one is among ``eps`` (else None:
+    the chain then prepares every ε's features, and the model says what is missing)."""
+    epsilon = getattr(model, "epsilon_", None)
+    if not eps or epsilon is None or len(epsilon) != joints:
+        return None
+    if any(float(e) not in [float(x) for x in eps] for e in epsilon):
+        return None
+    return np.asarray(epsilon, dtype=np.float64)

@@ -48,6 +48,8 @@ from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
+    from twincd.calibration.models import ResidualModel
+    from twincd.grid import GridStage
     from twincd.io.stream import LogStream
     from twincd.twin.robot import RobotModel
 
@@ -58,6 +60,9 @@ DEFAULT_BLOCK = 16384  # samples per block: bounded memory, per-block Python cos
 # samples per block with the joint-torque regressor (identified models): each sample then
 # carries hundreds of filtered values, and a block's copies must stay a few MB
 REGRESSOR_BLOCK = 2048
+# samples per block when fit sums a coarse grid's nodes (twincd.grid): the nodes' regressor and
+# its products stay a few MB (16384 took fit's peak RSS from 236 to 287 MB on a 1 kHz log)
+GRID_BLOCK = 8192
 # samples looked at before the stages are set up: enough for a stable nominal period
 PEEK_SAMPLES = 1001
 # fewer usable samples than this: a log is refused, not scored (a few samples say nothing)
@@ -124,7 +129,12 @@ def _finite_rows(frame: Frame, columns: Sequence[str], used: IndexArray) -> Bool
     ok = np.ones(frame.n, dtype=bool)
     for c in columns:
         if c in frame:
-            ok &= np.isfinite(frame[c][:, used]).all(axis=1)
+            values = frame[c]
+            if len(used) != values.shape[1] or np.any(used != np.arange(len(used))):
+                values = values[:, used]  # only the twin's joints (a copy)
+            finite = np.isfinite(values)
+            if not finite.all():  # row by row only when needed (a row-wise all is slower)
+                ok &= finite.all(axis=1)
     return ok
 
 
@@ -136,6 +146,13 @@ class PreparedStream:
 
     ``filtered=False`` stops after the twin (what ``simulate`` writes); ``need_effort=False``
     accepts logs without measured effort.
+
+    On logs sampled far faster than the filter keeps, the twin and the filter run on a coarse
+    grid (``twincd.grid``; ``grid`` is then its stage): ``nodes=True`` keeps its filtered nodes
+    (``take_nodes``) for ``fit``, and the frames then carry each sample's ``node`` instead of
+    the regressor's entries; with a fitted ``model`` (scoring) the frames carry its prediction
+    ``predicted`` and of the filtered columns only ``effort_f`` and ``sim_effort_f``
+    (``twincd.chain.build_chain``). Without a grid both change nothing.
     """
 
     def __init__(
@@ -145,6 +162,8 @@ class PreparedStream:
         filtered: bool = True,
         need_effort: bool = True,
         force_simulate: bool = False,
+        nodes: bool = False,
+        model: ResidualModel | None = None,
     ) -> None:
         self.path = Path(path)
         self.setup = setup
@@ -164,6 +183,9 @@ class PreparedStream:
         self.regressor_mask: BoolArray | None = None
         self.checks: SignalChecks | None = None
         self.at_edges = 0  # samples within the filter's edge spans (never judged)
+        self.nodes = nodes
+        self.model = model
+        self.grid: GridStage | None = None  # the coarse grid's stage, when there is one
         self._log: LogStream | None = None
 
     @property
@@ -237,10 +259,29 @@ class PreparedStream:
         self.checks = SignalChecks(twin_names, robot.position_limits if robot else {})
         setup = self.setup
         built = build_chain(
-            setup, layout, self.period_s, model, fill, regressor, setup.twin_threads, self.filtered
+            setup,
+            layout,
+            self.period_s,
+            model,
+            fill,
+            regressor,
+            setup.twin_threads,
+            self.filtered,
+            self.nodes,
+            self.model,
         )
         self.regressor_mask = built.regressor_mask
+        self.grid = built.grid
+        if built.grid is not None and self.regressor:
+            # the samples no longer carry the regressor's entries, only the grid's nodes do
+            # (fit's nodes all of them: fewer samples a block keep its sums' memory small)
+            self._log.block_size = min(setup.block_size, GRID_BLOCK if self.nodes else 1 << 30)
         return built
+
+    def take_nodes(self) -> Frame:
+        """The grid's filtered nodes since the last call (with ``nodes=True``; empty without a
+        grid)."""
+        return Frame() if self.grid is None else self.grid.take_nodes()
 
     def _twin_source(
         self, sim: FloatArray | None, names: tuple[str, ...]

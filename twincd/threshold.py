@@ -257,17 +257,19 @@ def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogSc
     """Stream one log into statistics of its calibrated score on collision-free samples and its
     excursions."""
     stats = ScoreStats()
-    with setup.open(path) as stream:
+    model = calibration.model
+    with setup.open(path, model=model) as stream:
         peaks: ExcursionCounter | None = None
         for frame in stream:
             peaks = peaks or ExcursionCounter(stream.period_s)
-            scores = calibration.model.scores(
-                {
-                    **frame,
-                    "coulomb_eps": stream.coulomb_eps,
-                    "regressor_mask": stream.regressor_mask,
-                }
-            )
+            inputs = {
+                **frame,
+                "coulomb_eps": stream.coulomb_eps,
+                "regressor_mask": stream.regressor_mask,
+            }
+            # a grid's frames carry the prediction, made on its nodes (twincd.chain)
+            residual = model.residual(inputs, frame.get("predicted"))
+            scores = model.score(residual, frame.get("velocity"))
             usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             stats = stats + ScoreStats.from_scores(scores, usable)
             peaks.push(scores, usable)

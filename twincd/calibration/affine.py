@@ -96,6 +96,27 @@ class AffineStats:
         )
 
     @classmethod
+    def from_weighted(cls, x: FloatArray, y: FloatArray, weight: Any) -> AffineStats:
+        """``from_arrays`` of rows that each stand for ``weight`` samples (a grid's nodes)."""
+        rows = np.flatnonzero(np.asarray(weight))
+        w = np.asarray(weight, dtype=np.float64)[rows, None]
+        x = np.asarray(x, dtype=np.float64)[rows]
+        y = np.asarray(y, dtype=np.float64)[rows]
+        if len(rows) == 0:
+            return cls.zeros(x.shape[1] if x.ndim == 2 else 0)
+        n = float(w.sum())
+        mx, my = (w * x).sum(axis=0) / n, (w * y).sum(axis=0) / n
+        dx, dy = x - mx, y - my
+        return cls(
+            n=int(n),
+            mean_x=mx,
+            mean_y=my,
+            cxx=(w * dx * dx).sum(axis=0),
+            cyy=(w * dy * dy).sum(axis=0),
+            cxy=(w * dx * dy).sum(axis=0),
+        )
+
+    @classmethod
     def from_log(cls, log_: PreparedLog) -> AffineStats:
         """One log's statistics over its collision-free samples (the pure per-log step)."""
         return cls.from_arrays(log_.sim_effort_f, log_.effort_f, clean_mask(log_))

@@ -8,7 +8,7 @@ import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,15 +18,18 @@ from twincd.calibration.models import (
     EPSILON_GRID,
     FRICTION_WHITENED,
     IDENTIFIED_WHITENED,
+    SPEED_BINS,
     FitStats,
     ResidualModel,
     depth_order,
     make_model,
     model_class,
+    speed_bin,
 )
 from twincd.errors import DataError
+from twincd.frames import Frame
 from twincd.pipeline import PreparedStream, Setup, agreed_joints
-from twincd.types import FloatArray
+from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
     from twincd.frames import FrameSink
@@ -51,18 +54,25 @@ class LogFit:
 
 def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> LogFit:
     """Stream one log through read → twin → filter into the statistics of every model kind;
-    every frame also goes to ``sinks`` (e.g. what a report's figure draws)."""
+    every frame also goes to ``sinks`` (e.g. what a report's figure draws). On a coarse grid
+    (``twincd.grid``: a 1 kHz log) the sums run over the grid's nodes, each standing for the
+    samples of its cell (``FitStats.from_cells``)."""
     stats: FitStats | None = None
     seconds = 0.0
     labelled = False
-    with setup.open(path) as stream:
+    with setup.open(path, nodes=True) as stream:
+        cells = _Cells()
         for frame in stream:
             labelled |= "labels" in frame
             start = time.perf_counter()
             clean = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             # the stream knows its regressor's entries once its first block is read
             prepared = {"coulomb_eps": stream.coulomb_eps, "regressor_mask": stream.regressor_mask}
-            part = FitStats.from_inputs({**frame, **prepared}, clean, setup.speed_stats)
+            if "node" in frame:
+                nodes = stream.take_nodes()
+                part = cells.stats(frame, clean, nodes, prepared, setup.speed_stats)
+            else:
+                part = FitStats.from_inputs({**frame, **prepared}, clean, setup.speed_stats)
             stats = part if stats is None else stats + part
             seconds += time.perf_counter() - start
             for sink in sinks:
@@ -79,6 +89,37 @@ def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> 
             samples=stream.samples,
             labelled=labelled,
         )
+
+
+class _Cells:
+    """A grid's filtered nodes, kept until every sample of their cells has been counted."""
+
+    def __init__(self) -> None:
+        self.table = Frame()
+
+    def stats(
+        self,
+        frame: Frame,
+        clean: BoolArray,
+        nodes: Frame,
+        prepared: dict[str, Any],
+        speed: bool,
+    ) -> FitStats:
+        """The statistics of ``frame``'s clean samples, each counted at its cell's node."""
+        table = self.table = Frame.concat([self.table, nodes])
+        first = int(table["node"][0])
+        at = np.asarray(frame["node"], dtype=np.int64)[clean] - first
+        count = np.bincount(at, minlength=table.n)
+        bins = speed_bin(np.asarray(frame["velocity"], dtype=np.float64)[clean])
+        joints, width = bins.shape[1], len(SPEED_BINS) + 1
+        cell = (at[:, None] * joints + np.arange(joints)) * width + bins
+        by_speed = np.bincount(cell.ravel(), minlength=table.n * joints * width)
+        part = FitStats.from_cells(
+            {**table, **prepared}, count, by_speed.reshape(table.n, joints, width), speed
+        )
+        # the last sample's cell may go on in the next frame
+        self.table = table.tail(int(frame["node"][-1]) - first)
+        return part
 
 
 def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:

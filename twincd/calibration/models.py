@@ -139,10 +139,12 @@ def _joint_moments(
     velocity: FloatArray,
     coulomb: FloatArray,
     effort: FloatArray,
+    weight: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Mean (K,) and centred cross-products (K, K) of one joint's columns τ̂̃, Ỹ_j (its
     ``kept`` entries, zero elsewhere), q̇̃, Coulomb (E), τ̃. The full width keeps BLAS's
-    summation order: any block size gives the bits of one (N, D, K) product."""
+    summation order: any block size gives the bits of one (N, D, K) product. ``weight``:
+    how many samples each row stands for (a grid's node for its cell's samples)."""
     params = len(kept)
     cols = np.zeros((len(sim), params + 3 + coulomb.shape[1]))
     cols[:, 0] = sim
@@ -150,6 +152,10 @@ def _joint_moments(
     cols[:, params + 1] = velocity
     cols[:, params + 2 : -1] = coulomb
     cols[:, -1] = effort
+    if weight is not None:
+        mean_w: FloatArray = weight @ cols / weight.sum()
+        cols -= mean_w
+        return mean_w, (cols * weight[:, None]).T @ cols
     mean: FloatArray = cols.mean(axis=0)
     cols -= mean
     return mean, cols.T @ cols
@@ -215,6 +221,34 @@ class FrictionStats:
         centred = cols - mean[:, None]
         cross = np.einsum("enda,endb->edab", centred, centred)
         return cls(len(x), mean, cross)
+
+    @classmethod
+    def from_weighted(
+        cls,
+        sim_effort_f: FloatArray,
+        velocity_f: FloatArray,
+        coulomb_f: FloatArray,
+        effort_f: FloatArray,
+        weight: IntArray,
+    ) -> FrictionStats:
+        """``from_arrays`` of rows that each stand for ``weight`` samples (a grid's nodes)."""
+        rows = np.flatnonzero(weight)
+        w = np.asarray(weight, dtype=np.float64)[rows]
+        x = np.asarray(sim_effort_f, dtype=np.float64)[rows]
+        f = coulomb_grid(coulomb_f, "friction fit")[rows]
+        v = np.asarray(velocity_f, dtype=np.float64)[rows]
+        y = np.asarray(effort_f, dtype=np.float64)[rows]
+        if len(rows) == 0:
+            return cls.zeros(x.shape[1] if x.ndim == 2 else 0)
+        cols = np.stack(
+            np.broadcast_arrays(x[None], np.moveaxis(f, 1, 0), v[None], y[None]), axis=-1
+        )  # (E, N, D, 4)
+        n = float(w.sum())
+        mean = np.einsum("n,endk->edk", w, cols) / n
+        centred = cols - mean[:, None]
+        weighted = centred * w[None, :, None, None]
+        cross = np.einsum("enda,endb->edab", weighted, centred)
+        return cls(int(n), mean, cross)
 
     def __add__(self, other: FrictionStats) -> FrictionStats:
         return FrictionStats(*merge_moments(self, other, joint_axis=1))
@@ -403,6 +437,55 @@ class SpeedStats:
                         velocity[at, j],
                         coulomb[at],
                         effort[at, j],
+                    )
+        return cls(n, mean, cross, params, out.coulomb)
+
+    @classmethod
+    def from_weighted(
+        cls,
+        weight: IntArray,
+        sim_effort_f: FloatArray,
+        effort_f: FloatArray,
+        velocity_f: FloatArray | None = None,
+        coulomb_f: FloatArray | None = None,
+        regressor_f: FloatArray | None = None,
+        regressor_mask: BoolArray | None = None,
+    ) -> SpeedStats:
+        """``from_arrays`` of rows that stand for samples (a grid's nodes for their cells'):
+        ``weight`` (N, D, B) counts, per row, joint and bin of the joint's speed, the samples
+        a row stands for."""
+        sim = np.asarray(sim_effort_f, dtype=np.float64)
+        joints = sim.shape[1]
+        f = None if coulomb_f is None else coulomb_grid(coulomb_f, "whitening scale")
+        y, kept = None, None
+        if regressor_f is not None:
+            y, kept = compact_regressor(regressor_f, regressor_mask)
+        params = 0 if kept is None else kept.shape[1]
+        out = cls.zeros(joints, params, 0 if f is None else f.shape[1])
+        effort = np.asarray(effort_f, dtype=np.float64)
+        velocity = np.zeros_like(sim) if velocity_f is None else np.asarray(velocity_f, np.float64)
+        w = np.asarray(weight, dtype=np.float64)
+        n, mean, cross = out.n.copy(), out.mean.copy(), out.cross.copy()
+        ends = None if kept is None else np.cumsum(kept.sum(axis=1))
+        with one_blas_thread():
+            for j in range(joints):
+                if kept is None or y is None or ends is None:
+                    joint_kept, joint_y = np.zeros(0, bool), np.zeros((len(sim), 0))
+                else:
+                    joint_kept = kept[j]
+                    joint_y = y[:, ends[j] - np.count_nonzero(kept[j]) : ends[j]]
+                coulomb = np.zeros((len(sim), 0)) if f is None else f[:, :, j]
+                for b in np.flatnonzero(w[:, j].any(axis=0)):
+                    at = np.flatnonzero(w[:, j, b])
+                    n[b, j] = int(w[at, j, b].sum())
+                    mean[b, j], cross[b, j] = _joint_moments(
+                        joint_kept,
+                        sim[at, j],
+                        joint_y[at],
+                        velocity[at, j],
+                        coulomb[at],
+                        effort[at, j],
+                        w[at, j, b],
                     )
         return cls(n, mean, cross, params, out.coulomb)
 
@@ -1014,6 +1097,41 @@ class FitStats:
         identified = None
         if regressor is not None:
             # the identified model's moments are the speed bins' pooled: one product, not two
+            n, mean, cross = bins.pooled()
+            identified = IdentifiedStats(n, mean, cross)
+        return cls(affine, bins, friction, identified)
+
+    @classmethod
+    def from_cells(
+        cls, inputs: Mapping[str, Any], count: IntArray, by_speed: IntArray, speed: bool = True
+    ) -> FitStats:
+        """``from_inputs`` of a grid's nodes (``twincd.grid``), each standing for the samples of
+        its cell: ``count`` (N,) the clean samples each row stands for, ``by_speed``
+        (N, D, B) those per joint and bin of the joint's own speed (what ``speed_bin`` gives
+        each sample, as scoring bins it). The sums are the samples', each sample counted at
+        its cell's node."""
+        sim, effort = inputs["sim_effort_f"], inputs["effort_f"]
+        affine = AffineStats.from_weighted(sim, effort, count)
+        grid = tuple(inputs.get("coulomb_eps") or ()) == EPSILON_GRID
+        friction = None
+        if grid:
+            friction = FrictionStats.from_weighted(
+                sim, inputs["velocity_f"], inputs["coulomb_f"], effort, count
+            )
+        regressor = inputs.get("regressor_f") if grid else None
+        if not speed and regressor is None:
+            return cls(affine, None, friction, None)
+        bins = SpeedStats.from_weighted(
+            by_speed,
+            sim,
+            effort,
+            inputs.get("velocity_f"),
+            inputs["coulomb_f"] if grid else None,
+            regressor,
+            inputs.get("regressor_mask"),
+        )
+        identified = None
+        if regressor is not None:
             n, mean, cross = bins.pooled()
             identified = IdentifiedStats(n, mean, cross)
         return cls(affine, bins, friction, identified)

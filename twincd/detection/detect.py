@@ -92,7 +92,8 @@ class ScoringStage:
         ``coulomb_f`` for friction models) plus ``predicted`` (the model's effort), ``residual``,
         ``score`` and ``flag`` columns, and the events that closed in it."""
         inputs = {**frame, "coulomb_eps": self.coulomb_eps, "regressor_mask": self.regressor_mask}
-        predicted = self.model.predict(inputs)
+        # a grid's frames carry the prediction, made on its nodes (twincd.chain.build_chain)
+        predicted = frame["predicted"] if "predicted" in frame else self.model.predict(inputs)
         r = self.model.residual(inputs, predicted)
         # the events weigh joints as the score does: by their noise at their speed, if known
         scores, evidence = self.model.weigh(r, frame.get("velocity"))

@@ -35,7 +35,7 @@ def detect_file(
     summary = DetectionSummary(str(path), calibration.require_threshold().value)
     # the stream's columns follow the calibration's joints (Setup.from_calibration)
     stage = ScoringStage(calibration)
-    with setup.open(path) as stream:
+    with setup.open(path, model=stage.model) as stream:
         for frame in stream:
             stage.regressor_mask = stream.regressor_mask
             out, closed = stage.push(frame)

@@ -13,17 +13,23 @@ periods), are scored but never flagged, for the filter's settling time
 ``fit --causal``), where the filter and the derivative start on a few samples;
 ``counts.judged`` counts the samples that were judged.
 
-Latency: no stage holds a sample back, so each push returns a score for every sample it
-carried. What delays a detection is the causal low-pass filter itself: a step in effort shows
-in the score after its group delay, ``OnlineDetector.latency_s`` (≈ 75 ms for the default
-3 Hz, order-2 filter). An event is reported when it closes: once its score has stayed below
-the release level for longer than the merge gap (``EventRules``, defaults 50 % of the way from
-μ to the threshold and 300 ms), so ``out.events`` comes that long after a push ends; the flag of
-each sample (score ≥ threshold) comes at once.
+Latency: on logs sampled at up to a few hundred hertz no stage holds a sample back, so each
+push returns a score for every sample it carried. Sampled far faster than the filter keeps
+(``twincd.grid``: 1 kHz), the twin and the filter run on a coarse grid, and a sample waits for
+its grid cell to end: a push returns the samples whose cells have ended (the held ones of
+earlier pushes first), each sample at most ``OnlineDetector.hold_s`` (one grid period, ≈ 5 ms
+at 1 kHz under 3 Hz) late; ``flush`` scores the held ones when a stream ends. What delays a
+detection is the causal low-pass filter itself: a step in effort shows in the score after
+its group delay, ``OnlineDetector.latency_s`` (≈ 75 ms for the default 3 Hz, order-2
+filter). An event is reported when it closes: once its score has stayed below the release
+level for longer than the merge gap (``EventRules``, defaults 50 % of the way from μ to the
+threshold and 300 ms), so ``out.events`` comes that long after a push ends; the flag of each
+sample (score ≥ threshold) comes with its score.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -45,12 +51,15 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class OnlineResult:
-    """The results of one push, one row per pushed sample."""
+    """The results of one push, one row per sample it released: every pushed sample, in the
+    order pushed, unless a coarse grid holds the newest ones back (``OnlineDetector.hold_s``):
+    they come first in a later push's result, or in ``flush``'s."""
 
     score: FloatArray  # (N,); NaN for a sample that was skipped (non-finite, or not newer)
     flag: BoolArray  # (N,)
     residual: FloatArray  # (N, joints)
     events: list[Event]  # events that closed with this push
+    stamp_ns: IntArray | None = None  # (N,) the stamps of these rows, as pushed
 
 
 class OnlineDetector:
@@ -117,6 +126,8 @@ class OnlineDetector:
                 )
         self._threads = threads
         self._chain: TwinChain | None = None
+        # pushed rows not released yet: their stamps and whether they went down the chain
+        self._held: deque[tuple[IntArray, BoolArray]] = deque()
         self._fill = False
         self._scoring = ScoringStage(calibration, rules=rules)
         self._last_stamp: int | None = None
@@ -133,6 +144,20 @@ class OnlineDetector:
         _, delay = signal.group_delay((b, a), w=[1e-3], fs=1.0 / self.period_s)
         return float(delay[0]) * self.period_s
 
+    @property
+    def hold_s(self) -> float:
+        """The longest a sample waits in the chain before it is scored: one grid period where
+        the twin and the filter run on a coarse grid (``twincd.grid``), else 0."""
+        from twincd.grid import grid_period_ns
+
+        grid = grid_period_ns(self.calibration.lowpass.cutoff_hz, self.period_s)
+        return 0.0 if grid is None else grid * 1e-9
+
+    @property
+    def pending(self) -> int:
+        """Pushed samples not in any result yet (held by a coarse grid)."""
+        return sum(len(stamps) for stamps, _ in self._held)
+
     def _build(self, fill: bool) -> TwinChain:
         """The calibration's chain on pushed columns (the calibration's joints, in its order)."""
         names = self.joint_names
@@ -141,7 +166,14 @@ class OnlineDetector:
         twin = None if self.use_sim else robot
         regressor = robot if self.calibration.regressor else None
         built = build_chain(
-            self.calibration, layout, self.period_s, twin, fill, regressor, self._threads
+            self.calibration,
+            layout,
+            self.period_s,
+            twin,
+            fill,
+            regressor,
+            self._threads,
+            model=self._scoring.model,
         )
         self._scoring.regressor_mask = built.regressor_mask
         return built
@@ -205,19 +237,61 @@ class OnlineDetector:
                 "sim_effort": None if sim is None else sim[rows],
             }
         )
+        self._held.append((stamps, ok))
         out = self._chain.chain.push(frame)
-        if out.n != len(rows):  # every stage is causal: nothing may be held back
-            raise RuntimeError(f"causal chain returned {out.n} of {len(rows)} samples")
-        scored, events = self._scoring.push(out)
         if len(rows):
             self._last_stamp = int(stamps[rows[-1]])
         self.samples += len(rows)
         self.skipped += n - len(rows)
+        return self._release(out)
+
+    def flush(self) -> OnlineResult:
+        """End of the stream: the samples a coarse grid still holds, scored, and the events
+        closed by them or still open. A later push starts a new stream."""
+        if self._chain is None:
+            return self._release(Frame(), self._scoring.finish())
+        out = self._release(self._chain.chain.finish(), final=True)
+        self._last_stamp = None
+        return out
+
+    def _release(
+        self, out: Frame, closing: list[Event] | None = None, final: bool = False
+    ) -> OnlineResult:
+        """The result of the chain's output ``out`` (the oldest held samples that went down
+        the chain, in order): the held rows up to its last one, skipped rows among them, and
+        at the end of a stream every held row."""
+        if out.n:
+            scored, events = self._scoring.push(out)
+        else:
+            scored, events = out, []
+        if final:
+            events = events + self._scoring.finish()
+        events += closing or []
+        stamps, oks = [], []
+        left = out.n  # rows that went down the chain, released now
+        while self._held:
+            batch, ok = self._held[0]
+            through = np.cumsum(ok)  # accepted rows up to each row
+            # a row goes once every accepted row up to it has come out of the chain
+            take = len(ok) if final else int(np.searchsorted(through, left, side="right"))
+            left -= int(through[take - 1]) if take else 0
+            stamps.append(batch[:take])
+            oks.append(ok[:take])
+            if take < len(ok):
+                self._held[0] = (batch[take:], ok[take:])
+                break
+            self._held.popleft()
+        stamp = np.concatenate(stamps) if stamps else np.zeros(0, dtype=np.int64)
+        ok = np.concatenate(oks) if oks else np.zeros(0, dtype=bool)
+        if int(ok.sum()) != out.n:
+            raise RuntimeError(f"chain returned {out.n} samples for {int(ok.sum())} released")
+        n = len(stamp)
         score = np.full(n, np.nan)
         flag = np.zeros(n, dtype=bool)
         resid = np.full((n, len(self.joint_names)), np.nan)
-        score[rows], flag[rows], resid[rows] = scored["score"], scored["flag"], scored["residual"]
-        return OnlineResult(score, flag, resid, events)
+        if out.n:
+            score[ok], flag[ok], resid[ok] = scored["score"], scored["flag"], scored["residual"]
+        return OnlineResult(score, flag, resid, events, stamp)
 
     @property
     def velocity_from_position(self) -> bool:
@@ -231,8 +305,9 @@ class OnlineDetector:
         return self._scoring.counts
 
     def close(self) -> list[Event]:
-        """End of the stream: the event still open, if any."""
-        return self._scoring.finish()
+        """End of the stream: the events of the samples still held (``flush`` for their
+        scores) and the event still open, if any."""
+        return self.flush().events
 
 
 def _increasing(stamps: IntArray, last: int | None) -> BoolArray:

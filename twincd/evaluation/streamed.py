@@ -98,7 +98,7 @@ def judge_log(
     positives = 0
     labelled = False
     score_s = 0.0
-    with setup.open(path) as stream:
+    with setup.open(path, model=stage.model) as stream:
         for frame in stream:
             stage.regressor_mask = stream.regressor_mask
             start = time.perf_counter()
