@@ -178,3 +178,87 @@ def test_a_signal_ends_the_session_with_its_summary(twin_dataset, causal_cal, si
     assert summary["type"] == "summary" and summary["ended"] == "stopped"
     assert summary["samples"] > 0
     assert proc.returncode == (1 if summary["collision"] else 0)
+
+
+# ---------------------------------------------------------------- -o SESSION.mcap
+
+
+def _topics(path: Path) -> dict[str, int]:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    counts = summary.statistics.channel_message_counts
+    return {c.topic: counts.get(cid, 0) for cid, c in summary.channels.items()}
+
+
+def test_the_session_file_holds_what_arrived_and_twincds_channels(
+    twin_dataset, causal_cal, tmp_path
+):
+    log = twin_dataset / "test" / "test_0.mcap"
+    session = tmp_path / "session.mcap"
+    with Replay(log, speed=SPEED) as replay:
+        result = run(
+            "watch", replay.url, "-c", causal_cal, "--json", "--idle-timeout", "1", "-o", session
+        )
+    assert result.exit_code == 1, result.stderr
+    summary = _lines(result.stdout)[-1]
+    topics = _topics(session)
+    source_counts = _topics(log)
+    for topic in ("/joint_states", "/twincd/sim_effort", "/collision_flag"):
+        assert topics[topic] == source_counts[topic], topic  # the label topic too
+    for topic in ("/twincd/residual", "/twincd/score", "/twincd/collision"):
+        assert topics[topic] == summary["samples"]
+    assert topics["/twincd/event"] == summary["events"]
+    # the metadata says what was synthesised
+    from mcap.reader import make_reader
+
+    with open(session, "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert "publish_time" in meta["twincd.session"]["synthesised"]
+    # detect --causal on the session finds the same events; evaluate can judge it
+    again = run("detect", session, "-c", causal_cal, "--json", "-q")
+    events = [
+        {k: v for k, v in d.items() if k not in ("type", "segment")}
+        for d in _lines(result.stdout)[:-1]
+    ]
+    assert json.loads(again.stdout)["logs"][0]["events"] == events
+    judged = run(
+        "evaluate", session, "-c", causal_cal, "--json", "-q", "--methods", "friction-whitened"
+    )
+    assert judged.exit_code == 0, judged.stderr
+    assert json.loads(judged.stdout)["positives"] > 0
+    # a second session may replace twincd's own session file; not another file
+    other = tmp_path / "other.mcap"
+    other.write_bytes(log.read_bytes())
+    refused = run("watch", "ws://127.0.0.1:1", "-c", causal_cal, "-o", other)
+    assert_one_line_error(refused, "overwrite")
+
+
+def test_a_killed_session_stays_readable(twin_dataset, causal_cal, tmp_path):
+    log = twin_dataset / "test" / "test_0.mcap"
+    session = tmp_path / "killed.mcap"
+    with Replay(log, speed=4.0, loop=True) as replay:
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "twincd_cli.main",
+                "watch",
+                replay.url,
+                "-c",
+                str(causal_cal),
+                "-o",
+                str(session),
+                "-q",
+            ],
+        )
+        assert replay.listener.subscribed.wait(30)
+        time.sleep(2.0)
+        proc.kill()
+        proc.wait(10)
+    result = run("detect", session, "-c", causal_cal, "--json")
+    assert result.exit_code in (0, 1), result.stderr
+    assert "truncated" in result.stderr or "damage" in result.stderr, result.stderr
+    assert json.loads(result.stdout)["logs"][0]["samples"] > 100
