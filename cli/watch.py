@@ -106,6 +106,15 @@ def watch(
             min=0,
         ),
     ] = 10.0,
+    reorder_window: Annotated[
+        float,
+        typer.Option(
+            "--reorder-window",
+            help="Milliseconds a sample is held so that samples out of order are sorted "
+            "(0: none; later ones are dropped and counted).",
+            min=0,
+        ),
+    ] = 20.0,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -145,6 +154,7 @@ def watch(
             duration_s=duration,
             idle_timeout_s=idle_timeout,
             connect_timeout_s=connect_timeout,
+            reorder_ns=round(reorder_window * 1e6),
             stop=stop,
         )
         for item in items:

@@ -74,6 +74,18 @@ class LiveDetector:
         sim_effort: FloatArray | None,
     ) -> Scored:
         det = self._detector
+        if self.use_sim and sim_effort is not None and not np.isfinite(sim_effort).any():
+            # none has its twin effort: all would be skipped (and an empty push with a twin
+            # effort trips the chain), so skip them here
+            self.skipped += len(stamp_ns)
+            joints = len(self.joint_names)
+            n = len(stamp_ns)
+            return Scored(
+                np.asarray(stamp_ns, np.int64),
+                np.full(n, np.nan),
+                np.zeros(n, bool),
+                np.full((n, joints), np.nan),
+            )
         before = det.skipped
         out = det.push(stamp_ns, position, velocity, effort, sim_effort if self.use_sim else None)
         self.skipped += det.skipped - before

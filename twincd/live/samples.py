@@ -4,10 +4,12 @@ cut into segments where the source's clock jumps back.
 - Time is ``header.stamp``, the message's log time where the stamp is 0 (as for a log).
 - Joints are matched by name to the calibration's (after its joint map); a message's other
   joints are ignored; a message that lacks a calibrated joint is not usable (counted).
-- Reordering: a sample is held until the newest stamp is ``window_ns`` past it (default 50 ms,
+- Reordering: a sample is held until the newest stamp is ``window_ns`` past it (default 20 ms,
   ``REORDER_WINDOW_NS``) or ``max_rows`` samples are held (1000); then samples leave in stamp
-  order. A sample older than one already released is late: dropped and counted; an exact
-  duplicate stamp is dropped (the first kept), as a log reader does.
+  order. A sample whose twin effort comes on its own topic (a calibration that uses the
+  log's) also waits for it, up to ``JOIN_WAIT_NS`` (100 ms) more. A sample older than one
+  already released is late: dropped and counted; an exact duplicate stamp is dropped (the
+  first kept), as a log reader does.
 - A clock that jumps back (a restarted source, a replay that loops): a stamp that falls behind
   the source's log time by ``CLOCK_JUMP_NS`` (5 s) more than before, and is not after the newest
   stamp, starts a new segment, judged from scratch, instead of being dropped as late.
@@ -16,7 +18,7 @@ cut into segments where the source's clock jumps back.
 from __future__ import annotations
 
 import heapq
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,8 +29,9 @@ from twincd.types import FloatArray
 
 __all__ = ["REORDER_MAX", "REORDER_WINDOW_NS", "JointDecoder", "Reorder", "Sample", "Segments"]
 
-REORDER_WINDOW_NS = 50_000_000
+REORDER_WINDOW_NS = 20_000_000
 REORDER_MAX = 1000
+JOIN_WAIT_NS = 100_000_000
 
 
 @dataclass(frozen=True)
@@ -126,13 +129,21 @@ class Reorder:
         self._held.add(stamp)
         self.newest = stamp if self.newest is None else max(self.newest, stamp)
 
-    def ready(self) -> list[Sample]:
-        """The samples that may leave now, in stamp order."""
+    def ready(self, complete: Callable[[int], bool] | None = None) -> list[Sample]:
+        """The samples that may leave now, in stamp order. ``complete(stamp)``: whether what
+        joins the sample (the twin's effort of a log that carries it) has come; a sample waits
+        for it up to ``JOIN_WAIT_NS`` past the window."""
         out: list[Sample] = []
         if self.newest is None:
             return out
         limit = self.newest - self.window_ns
-        while self._heap and (self._heap[0][0] <= limit or len(self._heap) > self.max_rows):
+        while self._heap:
+            stamp = self._heap[0][0]
+            due = stamp <= limit and (
+                complete is None or complete(stamp) or stamp <= limit - JOIN_WAIT_NS
+            )
+            if not (due or len(self._heap) > self.max_rows):
+                break
             out.append(self._pop())
         return out
 

@@ -220,7 +220,8 @@ class _Session:
                 self.reorder.reset()
                 self.sim = {k: v for k, v in self.sim.items() if k >= sample.stamp_ns}
             self.reorder.add(sample)
-        events += self._push(self.reorder.ready())
+        complete = (lambda stamp: stamp in self.sim) if self.sim_topic else None
+        events += self._push(self.reorder.ready(complete))
         if self.recorder is not None:
             self.recorder.tick()
         return usable, events
