@@ -262,3 +262,77 @@ def test_a_killed_session_stays_readable(twin_dataset, causal_cal, tmp_path):
     assert result.exit_code in (0, 1), result.stderr
     assert "truncated" in result.stderr or "damage" in result.stderr, result.stderr
     assert json.loads(result.stdout)["logs"][0]["samples"] > 100
+
+
+# ---------------------------------------------------------------- the ros2 source (rclpy)
+
+
+def _ros_extra_installs_here() -> bool:
+    """Where the extra twincd[ros] has wheels: Linux x86_64, CPython 3.10–3.13."""
+    import platform
+
+    return (
+        sys.platform == "linux"
+        and platform.machine() == "x86_64"
+        and (3, 10) <= sys.version_info[:2] <= (3, 13)
+    )
+
+
+def _rclpy_or_skip() -> None:
+    try:
+        import rclpy  # noqa: F401
+        import sensor_msgs.msg  # noqa: F401
+    except ImportError:
+        if os.environ.get("CI") == "true" and _ros_extra_installs_here():
+            # CI installs twincd[ros]: on this platform its wheels exist
+            pytest.fail("twincd[ros] should have installed rclpy on this platform")
+        pytest.skip("rclpy is not installed (the extra twincd[ros], or a sourced ROS 2)")
+
+
+def test_the_ros_extra_is_guarded_by_platform_markers():
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    extra = tomllib.loads((root / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"
+    ]["ros"]
+    assert all("platform_machine == 'x86_64'" in req and "Linux" in req for req in extra)
+
+
+def test_ros2_gives_the_events_of_detect_causal(twin_dataset, causal_cal):
+    _rclpy_or_skip()
+    import threading
+
+    import rclpy
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import JointState
+
+    from twincd.live import WatchEvent, WatchSummary, watch
+
+    log = twin_dataset / "test" / "test_0.mcap"
+    expected = json.loads(run("detect", log, "-c", causal_cal, "--json", "-q").stdout)["logs"][0]
+    _, messages = read_messages(log)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("twincd_test_publisher", context=context)
+    pubs = {
+        t: node.create_publisher(JointState, t, 1000)
+        for t in ("/joint_states", "/twincd/sim_effort")
+    }
+    items: list[object] = []
+    thread = threading.Thread(
+        target=lambda: items.extend(watch("ros2", causal_cal, idle_timeout_s=1.5))
+    )
+    thread.start()
+    time.sleep(1.0)
+    for topic, _, data in messages:
+        if topic in pubs:
+            pubs[topic].publish(deserialize_message(data, JointState))
+            time.sleep(0.0005)
+    thread.join(30)
+    node.destroy_node()
+    rclpy.shutdown(context=context)
+    summary = items[-1]
+    assert isinstance(summary, WatchSummary)
+    events = [i.event.to_dict() for i in items if isinstance(i, WatchEvent)]
+    assert events == expected["events"]
