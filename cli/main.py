@@ -12,7 +12,7 @@ from typer.core import TyperCommand, TyperGroup
 
 from twincd import __version__
 
-from . import calibrate, detect, evaluate, inspect, simulate, synth
+from . import calibrate, detect, evaluate, inspect, simulate, synth, watch
 
 
 class _NoFlagMetavar:
@@ -68,6 +68,7 @@ app.command("detect", cls=_Command)(detect.detect)
 app.command("evaluate", cls=_Command)(evaluate.evaluate)
 app.command("synth", cls=_Command)(synth.synth)
 app.command("inspect", cls=_Command)(inspect.inspect)
+app.command("watch", cls=_Command)(watch.watch)
 
 
 def _exit_terminated(signum: int, frame: object) -> None:

@@ -9,7 +9,20 @@ from pathlib import Path
 
 import pytest
 
-HEAVY = ("scipy", "sklearn", "torch", "pinocchio", "rosbags", "mcap", "matplotlib")
+HEAVY = (
+    "scipy",
+    "sklearn",
+    "torch",
+    "pinocchio",
+    "rosbags",
+    "mcap",
+    "matplotlib",
+    # live sources: imported when `watch` opens one, never for --help
+    "websockets",
+    "rclpy",
+    "zenoh",
+    "foxglove",
+)
 
 PROBE = """
 import json, sys
@@ -23,7 +36,8 @@ print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in %r)))
 
 
 @pytest.mark.parametrize(
-    "argv", [["--version"], ["--help"], ["detect", "--help"], ["fit", "--help"]]
+    "argv",
+    [["--version"], ["--help"], ["detect", "--help"], ["fit", "--help"], ["watch", "--help"]],
 )
 def test_help_and_version_import_nothing_heavy(argv: list[str]) -> None:
     done = subprocess.run(

@@ -9,6 +9,7 @@ type checkers see the real types):
 - calibrate: ``Calibration``, ``fit_calibration``, ``threshold_calibration``
 - detect: ``detect`` (a prepared log: ``twincd.detection.detect_log``), ``detect_file`` (a log
   streamed), ``OnlineDetector`` (live)
+- live: ``watch`` (a running robot's joint states through a Foxglove bridge or ROS 2)
 - many logs: ``run_logs`` (a per-log function over paths: local processes or Dask, keep-going)
 
 Arguments come in one order: inputs, calibration, settings
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
     from twincd.errors import TwincdError
     from twincd.io.logs import expand_logs
     from twincd.io.options import LogOptions
+    from twincd.live import watch
     from twincd.pipeline import Setup, read_log
     from twincd.run import LogFailure, LogRun, run_logs
     from twincd.settings import SetupOptions
@@ -51,6 +53,7 @@ _EXPORTS = {
     "LogRun": "twincd.run",
     "LogFailure": "twincd.run",
     "TwincdError": "twincd.errors",
+    "watch": "twincd.live",
 }
 
 __all__ = [
@@ -70,6 +73,7 @@ __all__ = [
     "read_log",
     "run_logs",
     "threshold_calibration",
+    "watch",
 ]
 
 

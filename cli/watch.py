@@ -1,0 +1,189 @@
+"""``twincd watch``: live detection on a running robot; exit 1 when a collision was seen."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import signal
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from twincd.defaults import DEFAULT_TOPIC
+
+from .common import command, stderr, stdout
+from .options import CalibrationIn, Debug, Force, Json, Quiet
+
+if TYPE_CHECKING:
+    from twincd.live import WatchEvent, WatchStatus, WatchSummary
+
+FLAGS_WATCH = {"connect_timeout": "--connect-timeout", "causal": "fit --causal"}
+
+
+@contextlib.contextmanager
+def _stop_on_signals(stop: threading.Event) -> Iterator[None]:
+    """SIGINT and SIGTERM end the session (the summary is still printed)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        stop.set()
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _event_row(item: WatchEvent) -> str:
+    e = item.event
+    link = e.link or "-"
+    return (
+        f"collision  {e.start_ns * 1e-9:.3f}–{e.end_ns * 1e-9:.3f} s  "
+        f"{e.duration_s:.2f} s  peak {e.peak_score:.4g}  joint {e.joint}  link {link}"
+    )
+
+
+def _status_line(item: WatchStatus, source: str) -> str:
+    latency = "-" if math.isnan(item.latency_ms) else f"{item.latency_ms:.1f} ms"
+    score = "-" if math.isnan(item.score) else f"{item.score:.3g}"
+    return (
+        f"{source}: {item.rate_hz:.0f} Hz, latency {latency}, score {score} / "
+        f"{item.threshold:.3g}, {item.events} event(s), {item.samples} samples"
+    )
+
+
+def _summary_line(item: WatchSummary) -> str:
+    verdict = "collision" if item.collision else "no collision"
+    return (
+        f"{verdict}: {item.events} event(s) in {item.samples} samples "
+        f"({item.elapsed_s:.1f} s, ended: {item.ended})"
+    )
+
+
+@command
+def watch(
+    source: Annotated[
+        str, typer.Argument(help="ws://HOST:PORT (a foxglove_bridge) or ros2 (rclpy).")
+    ],
+    calibration: CalibrationIn,
+    topic: Annotated[
+        str | None,
+        typer.Option("--topic", help=f"JointState topic [default: {DEFAULT_TOPIC}]"),
+    ] = None,
+    json_: Json = False,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "--output",
+            "-o",
+            help="Record the session: what arrived plus twincd's channels (.mcap), "
+            "written as it goes.",
+        ),
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Stop after this many seconds.", min=0)
+    ] = None,
+    idle_timeout: Annotated[
+        float | None,
+        typer.Option(
+            "--idle-timeout", help="Stop after this many seconds without a message.", min=0
+        ),
+    ] = None,
+    connect_timeout: Annotated[
+        float,
+        typer.Option(
+            "--connect-timeout",
+            help="Seconds to wait for the source and its first usable JointState.",
+            min=0,
+        ),
+    ] = 10.0,
+    reorder_window: Annotated[
+        float,
+        typer.Option(
+            "--reorder-window",
+            help="Milliseconds a sample is held so that samples out of order are sorted "
+            "(0: none; later ones are dropped and counted).",
+            min=0,
+        ),
+    ] = 20.0,
+    force: Force = False,
+    quiet: Quiet = False,
+    debug: Debug = False,
+) -> None:
+    """Watch a running robot: live collision detection on its joint states.
+
+    Runs the calibration's causal chain (fit it with --causal): the events and flags are
+    those of `detect --causal` on the same messages. Prints each event when it closes, a
+    status line on a terminal, and a summary at the end (--duration, --idle-timeout, Ctrl-C).
+
+    Exit code 1 when a collision was seen, 0 when none, 2 on errors, 3 on a defect in twincd.
+
+    Example: twincd watch ws://localhost:8765 -c calibration.json -o session.mcap
+    """
+    from twincd.live import WatchEvent, WatchStatus, WatchSummary
+    from twincd.live import watch as live_watch
+
+    from .common import FLAGS
+
+    FLAGS.update(FLAGS_WATCH)
+    stop = threading.Event()
+    status_shown = False
+    terminal = stderr.is_terminal and not quiet
+    summary: WatchSummary | None = None
+
+    def emit(obj: dict[str, Any]) -> None:
+        sys.stdout.write(json.dumps(obj) + "\n")
+        sys.stdout.flush()
+
+    with _stop_on_signals(stop):
+        items = live_watch(
+            source,
+            calibration,
+            topic=topic,
+            record=output,
+            force=force,
+            duration_s=duration,
+            idle_timeout_s=idle_timeout,
+            connect_timeout_s=connect_timeout,
+            reorder_ns=round(reorder_window * 1e6),
+            stop=stop,
+        )
+        for item in items:
+            if isinstance(item, WatchStatus):
+                if terminal:
+                    stderr.file.write("\r\x1b[2K" + _status_line(item, source))
+                    stderr.file.flush()
+                    status_shown = True
+                continue
+            if status_shown:
+                stderr.file.write("\r\x1b[2K")
+                status_shown = False
+            if isinstance(item, WatchEvent):
+                if json_:
+                    emit(item.to_dict())
+                else:
+                    stdout.print(_event_row(item), markup=False, highlight=False)
+                    sys.stdout.flush()
+            elif isinstance(item, WatchSummary):
+                summary = item
+    if status_shown:
+        stderr.file.write("\r\x1b[2K")
+    if summary is None:  # pragma: no cover - the iterator always ends with one
+        raise typer.Exit(3)
+    if json_:
+        emit(summary.to_dict())
+    else:
+        stdout.print(_summary_line(summary), markup=False, highlight=False)
+    if summary.error:
+        sys.stderr.write(f"twincd: error: {summary.error}\n")
+        raise typer.Exit(2)
+    raise typer.Exit(1 if summary.collision else 0)

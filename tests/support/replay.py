@@ -1,0 +1,119 @@
+"""A real Foxglove WebSocket server in the test process (``foxglove_sdk``) that replays a log.
+
+``Replay(log, speed=…)`` starts a server on a free port (its own ``foxglove.Context``, so that
+servers of different tests never share channels), advertises every topic of the MCAP ``log``
+(or ``channels``: topic → (schema name, schema text)), and, once a client subscribes to the
+first topic, publishes the log's messages ``speed`` times faster than they were recorded, with
+the log time of *now* (as foxglove_bridge stamps what it receives). ``loop=True`` starts again
+at the end until stopped.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import foxglove
+from mcap.reader import make_reader
+
+
+class _Listener:
+    def __init__(self) -> None:
+        self.subscribed = threading.Event()
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self.subscribed.set()
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        pass
+
+
+def read_messages(log: Path) -> tuple[dict[str, tuple[str, bytes]], list[tuple[str, int, bytes]]]:
+    """(topic → (schema name, schema data), [(topic, log time, payload)]) of an MCAP log."""
+    channels: dict[str, tuple[str, bytes]] = {}
+    messages: list[tuple[str, int, bytes]] = []
+    with open(log, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if channel.topic not in channels:
+                assert schema is not None
+                channels[channel.topic] = (schema.name, schema.data)
+            messages.append((channel.topic, message.log_time, message.data))
+    return channels, messages
+
+
+class Replay:
+    def __init__(
+        self,
+        log: Path | None = None,
+        speed: float = 10.0,
+        port: int = 0,
+        loop: bool = False,
+        channels: dict[str, tuple[str, bytes]] | None = None,
+        messages: list[tuple[str, int, bytes]] | None = None,
+    ) -> None:
+        if log is not None:
+            channels, messages = read_messages(log)
+        self.channels_spec = channels or {}
+        self.messages = messages or []
+        self.speed = speed
+        self.loop = loop
+        self.context = foxglove.Context()
+        self.listener = _Listener()
+        self.server = foxglove.start_server(
+            port=port,
+            context=self.context,
+            server_listener=self.listener,
+            message_backlog_size=1_000_000,
+        )
+        self.port = self.server.port
+        self.url = f"ws://127.0.0.1:{self.port}"
+        self.channels = {
+            topic: foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(name=name, encoding="ros2msg", data=data),
+                message_encoding="cdr",
+                context=self.context,
+            )
+            for topic, (name, data) in self.channels_spec.items()
+        }
+        self._stop = threading.Event()
+        self.done = threading.Event()
+        self._thread = threading.Thread(target=self._play, daemon=True)
+        self._thread.start()
+
+    def _play(self) -> None:
+        while not self.listener.subscribed.wait(0.05):
+            if self._stop.is_set():
+                return
+        time.sleep(0.2)  # the client's other subscriptions (labels, twin effort)
+        while not self._stop.is_set():
+            if not self.messages:
+                break
+            t0_log = self.messages[0][1]
+            t0 = time.monotonic()
+            for topic, log_time, data in self.messages:
+                if self._stop.is_set():
+                    return
+                due = t0 + (log_time - t0_log) * 1e-9 / self.speed
+                wait = due - time.monotonic()
+                if wait > 0:
+                    time.sleep(wait)
+                self.channels[topic].log(data, log_time=time.time_ns())
+            if not self.loop:
+                break
+        self.done.set()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        for channel in self.channels.values():
+            channel.close()
+        self.server.stop()
+
+    def __enter__(self) -> Replay:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop()

@@ -1,0 +1,93 @@
+"""Live sources: one small interface, one module per transport.
+
+A source delivers raw CDR messages of the topics ``watch`` asks for. ``open_source(spec)`` picks
+the transport by the form of ``spec``:
+
+- ``ws://HOST:PORT`` (or ``wss://``): a Foxglove WebSocket server such as foxglove_bridge
+  (``twincd.live.foxglove``);
+- ``ros2``: DDS through rclpy (``twincd.live.ros2``; the user's ROS 2 or the extra ``twincd[ros]``).
+
+A fourth transport is one module that implements ``Source`` and one line in ``open_source``.
+Transport libraries are imported when a source opens, never on ``import twincd``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+from twincd.errors import TwincdError
+
+__all__ = ["Arrival", "Source", "SourceError", "SourceLost", "Wanted", "open_source", "ros_type"]
+
+
+class SourceError(TwincdError):
+    """A live source that cannot be reached, or that does not carry what is asked of it."""
+
+
+class SourceLost(SourceError):
+    """A source that went away during a session and did not come back in time."""
+
+
+@dataclass(frozen=True)
+class Wanted:
+    """A topic to subscribe to: its ROS 2 type; ``required``: the session cannot start
+    without it (the joint states), else it is taken when it is published (labels)."""
+
+    topic: str
+    msgtype: str
+    required: bool = True
+
+
+@dataclass(frozen=True)
+class Arrival:
+    """One message as it arrived: its topic, the time the source gives it (the bridge's log
+    time, or the time rclpy handed it over), the local monotonic time it was taken (ns, for
+    latency) and its CDR payload."""
+
+    topic: str
+    log_time_ns: int
+    received_ns: int
+    data: bytes
+
+
+class Source(Protocol):
+    """A live transport: ``start`` connects and subscribes (``SourceError`` when it cannot
+    within ``timeout_s``), ``receive`` returns what arrived (empty after ``timeout_s`` without
+    a message; ``SourceLost`` when the source went away and did not come back), ``close``
+    ends it. ``name`` names it in messages."""
+
+    name: str
+
+    def start(self, wanted: Sequence[Wanted], timeout_s: float) -> None: ...
+
+    def receive(self, timeout_s: float) -> list[Arrival]: ...
+
+    def close(self) -> None: ...
+
+
+def ros_type(name: str) -> str:
+    """The ROS 2 type name: ``sensor_msgs/JointState`` → ``sensor_msgs/msg/JointState``."""
+    parts = name.strip().split("/")
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return name.strip()
+
+
+def open_source(spec: str, connect_timeout_s: float = 10.0) -> Source:
+    """The source that ``spec`` names (see the module's docstring)."""
+    text = spec.strip()
+    if text.startswith(("ws://", "wss://")):
+        from twincd.live.foxglove import FoxgloveSource
+
+        return FoxgloveSource(text, connect_timeout_s)
+    if text in ("ros2", "ros2:", "ros2://"):
+        from twincd.live.ros2 import Ros2Source
+
+        return Ros2Source(connect_timeout_s)
+    raise SourceError(
+        f"unknown live source {spec!r}",
+        "source",
+        "give ws://HOST:PORT (a foxglove_bridge) or ros2",
+    )

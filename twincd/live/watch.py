@@ -1,0 +1,456 @@
+"""``twincd.watch``: live collision detection on a source's joint states (``twincd watch``).
+
+``watch(source, calibration, …)`` is an iterator of ``WatchEvent`` (an event, when it closes),
+``WatchStatus`` (every ``status_every_s``) and, last, one ``WatchSummary``. It runs the
+calibration's causal chain (``twincd.detection.online.OnlineDetector``, used in
+``twincd.live.detector`` only), so the events and flags are those of ``detect --causal`` on the
+same messages. Samples are decoded, reordered and cut into segments as
+``twincd.live.samples`` says.
+
+It ends at ``duration_s``, when ``stop`` is set, on KeyboardInterrupt (Ctrl-C, or SIGTERM raised
+as one), or after ``idle_timeout_s`` without a message; the summary says which. Errors
+(``SourceError``, exit 2): the source cannot be reached, does not advertise the JointState
+topic (or carries another type on it), or gives no usable JointState within
+``connect_timeout_s``.
+
+Latency (``WatchStatus.latency_ms``, ``WatchSummary.latency_ms``): from the moment a message
+was taken from the transport to the moment its score was computed, i.e. the reorder window's
+hold plus the chain's time. The causal filter's own delay (how late a step shows in the
+score, ``filter_delay_ms``) comes on top.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Union
+
+import numpy as np
+
+from twincd.detection.events import Event
+from twincd.errors import CalibrationError
+from twincd.io.cdr import BOOL, JOINT_STATE
+from twincd.live.detector import LiveDetector, Scored
+from twincd.live.samples import REORDER_WINDOW_NS, JointDecoder, Reorder, Sample, Segments
+from twincd.live.source import Arrival, Source, SourceError, SourceLost, Wanted, open_source
+
+if TYPE_CHECKING:
+    from twincd.calibration import Calibration
+    from twincd.live.record import SessionRecorder
+
+__all__ = [
+    "CONNECT_TIMEOUT_S",
+    "WatchEvent",
+    "WatchItem",
+    "WatchStatus",
+    "WatchSummary",
+    "watch",
+]
+
+CONNECT_TIMEOUT_S = 10.0
+_POLL_S = 0.05
+_KEEP_LOG_TIMES = 100_000  # stamp → log time of recent samples (events are recorded at theirs)
+
+
+@dataclass(frozen=True)
+class WatchEvent:
+    """A collision event, once it closed."""
+
+    event: Event
+    segment: int
+
+    def to_dict(self) -> dict[str, object]:
+        return {"type": "event", **self.event.to_dict(), "segment": self.segment}
+
+
+@dataclass(frozen=True)
+class WatchStatus:
+    """How the session goes (every ``status_every_s``)."""
+
+    elapsed_s: float
+    samples: int
+    rate_hz: float  # samples scored per second over the last interval
+    latency_ms: float  # median over the last interval (NaN when nothing was scored)
+    score: float  # the latest score (NaN before the first)
+    threshold: float
+    events: int
+    segment: int
+
+    def to_dict(self) -> dict[str, object]:
+        return {"type": "status", **self.__dict__}
+
+
+@dataclass(frozen=True)
+class WatchSummary:
+    """The end of the session."""
+
+    samples: int
+    events: int
+    collision: bool
+    ended: str  # "duration", "interrupted", "idle", "stopped", "source lost"
+    elapsed_s: float
+    segments: int
+    late: int
+    duplicates: int
+    unusable: int  # JointState messages without the calibrated joints, ragged or undecodable
+    skipped: int  # samples the detector skipped (non-finite values)
+    judged: int
+    flagged: int
+    latency_ms: dict[str, float] = field(default_factory=dict)  # median, p95, max
+    filter_delay_ms: float = float("nan")
+    error: str = ""
+
+    def to_dict(self) -> dict[str, object]:
+        return {"type": "summary", **self.__dict__}
+
+
+WatchItem = Union[WatchEvent, WatchStatus, WatchSummary]  # noqa: UP007 - Python 3.10 at run time
+
+
+class _Latency:
+    """Arrival → score latencies: the last interval's, and a bounded window for the summary."""
+
+    def __init__(self) -> None:
+        self.recent: list[float] = []
+        self.window: deque[float] = deque(maxlen=100_000)
+        self.max = 0.0
+
+    def add(self, received_ns: Sequence[int], now_ns: int) -> None:
+        ms = [(now_ns - r) * 1e-6 for r in received_ns]
+        self.recent += ms
+        self.window.extend(ms)
+        if ms:
+            self.max = max(self.max, max(ms))
+
+    def interval(self) -> float:
+        value = float(np.median(self.recent)) if self.recent else float("nan")
+        self.recent = []
+        return value
+
+    def summary(self) -> dict[str, float]:
+        if not self.window:
+            return {}
+        values = np.asarray(self.window)
+        return {
+            "median": round(float(np.median(values)), 3),
+            "p95": round(float(np.percentile(values, 95)), 3),
+            "max": round(self.max, 3),
+        }
+
+
+def _load(calibration: Calibration | str | Path) -> Calibration:
+    from twincd.calibration import Calibration
+
+    cal = calibration if isinstance(calibration, Calibration) else Calibration.load(calibration)
+    if not cal.lowpass.causal:
+        raise CalibrationError(
+            "the calibration was fitted with the zero-phase filter, which needs the future of "
+            "every sample; watching live needs a causal one",
+            cal.source or "calibration",
+            "fit and threshold a calibration with the causal filter",
+            option="causal",
+        )
+    cal.require_threshold()
+    return cal
+
+
+class _Session:
+    """The state of one watch: detector, reorder buffer, segments, recorder, counts."""
+
+    def __init__(
+        self,
+        cal: Calibration,
+        source_name: str,
+        topic: str,
+        label_topic: str,
+        reorder_ns: int,
+        recorder: SessionRecorder | None,
+    ) -> None:
+        self.detector = LiveDetector(cal, source_name)
+        self.topic, self.label_topic = topic, label_topic
+        self.sim_topic = cal.options.sim_topic if self.detector.use_sim else None
+        names = self.detector.joint_names
+        self.decoder = JointDecoder(names, cal.options.joint_map)
+        self.sim_decoder = JointDecoder(names)
+        self.sim: dict[int, np.ndarray] = {}
+        self.reorder = Reorder(reorder_ns)
+        self.segments = Segments()
+        self.recorder = recorder
+        self.threshold = float(cal.require_threshold().value)
+        self.log_times: OrderedDict[int, int] = OrderedDict()
+        self.latency = _Latency()
+        self.events = 0
+        self.collision = False
+        self.last_score = float("nan")
+        self.scored_in_interval = 0
+
+    def wanted(self) -> list[Wanted]:
+        wanted = [Wanted(self.topic, JOINT_STATE)]
+        if self.sim_topic:
+            wanted.append(Wanted(self.sim_topic, JOINT_STATE))
+        wanted.append(Wanted(self.label_topic, BOOL, required=False))
+        return wanted
+
+    def take(self, arrivals: Sequence[Arrival]) -> tuple[int, list[Event]]:
+        """Messages in; (usable samples, closed events) out."""
+        usable = 0
+        events: list[Event] = []
+        for a in arrivals:
+            if self.recorder is not None:
+                msgtype = BOOL if a.topic == self.label_topic else JOINT_STATE
+                self.recorder.message(a.topic, msgtype, a.log_time_ns, a.data)
+            if a.topic == self.sim_topic:
+                s = self.sim_decoder.decode(a.data, a.log_time_ns, a.received_ns)
+                if s is not None:
+                    self.sim[s.stamp_ns] = s.effort
+                continue
+            if a.topic != self.topic:
+                continue
+            sample = self.decoder.decode(a.data, a.log_time_ns, a.received_ns)
+            if sample is None:
+                continue
+            usable += 1
+            if self.segments.jumped(sample):
+                events += self._push(self.reorder.drain())
+                events += self._finish(restart=True)
+                self.reorder.reset()
+                self.sim = {k: v for k, v in self.sim.items() if k >= sample.stamp_ns}
+            self.reorder.add(sample)
+        complete = (lambda stamp: stamp in self.sim) if self.sim_topic else None
+        events += self._push(self.reorder.ready(complete))
+        if self.recorder is not None:
+            self.recorder.tick()
+        return usable, events
+
+    def _push(self, samples: list[Sample]) -> list[Event]:
+        if not samples:
+            return []
+        joints = len(self.detector.joint_names)
+        stamps = np.array([s.stamp_ns for s in samples], dtype=np.int64)
+        pos = np.array([s.position for s in samples]).reshape(-1, joints)
+        vel = np.array([s.velocity for s in samples]).reshape(-1, joints)
+        eff = np.array([s.effort for s in samples]).reshape(-1, joints)
+        sim = None
+        if self.sim_topic:
+            nan = np.full(joints, np.nan)
+            sim = np.array([self.sim.pop(s.stamp_ns, nan) for s in samples]).reshape(-1, joints)
+            last = int(stamps[-1])
+            for k in [k for k in self.sim if k <= last]:
+                del self.sim[k]
+        for s in samples:
+            self.log_times[s.stamp_ns] = s.log_time_ns
+        while len(self.log_times) > _KEEP_LOG_TIMES:
+            self.log_times.popitem(last=False)
+        scored = self.detector.push(stamps, pos, vel, eff, sim)
+        self.latency.add([s.received_ns for s in samples], time.monotonic_ns())
+        self._record(scored, samples, pos, vel, sim)
+        return self._events(scored)
+
+    def _finish(self, restart: bool) -> list[Event]:
+        scored = self.detector.restart() if restart else self.detector.finish()
+        self._record(scored, [], None, None, None)
+        return self._events(scored)
+
+    def _record(
+        self,
+        scored: Scored,
+        samples: list[Sample],
+        pos: np.ndarray | None,
+        vel: np.ndarray | None,
+        sim: np.ndarray | None,
+    ) -> None:
+        n = len(scored.stamp_ns)
+        if n:
+            finite = scored.score[np.isfinite(scored.score)]
+            if len(finite):
+                self.last_score = float(finite[-1])
+            self.scored_in_interval += n
+        if self.recorder is None or not n:
+            return
+        # results are matched to the pushed samples by stamp (a detector may hold some back)
+        pushed = {s.stamp_ns: i for i, s in enumerate(samples)}
+        rows = [pushed.get(int(t), -1) for t in scored.stamp_ns]
+        ok = np.array([r >= 0 for r in rows], dtype=bool)
+        if pos is None or vel is None or not ok.any():
+            return
+        idx = np.array([r for r in rows if r >= 0], dtype=np.intp)
+        stamps = scored.stamp_ns[ok]
+        log_times = np.array([self.log_times.get(int(t), int(t)) for t in stamps], np.int64)
+        good = np.isfinite(scored.score[ok])  # a skipped sample has no score to write
+        self.recorder.scored(
+            stamps[good],
+            log_times[good],
+            pos[idx][good],
+            vel[idx][good],
+            scored.residual[ok][good],
+            scored.score[ok][good],
+            scored.flag[ok][good],
+        )
+
+    def _events(self, scored: Scored) -> list[Event]:
+        events = scored.events
+        if events:
+            self.events += len(events)
+            self.collision = True
+            if self.recorder is not None:
+                times = [self.log_times.get(e.end_ns, e.end_ns) for e in events]
+                self.recorder.events(events, times)
+        return events
+
+    def end(self) -> list[Event]:
+        events = self._push(self.reorder.drain())
+        events += self._finish(restart=False)
+        return events
+
+
+def watch(
+    source: str | Source,
+    calibration: Calibration | str | Path,
+    *,
+    topic: str | None = None,
+    label_topic: str | None = None,
+    record: str | Path | None = None,
+    force: bool = False,
+    duration_s: float | None = None,
+    idle_timeout_s: float | None = None,
+    connect_timeout_s: float = CONNECT_TIMEOUT_S,
+    reorder_ns: int = REORDER_WINDOW_NS,
+    status_every_s: float = 1.0,
+    stop: threading.Event | None = None,
+) -> Iterator[WatchItem]:
+    """Watch ``source`` (``ws://HOST:PORT``, ``ros2``, or a ``Source``) with ``calibration``
+    (see the module's docstring). ``record``: the session MCAP (``-o``)."""
+    cal = _load(calibration)
+    src = open_source(source, connect_timeout_s) if isinstance(source, str) else source
+    recorder: SessionRecorder | None = None
+    session = None
+    try:
+        if record is not None:
+            from twincd.live.record import SessionRecorder
+
+            recorder = SessionRecorder(Path(record), src.name, cal.joint_names, force)
+        session = _Session(
+            cal,
+            src.name,
+            topic or cal.options.topic,
+            label_topic or cal.options.label_topic,
+            reorder_ns,
+            recorder,
+        )
+        yield from _run(
+            src, session, duration_s, idle_timeout_s, connect_timeout_s, status_every_s, stop
+        )
+    except BaseException:
+        if recorder is not None:
+            recorder.abandon()
+        raise
+    finally:
+        src.close()
+    if recorder is not None:
+        recorder.close()
+
+
+def _run(
+    src: Source,
+    s: _Session,
+    duration_s: float | None,
+    idle_timeout_s: float | None,
+    connect_timeout_s: float,
+    status_every_s: float,
+    stop: threading.Event | None,
+) -> Iterator[WatchItem]:
+    start = time.monotonic()
+    src.start(s.wanted(), connect_timeout_s)
+    deadline = start + connect_timeout_s
+    samples = 0
+    last_message = time.monotonic()
+    last_status = start
+    ended = "stopped"
+    error = ""
+    try:
+        # the first usable JointState, within the connect timeout
+        while samples == 0:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                c = s.decoder.counts
+                seen = (
+                    f"{c.messages} message(s) arrived, none with all of the calibrated joints "
+                    f"({', '.join(s.detector.joint_names)})"
+                    if c.messages
+                    else "no message arrived"
+                )
+                raise SourceError(
+                    f"waited {connect_timeout_s:g} s for a usable JointState on {s.topic}: {seen}",
+                    src.name,
+                    "check that the robot publishes there, and its joint names",
+                    option="topic",
+                )
+            if stop is not None and stop.is_set():
+                break
+            got, events = s.take(src.receive(min(left, _POLL_S)))
+            samples += got
+            for e in events:
+                yield WatchEvent(e, s.segments.count)
+        last_message = time.monotonic()
+        while not (stop is not None and stop.is_set()):
+            now = time.monotonic()
+            if duration_s is not None and now - start >= duration_s:
+                ended = "duration"
+                break
+            if idle_timeout_s is not None and now - last_message >= idle_timeout_s:
+                ended = "idle"
+                break
+            arrivals = src.receive(_POLL_S)
+            if arrivals:
+                last_message = time.monotonic()
+            _, events = s.take(arrivals)
+            for e in events:
+                yield WatchEvent(e, s.segments.count)
+            if now - last_status >= status_every_s:
+                yield _status(s, start, now - last_status)
+                last_status = now
+    except KeyboardInterrupt:
+        ended = "interrupted"
+    except SourceLost as exc:
+        ended = "source lost"
+        error = exc.message
+    for e in s.end():
+        yield WatchEvent(e, s.segments.count)
+    counts = s.detector
+    dec = s.decoder.counts
+    yield WatchSummary(
+        samples=counts.samples,
+        events=s.events,
+        collision=s.collision,
+        ended=ended,
+        elapsed_s=round(time.monotonic() - start, 3),
+        segments=s.segments.count,
+        late=s.reorder.late,
+        duplicates=s.reorder.duplicates,
+        unusable=dec.other_joints + dec.partial + dec.ragged + dec.undecodable,
+        skipped=counts.skipped,
+        judged=counts.judged,
+        flagged=counts.flagged,
+        latency_ms=s.latency.summary(),
+        filter_delay_ms=round(s.detector.latency_s * 1e3, 3),
+        error=error,
+    )
+
+
+def _status(s: _Session, start: float, interval: float) -> WatchStatus:
+    rate = s.scored_in_interval / interval if interval > 0 else 0.0
+    s.scored_in_interval = 0
+    return WatchStatus(
+        elapsed_s=round(time.monotonic() - start, 3),
+        samples=s.detector.samples,
+        rate_hz=round(rate, 1),
+        latency_ms=s.latency.interval(),
+        score=s.last_score,
+        threshold=s.threshold,
+        events=s.events,
+        segment=s.segments.count,
+    )
