@@ -141,7 +141,13 @@ def evaluate(
     junit: Junit = None,
     no_summary: NoSummary = False,
     min_f1: Annotated[
-        float | None, typer.Option("--min-f1", help="Exit 1 if a method's best F1 is lower.")
+        float | None,
+        typer.Option(
+            "--min-f1",
+            help="Exit 1 if a method's F1 at the threshold it is run at is lower (the "
+            "calibration's threshold for its own model, μ + kσ of --val for the others; not the "
+            "best F1 over μ + iσ).",
+        ),
     ] = None,
     min_auc: Annotated[
         float | None, typer.Option("--min-auc", help="Exit 1 if a method's AUC is lower.")

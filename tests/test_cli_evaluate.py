@@ -179,3 +179,28 @@ def test_streamed_logs_give_the_same_figures_on_processes(cal, twin_dataset):
     for row in rows:
         row.pop("test_s")
     assert rows[0] == rows[1] and rows[0]["events_detected"] > 0
+
+
+def test_the_f1_gate_judges_the_threshold_each_method_is_run_at(cal, twin_dataset, tmp_path):
+    # a gate between the F1 at the calibration's threshold and the best F1 over μ + iσ: it is
+    # missed, because CI deploys the threshold, not the best of the sweep; JUnit says the same
+    high = tmp_path / "high.json"  # a threshold well above the sweep's best
+    assert run("threshold", twin_dataset / "val", "-c", cal, "-k", "12", "-o", high).exit_code == 0
+    cal = high
+    doc = json.loads(run("evaluate", twin_dataset / "test", "-c", cal, "--json").stdout)
+    (row,) = doc["methods"]
+    at, best = row["f1_at_threshold"], row["f1_best"]
+    assert row["judged_at"].startswith("the calibration's threshold") and best > at + 1e-3
+    gate = (at + best) / 2
+    xml = tmp_path / "gates.xml"
+    result = run(
+        "evaluate", twin_dataset / "test", "-c", cal, "--min-f1", f"{gate:.6f}", "--junit", xml
+    )
+    assert result.exit_code == 1, result.output
+    assert "at the calibration's threshold" in result.stderr
+    assert "F1 at its threshold" in xml.read_text() and "failure" in xml.read_text()
+    # and passed at just below the F1 at the threshold
+    assert (
+        run("evaluate", twin_dataset / "test", "-c", cal, "--min-f1", f"{at - 1e-4:.6f}").exit_code
+        == 0
+    )

@@ -227,13 +227,16 @@ def test_evaluate_report_and_junit_per_gate(cal, twin_dataset, tmp_path):
     root = validate_junit(xml)
     names = [c.get("name") for c in root.iter("testcase")]
     assert names == [
-        "proposed: F1 >= 0.999",
+        "proposed: F1 at its threshold >= 0.999",
         "proposed: AUC >= 0.5",
-        "naive-diff: F1 >= 0.999",
+        "naive-diff: F1 at its threshold >= 0.999",
         "naive-diff: AUC >= 0.5",
     ]
     failed = {c.get("name") for c in root.iter("testcase") if c.find("failure") is not None}
-    assert failed == {"proposed: F1 >= 0.999", "naive-diff: F1 >= 0.999"}
+    assert failed == {
+        "proposed: F1 at its threshold >= 0.999",
+        "naive-diff: F1 at its threshold >= 0.999",
+    }
     assert all(f.get("type") == "gate" for f in root.iter("failure"))
     assert result.exit_code == 1, result.output
     page = html.read_text()
@@ -301,7 +304,7 @@ def test_evaluate_html_shows_gates_only_when_given(evaluation):
     no_gates = evaluation_html(evaluation)
     assert "Gates" not in no_gates and 'class="verdict' not in no_gates
     passed = evaluation_html(evaluation, gates=(0.0, 0.25))
-    assert '<p class="verdict good">Gates passed: F1 ≥ 0, AUC ≥ 0.25</p>' in passed
+    assert '<p class="verdict good">Gates passed: F1 at threshold ≥ 0, AUC ≥ 0.25</p>' in passed
     missed = evaluation_html(evaluation, ["proposed: F1 0.500 < 0.9"], gates=(0.9, None))
     assert '<p class="verdict bad">1 gate(s) missed</p>' in missed and "Gates passed" not in missed
     assert "<li>proposed: F1 0.500 &lt; 0.9</li>" in missed

@@ -137,6 +137,8 @@ class MethodResult:
     repeats: int = 1
     std: dict[str, float | None] = field(default_factory=dict)
     note: str | None = None  # what the method had to do differently (e.g. subsampling)
+    # the threshold the method is run at, as people read it: what the F1 gate judges
+    judged_at: str = ""
     events: dict[str, float | None] = field(default_factory=dict)  # EVENT_KEYS present
     # (fpr, tpr) points of the first run's ROC curve, for figures (not in the JSON)
     roc: list[tuple[float, float]] = field(default_factory=list)
@@ -164,6 +166,7 @@ class MethodResult:
             "positives",
         ):
             d[key] = getattr(self, key)
+        d["judged_at"] = self.judged_at
         d.update(self.events)
         d["sweep"] = [{"k": k, "f1": f} for k, f in self.sweep]
         if self.note:
@@ -200,13 +203,16 @@ class Evaluation:
         return out
 
     def missed_gates(self, min_f1: float | None, min_auc: float | None) -> list[str]:
-        """Why the gates fail (empty: passed); a gate judges every method that ran."""
+        """Why the gates fail (empty: passed); a gate judges every method that ran, its F1 at
+        the threshold it is run at (what it would flag deployed, not the best over μ + iσ)."""
         missed = []
         for m in self.methods:
             if m.skipped is not None:
                 continue
-            if min_f1 is not None and (m.f1_best or 0.0) < min_f1:
-                missed.append(f"{m.name}: F1 {m.f1_best or 0.0:.3f} < {min_f1}")
+            f1 = m.f1_at_threshold
+            if min_f1 is not None and (f1 is None or f1 < min_f1):
+                shown = "n/a" if f1 is None else f"{f1:.3f}"
+                missed.append(f"{m.name}: F1 {shown} at {m.judged_at} < {min_f1}")
             if min_auc is not None and (m.auc is None or m.auc < min_auc):
                 shown = "n/a" if m.auc is None else f"{m.auc:.3f}"
                 missed.append(f"{m.name}: AUC {shown} < {min_auc}")
@@ -499,6 +505,13 @@ def _evaluate_own(
     threshold = judge.require_threshold().value
     figures = _figures(units, mu, sigma, threshold, times, events, val_events, None)
     result = _combine(name, method.unit, k_sigma, [figures])
+    result.judged_at = (
+        f"μ + {k_sigma:g}σ = {threshold:.4g}"
+        if not own_rule
+        else f"its rule's threshold on the validation logs, {threshold:.4g}"
+        if val_paths
+        else f"the calibration's threshold, {threshold:.4g}"
+    )
     if own_rule and th.estimator != "mean-sd" and result.sigma:
         # judged by the calibration's threshold rule, on other μ and σ: its k over the metrics'
         result.k_sigma = ((result.threshold or 0.0) - (result.mu or 0.0)) / result.sigma
@@ -643,6 +656,7 @@ def _evaluate_whole(
     results = dict(skipped)
     for name, runs in active.items():
         results[name] = _combine(name, methods[name].unit, k_sigma, [r.result() for r in runs])
+        results[name].judged_at = f"μ + {k_sigma:g}σ of the validation logs"
     return results, tested
 
 

@@ -176,7 +176,7 @@ Gates = tuple[float | None, float | None]
 def gate_texts(gates: Gates) -> list[str]:
     """The gates given, as people read them (``F1 ≥ 0.6``); empty when none was given."""
     min_f1, min_auc = gates
-    texts = [] if min_f1 is None else [f"F1 ≥ {min_f1:g}"]
+    texts = [] if min_f1 is None else [f"F1 at threshold ≥ {min_f1:g}"]
     return texts + ([] if min_auc is None else [f"AUC ≥ {min_auc:g}"])
 
 

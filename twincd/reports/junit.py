@@ -97,7 +97,7 @@ def evaluation_cases(result: Evaluation, min_f1: float | None, min_auc: float | 
     for m in result.methods:
         gates: list[tuple[str, float | None, float | None]] = []
         if min_f1 is not None:
-            gates.append((f"F1 >= {min_f1:g}", m.f1_best, min_f1))
+            gates.append((f"F1 at its threshold >= {min_f1:g}", m.f1_at_threshold, min_f1))
         if min_auc is not None:
             gates.append((f"AUC >= {min_auc:g}", m.auc, min_auc))
         if not gates:
@@ -110,7 +110,8 @@ def evaluation_cases(result: Evaluation, min_f1: float | None, min_auc: float | 
             failure = None
             if bound is not None and (value is None or value < bound):
                 shown = "n/a" if value is None else f"{value:.3f}"
-                failure = f"{m.name}: {name.split(' ')[0]} {shown} < {bound:g}"
+                at = f" at {m.judged_at}" if name.startswith("F1") and m.judged_at else ""
+                failure = f"{m.name}: {name.split(' ')[0]} {shown}{at} < {bound:g}"
             seconds = m.test_s or 0.0
             cases.append(Case("twincd.evaluate", case_name, failure, seconds=seconds, kind="gate"))
     return cases
