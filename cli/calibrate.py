@@ -45,7 +45,13 @@ log = logging.getLogger("twincd")
 
 
 def fit_table(cal: Calibration) -> Table:
-    table = Table(title=f"{cal.kind} twin calibration ({cal.fit_samples} samples)")
+    held = cal.held or ((),) * len(cal.joint_names)
+    caption = (
+        "* held: not determined by these logs' motion (see the warning above)"
+        if any(held)
+        else None
+    )
+    table = Table(title=f"{cal.kind} twin calibration ({cal.fit_samples} samples)", caption=caption)
     friction = cal.c is not None and cal.d is not None and cal.epsilon is not None
     extra = ("c (N·m)", "d (N·m·s)", "ε (rad/s)") if friction else ()
     for col in ("joint", "a", "b", *extra, "R²", "RMSE (N·m)"):
@@ -53,10 +59,18 @@ def fit_table(cal: Calibration) -> Table:
     for i, name in enumerate(cal.joint_names):
         r2 = "n/a" if cal.r2 is None else f"{cal.r2[i]:.3f}"
         rmse = "n/a" if cal.rmse is None else f"{cal.rmse[i]:.3g}"
+
+        def mark(key: str, text: str, i: int = i) -> str:
+            return f"{text}*" if key in held[i] else text
+
         more = []
         if cal.c is not None and cal.d is not None and cal.epsilon is not None:
-            more = [f"{cal.c[i]:+.3f}", f"{cal.d[i]:+.3f}", f"{cal.epsilon[i]:g}"]
-        table.add_row(name, f"{cal.a[i]:.3f}", f"{cal.b[i]:+.3f}", *more, r2, rmse)
+            more = [
+                mark("c", f"{cal.c[i]:+.3f}"),
+                mark("d", f"{cal.d[i]:+.3f}"),
+                f"{cal.epsilon[i]:g}",
+            ]
+        table.add_row(name, mark("a", f"{cal.a[i]:.3f}"), f"{cal.b[i]:+.3f}", *more, r2, rmse)
     return table
 
 
