@@ -435,7 +435,12 @@ def test_keep_going_reports_each_failure_and_exits_2(world, tmp_path):
         )
         assert result.exit_code == 2
         lines = result.stderr.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith("twincd: error: ") and "b_bad" in lines[0]
+        errors = [ln for ln in lines if ln.startswith("twincd: error: ")]
+        assert len(errors) == 1 and "b_bad" in errors[0]
+        # the good log's output is kept, and said
+        assert [ln for ln in lines if ln not in errors] == [
+            f"twincd: wrote {out / 'a_good.detect.mcap'} (800 samples)"
+        ]
         doc = json.loads(result.stdout)
         assert [lg["path"] for lg in doc["logs"]] == [str(good)]
         assert [e["path"] for e in doc["errors"]] == [str(bad)] and doc["errors"][0]["error"]

@@ -49,6 +49,15 @@ def test_an_arm_at_rest_is_refused(still_logs, tmp_path, form, model):
     assert not (tmp_path / "cal.json").exists()
 
 
+def test_inspect_says_the_arm_does_not_move(still_logs, locked):
+    result = run("inspect", still_logs["rosbag2-sqlite3"][0], "--json")
+    assert result.exit_code == 0, result.output  # detect and threshold judge it
+    warnings = json.loads(result.stdout)["logs"][0]["warnings"]
+    assert any("the arm does not move" in w and "fit refuses" in w for w in warnings)
+    moving = json.loads(run("inspect", locked[0], "--json").stdout)["logs"][0]["warnings"]
+    assert not any("does not move" in w for w in moving)
+
+
 @pytest.fixture(scope="module")
 def locked(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     """Three training paths in which joint5 and joint6 never move (the others do)."""

@@ -196,10 +196,10 @@ def budget_threshold(
         tail = fit_bulk_tail(excursions, per_hour, mu, sigma, noise_median)
         if mu - noise_median > MISFIT_STUDIED:
             log.warning(
-                "the clean score's median on these logs is %.3g, far above the %.3g the "
-                "residual's noise alone would give: the calibration fits them much less well "
-                "than its training logs (too little or too different training motion, another "
-                "payload or effort scale?); the false-alarm budget is extrapolated",
+                "the clean score's median on these logs is %.3g, above the %.3g the residual's "
+                "noise alone would give: the calibration fits them less well than its training "
+                "logs (too little or too different training motion, another payload or effort "
+                "scale?); the false-alarm budget is extrapolated",
                 mu,
                 noise_median,
             )
