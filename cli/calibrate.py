@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import replace
 from pathlib import Path
@@ -13,7 +14,15 @@ from rich.table import Table
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.run import all_or_nothing
 
-from .common import check_reports, command, exit_if_failed, run_per_log, stdout
+from .common import (
+    WARNINGS,
+    check_reports,
+    command,
+    error_docs,
+    exit_if_failed,
+    run_per_log,
+    stdout,
+)
 from .options import (
     AllowUrdfChange,
     CalibrationIn,
@@ -25,6 +34,7 @@ from .options import (
     Force,
     Jobs,
     JointMap,
+    Json,
     KeepGoing,
     LabelTopic,
     Logs,
@@ -45,7 +55,13 @@ log = logging.getLogger("twincd")
 
 
 def fit_table(cal: Calibration) -> Table:
-    table = Table(title=f"{cal.kind} twin calibration ({cal.fit_samples} samples)")
+    held = cal.held or ((),) * len(cal.joint_names)
+    caption = (
+        "* held: not determined by these logs' motion (see the warning above)"
+        if any(held)
+        else None
+    )
+    table = Table(title=f"{cal.kind} twin calibration ({cal.fit_samples} samples)", caption=caption)
     friction = cal.c is not None and cal.d is not None and cal.epsilon is not None
     extra = ("c (N·m)", "d (N·m·s)", "ε (rad/s)") if friction else ()
     for col in ("joint", "a", "b", *extra, "R²", "RMSE (N·m)"):
@@ -53,10 +69,18 @@ def fit_table(cal: Calibration) -> Table:
     for i, name in enumerate(cal.joint_names):
         r2 = "n/a" if cal.r2 is None else f"{cal.r2[i]:.3f}"
         rmse = "n/a" if cal.rmse is None else f"{cal.rmse[i]:.3g}"
+
+        def mark(key: str, text: str, i: int = i) -> str:
+            return f"{text}*" if key in held[i] else text
+
         more = []
         if cal.c is not None and cal.d is not None and cal.epsilon is not None:
-            more = [f"{cal.c[i]:+.3f}", f"{cal.d[i]:+.3f}", f"{cal.epsilon[i]:g}"]
-        table.add_row(name, f"{cal.a[i]:.3f}", f"{cal.b[i]:+.3f}", *more, r2, rmse)
+            more = [
+                mark("c", f"{cal.c[i]:+.3f}"),
+                mark("d", f"{cal.d[i]:+.3f}"),
+                f"{cal.epsilon[i]:g}",
+            ]
+        table.add_row(name, mark("a", f"{cal.a[i]:.3f}"), f"{cal.b[i]:+.3f}", *more, r2, rmse)
     return table
 
 
@@ -80,12 +104,12 @@ def fit(
         str | None,
         typer.Option(
             "--model",
-            help="Calibration model: affine (the paper's a·twin + b), affine-whitened, "
-            "friction (+ c·tanh(q̇/ε) + d·q̇), identified (+ the URDF's inertial parameters "
-            "re-fitted through the joint-torque regressor; needs a robot model); *-whitened: "
-            "each joint's residual over its noise at its speed, scored by depth (default: the "
-            "best the logs allow: identified-whitened with a robot model, friction-whitened "
-            "with only a logged twin effort).",
+            help="Calibration model (default: the best the logs allow, identified-whitened "
+            "with a robot model, friction-whitened with only a logged twin effort): affine "
+            "(the paper's a·twin + b), affine-whitened, friction (+ c·tanh(q̇/ε) + d·q̇), "
+            "identified (+ the URDF's inertial parameters re-fitted through the joint-torque "
+            "regressor; needs a robot model); *-whitened: each joint's residual over its noise "
+            "at its speed, scored by depth.",
         ),
     ] = None,
     jobs: Jobs = 0,
@@ -96,11 +120,18 @@ def fit(
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
-    """Fit the twin to the robot: per joint, measured ≈ a·twin + b (least squares).
+    """Fit the twin to the robot: per joint, how the measured effort follows the twin's.
 
-    Give collision-free logs; samples labelled as collisions are left out.
+    Without --model, the best model the logs allow: identified-whitened with a robot model
+    (measured ≈ a·twin + Yθ + b + friction, the URDF's inertial parameters re-fitted, scored by
+    the depth statistic), friction-whitened with only a logged twin effort; --model affine is
+    the paper's measured ≈ a·twin + b.
 
-    Writes a calibration JSON (a, b, filter, log options) for threshold, detect, evaluate.
+    Give collision-free logs of the arm moving; samples labelled as collisions are left out.
+    Logs in which no joint moves are refused; coefficients the motion does not determine are
+    held (a = 1, friction 0) and said.
+
+    Writes a calibration JSON (the model, filter, log options) for threshold, detect, evaluate.
 
     Example: twincd fit logs/train/*.mcap -o calibration.json
     """
@@ -182,6 +213,7 @@ def threshold(
         Path | None,
         typer.Option("--output", "-o", help="Write here instead of rewriting -c in place."),
     ] = None,
+    json_: Json = False,
     robot: Robot = None,
     topic: Topic = None,
     label_topic: LabelTopic = None,
@@ -202,9 +234,12 @@ def threshold(
     excursions (its interval is printed and stored); the paper's μ + kσ with -k, and by default
     for the affine model.
 
-    Give validation logs other than those given to fit.
+    Give collision-free validation logs other than those given to fit, of the motion fit
+    saw: logs the calibration does not fit (an arm at rest, another effort scale or sign) are
+    refused.
 
-    The calibration file is rewritten atomically (or written to -o).
+    The calibration file is rewritten atomically (or written to -o). One line says the
+    threshold; --json prints the details as one JSON document.
 
     Example: twincd threshold logs/val/*.mcap -c calibration.json
 
@@ -246,30 +281,58 @@ def threshold(
     )  # fmt: skip
     cal = record_false_alarms(cal, tallied.results)
     cal.save(target)
-    stdout.print(threshold_line(cal.require_threshold()), soft_wrap=True)
+    if json_:
+        document = threshold_document(cal.require_threshold(), target, error_docs(done))
+        stdout.out(document, highlight=False)
+    else:
+        stdout.print(threshold_line(cal.require_threshold()), soft_wrap=True)
     log.info("wrote %s", target)
     exit_if_failed(done)
 
 
 def threshold_line(th: Threshold) -> str:
-    """What ``threshold`` prints: the method, the budget, the threshold and its interval."""
-    mu, sigma = ("μ (median)", "σ (MAD)") if th.estimator == "median-mad" else ("μ", "σ")
-    line = (
-        f"{mu} = {th.mu:.6g}  {sigma} = {th.sigma:.6g}  "
-        f"threshold = μ + {th.k_sigma:.4g}σ = {th.value:.6g}"
-    )
-    seen = f"{th.samples} samples, {len(th.logs)} log(s)"
-    tail = th.tail
-    if tail is None:
-        return f"k-sigma: {line}  ({seen})"
-    high = "∞" if tail.high is None else f"{tail.high:.6g}"
-    hours = (th.judged_s or 0.0) / 3600.0
-    by_rate = tail.method in ("rice-gaussian", "bulk-exponential")
-    shape = "" if by_rate else f", ξ = {tail.shape:.3g}"
-    above = "excursions" if by_rate else "peaks"
+    """What ``threshold`` prints: the threshold, the rule that set it and what it gave on its
+    own logs, in one short line (the details: ``--json``, and the calibration's
+    ``threshold``)."""
+    if th.tail is not None:
+        tail = th.tail
+        high = "∞" if tail.high is None else f"{tail.high:.4g}"
+        rule = (
+            f"budget {tail.per_hour:g} false alarm/h, {100 * tail.confidence:.0f} % interval "
+            f"{tail.low:.4g}–{high}"
+        )
+    else:
+        mu, sigma = ("median", "σ (MAD)") if th.estimator == "median-mad" else ("μ", "σ")
+        rule = f"μ + {th.k_sigma:g}σ, {mu} {th.mu:.4g}, {sigma} {th.sigma:.4g}"
+    logs = f"{len(th.logs)} log{'' if len(th.logs) == 1 else 's'}"
+    if th.judged_s is None or th.false_alarms is None:
+        return f"threshold {th.value:.4g} ({rule}); {logs}"
+    alarms = f"{th.false_alarms} false alarm{'' if th.false_alarms == 1 else 's'}"
     return (
-        f"{tail.method}: budget {tail.per_hour:g} false alarm(s)/h → {line}, "
-        f"{100 * tail.confidence:.0f} % interval [{tail.low:.6g}, {high}]  "
-        f"(u = {tail.level:.4g}, {tail.peaks} {above} above u, λ = {tail.rate_per_hour:.4g}/h"
-        f"{shape}; {th.false_alarms} false alarm(s) counted in {hours:.3g} h; {seen})"
+        f"threshold {th.value:.4g} ({rule}); {alarms} in {_duration(th.judged_s)} of clean "
+        f"data, {logs}"
     )
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.3g} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.3g} min"
+    return f"{seconds / 3600:.3g} h"
+
+
+def threshold_document(th: Threshold, written: Path, errors: list[dict[str, str]]) -> str:
+    """``threshold --json`` (contract: ``--json`` documents): the value, the rule, the false
+    alarms counted on the logs, and the ``threshold`` object written into the calibration."""
+    doc = {
+        "value": th.value,
+        "rule": "budget" if th.budget_per_hour is not None else "k-sigma",
+        "false_alarms": th.false_alarms,
+        "hours": None if th.judged_s is None else th.judged_s / 3600.0,
+        "calibration": str(written),
+        "threshold": th.to_dict(),
+        "errors": errors,
+        "warnings": list(WARNINGS),
+    }
+    return json.dumps(doc, allow_nan=False)

@@ -275,9 +275,14 @@ def counter(
 ) -> Iterator[Callable[[int, int], None]]:
     """A progress bar over ``total`` logs (logs done / total, samples/s) that the work advances
     by calling the yielded function with the logs just done and their samples (only when
-    stderr is a terminal and there are at least ``minimum`` logs)."""
-    if not show_progress(quiet) or total < minimum:
+    stderr is a terminal and there are at least ``minimum`` logs); with fewer, one log's
+    samples as they stream (``samples_progress``)."""
+    if not show_progress(quiet):
         yield lambda _logs, _samples: None
+        return
+    if total < minimum:
+        with samples_progress(description):
+            yield lambda _logs, _samples: None
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
@@ -302,6 +307,45 @@ def counter(
             bar.update(task, advance=logs, rate=f"{rate:,.0f} samples/s", refresh=True)
 
         yield advance
+
+
+# a progress line within a log is redrawn at most this often (s)
+SAMPLES_REDRAW_S = 0.1
+
+
+@contextlib.contextmanager
+def samples_progress(description: str) -> Iterator[None]:
+    """One log's samples as they stream through the chain, their rate and the time taken, on
+    stderr (the caller checks it is a terminal); the library tells of each block
+    (``twincd.progress``) when the log runs in this process."""
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from twincd.progress import listening
+
+    started = time.perf_counter()
+    columns = (
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        TextColumn("{task.completed:,.0f} samples  {task.fields[rate]}"),
+        TimeElapsedColumn(),
+    )
+    with Progress(*columns, console=stderr, transient=True, auto_refresh=False) as bar:
+        task = bar.add_task(description, total=None, rate="")
+        bar.refresh()
+        drawn = 0.0
+
+        def advance(samples: int) -> None:
+            nonlocal drawn
+            bar.update(task, advance=samples)
+            now = time.perf_counter()
+            if now - drawn >= SAMPLES_REDRAW_S:
+                done = bar.tasks[0].completed
+                rate = done / max(now - started, 1e-9)
+                bar.update(task, rate=f"{rate:,.0f} samples/s", refresh=True)
+                drawn = now
+
+        with listening(advance):
+            yield
 
 
 def run_per_log(

@@ -174,6 +174,11 @@ def detect(
         results = done.results
         written.extend(p for p in (report, junit) if p is not None)
         _write_reports(results, cal, report, junit, no_summary)
+    outputs = {str(path): target for path, target in items}
+    for result in results:  # the per-sample outputs written, as other commands say theirs
+        written_to = outputs.get(result.source)
+        if written_to is not None:
+            log.info("wrote %s (%d samples)", written_to, result.samples)
     summaries = [r.to_dict() for r in results]
     for result in results:
         for line in result.warnings:

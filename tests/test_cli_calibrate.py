@@ -38,6 +38,27 @@ def test_fit_writes_the_calibration_and_prints_the_table(fitted):
     assert "wrote" in result.stderr
 
 
+def test_threshold_json(fitted, twin_dataset, tmp_path):
+    """One JSON document on stdout: the value, the rule, the false alarms counted on the logs
+    and the threshold object written into the calibration (contract: --json documents)."""
+    cal, _ = fitted
+    out = tmp_path / "c.json"
+    # the paper's model: μ + 4σ by default, a budget when asked
+    for options, rule in (([], "k-sigma"), (["--false-alarms-per-hour", "1"], "budget")):
+        result = run("threshold", twin_dataset / "val", "-c", cal, "-o", out, "--json", *options)
+        assert result.exit_code == 0, result.output
+        doc = json.loads(result.stdout)
+        written = json.loads(out.read_text())["threshold"]
+        assert doc["rule"] == rule and doc["value"] == written["value"]
+        assert doc["threshold"] == written and doc["calibration"] == str(out)
+        assert doc["false_alarms"] == 0 and doc["hours"] > 0
+        assert doc["errors"] == [] and isinstance(doc["warnings"], list)
+        assert "threshold " not in result.stdout.split("{", 1)[0]  # nothing but the document
+    line = run("threshold", twin_dataset / "val", "-c", cal, "-o", out)
+    assert line.stdout.startswith("threshold ") and len(line.stdout.splitlines()) == 1
+    assert len(line.stdout) < 120  # a line to read, the details in --json
+
+
 def test_threshold_rewrites_in_place_or_to_output(fitted, twin_dataset, tmp_path):
     cal, _ = fitted
     copy = tmp_path / "c.json"
@@ -134,9 +155,8 @@ def test_fit_without_a_model_fits_the_best_the_logs_allow(
     assert doc["filter"]["kind"] == "critical" and doc["filter"]["cutoff_hz"] == 1.5
     threshold = run("threshold", data / "val", "-c", cal)
     assert threshold.exit_code == 0, threshold.output
-    assert threshold.stdout.startswith(
-        "bulk-exponential: budget 1 false alarm(s)/h → μ (median) = "
-    )
+    assert threshold.stdout.startswith("threshold ")
+    assert "(budget 1 false alarm/h, 90 % interval " in threshold.stdout
     th = json.loads(cal.read_text())["threshold"]
     budget = th["false_alarm_budget"]
     assert th["estimator"] == "median-mad" and budget["method"] == "bulk-exponential"

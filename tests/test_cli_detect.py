@@ -93,6 +93,21 @@ def test_outputs_written(cal, twin_dataset, tmp_path, suffix):
     assert set(residuals) == {3}
 
 
+@pytest.mark.parametrize("suffix", [".mcap", ".csv"])
+def test_detect_says_what_it_wrote(cal, twin_dataset, tmp_path, suffix):
+    """As fit, threshold and simulate do: one line on stderr per output written (results stay
+    alone on stdout)."""
+    out = tmp_path / f"out{suffix}"
+    result = run("detect", twin_dataset / "test" / "test_0.mcap", "-c", cal, "-o", out)
+    assert result.exit_code == 1, result.output
+    assert f"twincd: wrote {out} (" in result.stderr and str(out) not in result.stdout
+    folder = run("detect", twin_dataset / "test", "-c", cal, "-o", tmp_path / "d", "--force")
+    written = [ln for ln in folder.stderr.splitlines() if ln.startswith("twincd: wrote ")]
+    assert len(written) == 2 and all(".detect.mcap" in ln for ln in written)
+    quiet = run("detect", twin_dataset / "test" / "test_0.mcap", "-c", cal, "-o", out, "-q")
+    assert quiet.stderr == ""
+
+
 def test_several_logs_into_a_folder(cal, twin_dataset, tmp_path):
     result = run("detect", twin_dataset / "test", "-c", cal, "-o", tmp_path / "out", "-q")
     assert result.exit_code == 1

@@ -50,6 +50,24 @@ def test_panda_shaped_log_names_the_ignored_finger_joints(tmp_path, form):
     assert doc["sampling"]["rate_hz"] == pytest.approx(100.0)
 
 
+@pytest.mark.parametrize("form", ["mcap", "rosbag2-sqlite3"])
+def test_without_a_calibration_inspect_names_the_robot_model(tmp_path, form):
+    """``--robot`` and no calibration: the ignored joints are those the robot model lacks, as
+    detect says it (before: "not in the calibration")."""
+    names = (*XARM, "drive_joint")
+    effort = np.random.default_rng(1).normal(0, 1, (300, len(names)))
+    log = write(
+        tmp_path / ("grip.mcap" if form == "mcap" else "grip"),
+        form,
+        joint_recording(n=300, names=names, effort=effort),
+    )
+    result = run("inspect", log, "--robot", "xarm7", "--json")
+    assert result.exit_code == 0, result.output
+    warnings = json.loads(result.stdout)["logs"][0]["warnings"]
+    assert any("ignoring 1 log joint(s) not in the robot model: drive_joint" in w for w in warnings)
+    assert not any("not in the calibration" in w for w in warnings), warnings
+
+
 def test_gaps_and_two_joint_sets_are_counted(tmp_path):
     msgs = joint_recording(n=400, effort=np.ones((400, 7)))
     del msgs[200:260]  # a 0.6 s gap

@@ -217,9 +217,8 @@ def test_cli_threshold_default_k_and_budget(
         "threshold", val, "-c", twin_calibration, "-o", out, "--false-alarms-per-hour", "1"
     )
     assert result.exit_code == 0, result.output
-    assert (
-        "pot-gpd: budget 1 false alarm(s)/h" in result.stdout and "90 % interval" in result.stdout
-    )
+    assert result.stdout.startswith("threshold ")
+    assert "budget 1 false alarm/h" in result.stdout and "90 % interval" in result.stdout
     th = json.loads(out.read_text())["threshold"]
     budget = th["false_alarm_budget"]
     assert budget["per_hour"] == 1.0 and budget["method"] == "pot-gpd"
@@ -236,7 +235,8 @@ def test_cli_threshold_default_k_and_budget(
     whitened = Calibration.load(twin_calibration).model.statistic == "depth"
     for k, estimator in ((["-k", "4"], "mean-sd"), ([], "median-mad" if whitened else "mean-sd")):
         k4 = run("threshold", val, "-c", twin_calibration, "-o", tmp_path / "k4.json", *k)
-        assert k4.exit_code == 0 and k4.stdout.startswith("k-sigma:")
+        assert k4.exit_code == 0 and k4.stdout.startswith("threshold ")
+        assert "(μ + 4σ, " in k4.stdout
         th4 = json.loads((tmp_path / "k4.json").read_text())["threshold"]
         assert th4["k_sigma"] == 4.0 and "false_alarm_budget" not in th4
         assert th4["estimator"] == estimator
@@ -259,7 +259,7 @@ def test_cli_threshold_default_k_and_budget(
         "threshold", val, "-c", twin_calibration, "-o", tmp_path / "b.json",
         "--false-alarms-per-hour", "100",
     )  # fmt: skip
-    assert lavish.exit_code == 0 and "budget 100 false alarm(s)/h" in lavish.stdout
+    assert lavish.exit_code == 0 and "budget 100 false alarm/h" in lavish.stdout
     assert json.loads((tmp_path / "b.json").read_text())["threshold"]["value"] < th["value"]
     both = run(
         "threshold", val, "-c", twin_calibration, "-o", tmp_path / "x.json",
@@ -288,7 +288,9 @@ def test_cli_threshold_warns_once_with_too_few_peaks(
     assert result.exit_code == 0, result.output
     warnings = [line for line in result.stderr.splitlines() if "warning" in line]
     assert len(warnings) == 1 and "exponential tail" in warnings[0], result.stderr
-    assert result.stdout.startswith("pot-exponential:")
+    assert result.stdout.startswith("threshold ")
+    budget = json.loads(out.read_text())["threshold"]["false_alarm_budget"]
+    assert budget["method"] == "pot-exponential"
 
 
 @pytest.mark.parametrize(

@@ -218,7 +218,9 @@ def _inspect(
             str(path),
             "use a calibration or robot model made for this robot, or a joint map",
         )
-    usable, has_effort = _read_samples(path, options, tuple(joints), strict, model, found, has_sim)
+    usable, has_effort = _read_samples(
+        path, options, tuple(joints), strict, model, calibration, found, has_sim
+    )
     if found.sampling is not None:
         _warn_if_too_short(found.path, found.sampling, calibration)
     # what fit and detect refuse, refused here alike (the same checks, the same words)
@@ -356,6 +358,7 @@ def _read_samples(
     joints: tuple[str, ...],
     strict: bool,
     model: RobotModel | None,
+    calibration: Calibration | None,
     found: Inspection,
     has_sim: bool = False,
 ) -> tuple[int, bool]:
@@ -369,14 +372,27 @@ def _read_samples(
     from twincd.signal.checks import SignalChecks
     from twincd.signal.unwrap import StreamingUnwrap
 
-    acc = _Ranges(len(joints))
     limits = model.position_limits if model is not None else {}
-    checks = SignalChecks(joints, limits)
-    has_velocity = np.ones(len(joints), dtype=bool)
+    # the joints as detect reads them: exactly the calibration's, else those of the robot
+    # model (or the log) the log has, and what is ignored said as detect says it
+    exact = calibration is not None
+    known_from = "the robot model" if model is not None else "the topic"
+    opened = iter_blocks(
+        path,
+        options,
+        joints=joints if exact else None,
+        strict=strict,
+        known=None if exact else joints,
+        known_from=known_from,
+    )
     usable = 0
     unwrap: StreamingUnwrap | None = None  # what the derivative of position would see
-    with iter_blocks(path, options, joints=joints, strict=strict) as stream:
+    with opened as stream:
         has_effort = stream.has_effort
+        joints = tuple(stream.joint_names)
+        acc = _Ranges(len(joints))
+        checks = SignalChecks(joints, limits)
+        has_velocity = np.ones(len(joints), dtype=bool)
         for block in stream:
             if unwrap is None and len(block) > 1:
                 unwrap = StreamingUnwrap(nominal_period(block.stamp_ns))
@@ -398,6 +414,7 @@ def _read_samples(
         velocity = np.where(has_velocity, 0.0, np.nan)[None]
         warn_velocity_from_position(found.path, velocity, joints)
         warn_unwrapped(found.path, unwrap, joints)
+    _warn_if_at_rest(found.path, acc.pos[1] - acc.pos[0])
     std = np.sqrt(acc.eff_m2 / max(acc.eff_n, 1))
     has_effort = acc.eff_n > 0
     found.joints = [
@@ -414,6 +431,21 @@ def _read_samples(
         for i, name in enumerate(joints)
     ]
     return usable, has_effort
+
+
+def _warn_if_at_rest(source: str, spans: FloatArray) -> None:
+    """A log in which no joint moves: ``fit`` refuses such logs on their own
+    (``twincd.calibration.excitation``); detect and threshold judge them."""
+    from twincd.calibration.excitation import REST_POSITION
+
+    if len(spans) and bool(np.all(np.nan_to_num(spans, nan=0.0) < REST_POSITION)):
+        log.warning(
+            "%s: the arm does not move (every joint's position spans less than %g rad): fit "
+            "refuses logs in which no joint moves, since they determine nothing but an offset; "
+            "fit on logs of the arm at work",
+            source,
+            REST_POSITION,
+        )
 
 
 def _warn_if_too_short(source: str, sampling: Sampling, calibration: Calibration | None) -> None:

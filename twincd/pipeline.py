@@ -42,6 +42,7 @@ from twincd.frames import Frame, prefetched
 from twincd.io.logs import JointStates
 from twincd.io.options import LogOptions
 from twincd.io.stream import iter_blocks, warn_ignored_joints
+from twincd.progress import samples_done
 from twincd.signal.checks import SignalChecks
 from twincd.signal.derivatives import differentiate
 from twincd.signal.filters import LowPass
@@ -408,6 +409,7 @@ class PreparedStream:
                 first_ns = int(out["stamp_ns"][0]) if first_ns is None else first_ns
                 last_ns = int(out["stamp_ns"][-1])
             self.samples += out.n
+            samples_done(out.n)
             if "edge" in out:
                 self.at_edges += int(np.count_nonzero(out["edge"]))
             yield out

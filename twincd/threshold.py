@@ -196,10 +196,10 @@ def budget_threshold(
         tail = fit_bulk_tail(excursions, per_hour, mu, sigma, noise_median)
         if mu - noise_median > MISFIT_STUDIED:
             log.warning(
-                "the clean score's median on these logs is %.3g, far above the %.3g the "
-                "residual's noise alone would give: the calibration fits them much less well "
-                "than its training logs (too little or too different training motion, another "
-                "payload or effort scale?); the false-alarm budget is extrapolated",
+                "the clean score's median on these logs is %.3g, above the %.3g the residual's "
+                "noise alone would give: the calibration fits them less well than its training "
+                "logs (too little or too different training motion, another payload or effort "
+                "scale?); the false-alarm budget is extrapolated",
                 mu,
                 noise_median,
             )
@@ -244,6 +244,38 @@ def budget_threshold(
 
 
 @dataclass(frozen=True)
+class NoiseRatio:
+    """Mergeable: per joint the sum of its squared residual in noise units
+    (``ResidualModel.in_noise_units``) over ``n`` collision-free samples; its RMS is about 1 on
+    clean data the calibration fits."""
+
+    n: int = 0
+    ss: FloatArray | None = None  # (D,)
+
+    @classmethod
+    def from_residual(cls, units: FloatArray | None, mask: BoolArray) -> NoiseRatio:
+        if units is None:
+            return cls()
+        z = np.asarray(units, dtype=np.float64)[mask]
+        return cls(len(z), (z * z).sum(axis=0))
+
+    def __add__(self, other: NoiseRatio) -> NoiseRatio:
+        if other.ss is None:
+            return self
+        if self.ss is None:
+            return other
+        return NoiseRatio(self.n + other.n, self.ss + other.ss)
+
+    @property
+    def rms(self) -> FloatArray | None:
+        """(D,) each joint's residual RMS over its noise (None: nothing counted)."""
+        if self.ss is None or self.n == 0:
+            return None
+        out: FloatArray = np.sqrt(self.ss / self.n)
+        return out
+
+
+@dataclass(frozen=True)
 class LogScores:
     """What one validation log contributes to a threshold (the per-log step)."""
 
@@ -251,12 +283,14 @@ class LogScores:
     stats: ScoreStats
     samples: int = 0  # every sample read (labelled ones too): what progress counts
     excursions: Excursions | None = None
+    noise: NoiseRatio = NoiseRatio()  # each joint's residual over the fit's noise
 
 
 def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogScores:
-    """Stream one log into statistics of its calibrated score on collision-free samples and its
-    excursions."""
+    """Stream one log into statistics of its calibrated score on collision-free samples, its
+    excursions and each joint's residual over the noise the fit left it."""
     stats = ScoreStats()
+    noise = NoiseRatio()
     model = calibration.model
     with setup.open(path, model=model) as stream:
         peaks: ExcursionCounter | None = None
@@ -269,12 +303,94 @@ def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogSc
             }
             # a grid's frames carry the prediction, made on its nodes (twincd.chain)
             residual = model.residual(inputs, frame.get("predicted"))
-            scores = model.score(residual, frame.get("velocity"))
+            velocity = frame.get("velocity")
+            speed = None if velocity is None else np.asarray(velocity, dtype=np.float64)
+            scores = model.score(residual, speed)
             usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             stats = stats + ScoreStats.from_scores(scores, usable)
+            noise = noise + NoiseRatio.from_residual(model.in_noise_units(residual, speed), usable)
             peaks.push(scores, usable)
     excursions = None if peaks is None else peaks.excursions
-    return LogScores(str(path), stats, stream.samples, excursions)
+    return LogScores(str(path), stats, stream.samples, excursions, noise)
+
+
+# threshold logs whose residual is this many times the noise the fit left it are refused: for
+# the depth statistic, a clean median above the one such a residual gives (5.45 for 6 joints,
+# 5.93 for 7: above the thresholds clean data the calibration fits are given, 4.5–6.7 on the
+# real arm, so half their clean samples would be collisions there); for the other scores, a
+# clean mean score above MISFIT_REFUSED² times the fit's own (the fit's residual RMSE per joint)
+MISFIT_REFUSED = 3.0
+
+
+def misfit(stats: ScoreStats, noise: NoiseRatio, calibration: Calibration) -> str | None:
+    """What makes these logs not collision-free data the calibration fits, in one clause (None:
+    nothing): their clean score far above the calibration's clean level (``MISFIT_REFUSED``),
+    with the joints whose residual strays furthest from the fit's noise."""
+    if stats.n == 0:
+        return None
+    model = calibration.model
+    joints = len(calibration.joint_names)
+    if model.statistic == "depth":
+        median = stats.robust()[0]
+        clean, limit = depth_noise_median(joints), depth_noise_median(joints, MISFIT_REFUSED)
+        if median <= limit:
+            return None
+        top = HISTOGRAM_LOW + HISTOGRAM_STEP * (HISTOGRAM_BINS - 1)
+        above = " or more" if median >= top else ""  # beyond the histogram's last bin
+        level = (
+            f"their collision-free score has median {median:.3g}{above}, where data the "
+            f"calibration fits score about {clean:.2g} (a residual at {MISFIT_REFUSED:g}× "
+            f"its noise: {limit:.2g})"
+        )
+    else:
+        scale = model.scale_ if model.scale_ is not None else model.rmse_
+        if scale is None:
+            return None  # files without the fit's RMSE: no clean level to compare with
+        own = float(np.sum(np.square(scale))) if model.scale_ is None else float(joints)
+        ratio = stats.mean / max(own, 1e-300)
+        if not ratio > MISFIT_REFUSED**2:
+            return None
+        level = (
+            f"their collision-free score's mean is {ratio:.3g}× the fit's own (more than "
+            f"{MISFIT_REFUSED**2:g}×: a residual over {MISFIT_REFUSED:g}× the fit's)"
+        )
+    rms = noise.rms
+    if rms is not None:
+        order = np.argsort(-rms, kind="stable")[:3]
+        level += "; the residual over the fit's noise: " + ", ".join(
+            f"{calibration.joint_names[i]} {rms[i]:.3g}×" for i in order
+        )
+    return level
+
+
+def check_fit(
+    stats: ScoreStats,
+    noise: NoiseRatio,
+    calibration: Calibration,
+    logs: Sequence[str],
+    refuse: bool = True,
+) -> None:
+    """Refuse (``refuse``: else warn) threshold logs that are not collision-free data the
+    calibration fits (``misfit``): a threshold set on them would sit far above what the
+    calibration's own clean data give, and ``detect`` would be blind."""
+    found = misfit(stats, noise, calibration)
+    if found is None:
+        return
+    what = f"these logs are not collision-free data the calibration fits: {found}"
+    hint = (
+        "give collision-free logs of the arm at work as in the fit's logs (moving, with the "
+        "same payload, effort sign and scale), or fit the calibration on logs like these"
+    )
+    if not refuse:
+        log.warning("%s (%s) — %s", what, _logs_text(logs), hint)
+        return
+    raise DataError(what, _logs_text(logs), hint)
+
+
+def _logs_text(logs: Sequence[str]) -> str:
+    if not logs:
+        return "threshold"
+    return logs[0] + (f" and {len(logs) - 1} more" if len(logs) > 1 else "")
 
 
 def threshold_from_parts(
@@ -282,13 +398,15 @@ def threshold_from_parts(
     calibration: Calibration,
     k_sigma: float | None = None,
     false_alarms_per_hour: float | None = None,
+    refuse: bool = True,
 ) -> Calibration:
     """The calibration with a threshold from per-log parts merged in any order: μ + kσ (mean
     and standard deviation) when ``k_sigma`` is given; else the threshold of a false-alarm
     budget (``false_alarms_per_hour``, by default ``DEFAULT_FALSE_ALARMS_PER_HOUR``) for a model
     scored by the depth statistic (median and MAD, an exponential tail above the bulk:
     ``budget_threshold``), or when a budget is asked for; else the paper's μ + 4σ (the affine
-    and unwhitened models).
+    and unwhitened models). Logs that are not collision-free data the calibration fits
+    (``check_fit``) are refused (``refuse``; else said in a warning).
 
     Robust μ and σ because a validation log may hold unlabelled contact: on the real arm's six
     rotations (threshold on one log, test on another) one with 23 s of it put the paper's
@@ -298,8 +416,10 @@ def threshold_from_parts(
     parts = sorted(parts, key=lambda p: p.source)
     total = ScoreStats()
     excursions = Excursions()
+    noise = NoiseRatio()
     for p in parts:
         total = total + p.stats
+        noise = noise + p.noise
         if p.excursions is not None:
             excursions = excursions + p.excursions
     seen = [p.source for p in parts]
@@ -312,6 +432,7 @@ def threshold_from_parts(
             reused[0],
         )
     check_threshold_choice(k_sigma, false_alarms_per_hour)
+    check_fit(total, noise, calibration, seen, refuse)
     if k_sigma is not None:
         return replace(calibration, threshold=total.threshold(k_sigma, seen))
     depth = calibration.model.statistic == "depth"
@@ -321,8 +442,8 @@ def threshold_from_parts(
     budget = (
         DEFAULT_FALSE_ALARMS_PER_HOUR if false_alarms_per_hour is None else false_alarms_per_hour
     )
-    noise = depth_noise_median(len(calibration.joint_names)) if depth else 0.0
-    threshold = budget_threshold(excursions, total, budget, seen, depth, noise)
+    clean = depth_noise_median(len(calibration.joint_names)) if depth else 0.0
+    threshold = budget_threshold(excursions, total, budget, seen, depth, clean)
     return replace(calibration, threshold=threshold)
 
 
@@ -334,13 +455,18 @@ def threshold_calibration(
     false_alarms_per_hour: float | None = None,
 ) -> Calibration:
     """The threshold from collision-free logs (files, bags, folders of logs; each log once),
-    each streamed (see ``threshold_from_parts``)."""
+    each streamed (see ``threshold_from_parts``), then, as ``twincd threshold`` does, the false
+    alarms it gives on them counted and a threshold that flags most of them refused
+    (``record_false_alarms``: ``detect``'s events, a second pass, since they need the
+    threshold)."""
+    from twincd.detection.files import record_false_alarms, tally_false_alarms
     from twincd.io.logs import expand_logs
 
     logs = expand_logs(paths)
     setup = setup.for_logs(logs)
     parts = [score_log(p, calibration, setup) for p in logs]
-    return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
+    cal = threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
+    return record_false_alarms(cal, [tally_false_alarms(p, cal, setup) for p in logs])
 
 
 def threshold_prepared_logs(
@@ -352,15 +478,20 @@ def threshold_prepared_logs(
     """The threshold from logs already prepared in memory (as evaluate uses), by the rules of
     ``threshold_from_parts``."""
     parts = []
+    model = calibration.model
     for lg in logs:
-        scores = calibration.model.scores(model_inputs(lg))
+        inputs = model_inputs(lg)
+        residual = model.residual(inputs)
+        scores = model.score(residual, lg.states.velocity)
         usable = clean_mask(lg)
         period = lg.period_s or float(np.median(np.diff(lg.states.stamp_ns))) * 1e-9
         peaks = ExcursionCounter(period)
         peaks.push(scores, usable)
         stats = ScoreStats.from_scores(scores, usable)
-        parts.append(LogScores(lg.source, stats, len(lg), peaks.excursions))
-    return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
+        noise = NoiseRatio.from_residual(model.in_noise_units(residual, lg.states.velocity), usable)
+        parts.append(LogScores(lg.source, stats, len(lg), peaks.excursions, noise))
+    # evaluate's thresholds: logs the calibration does not fit are said, and judged all the same
+    return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour, refuse=False)
 
 
 def same_rule(calibration: Calibration) -> tuple[float | None, float | None]:

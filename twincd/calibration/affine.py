@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from twincd.calibration.excitation import PRIOR, conditioning, gain_held
 from twincd.errors import DataError
 from twincd.types import BoolArray, FloatArray
 
@@ -171,21 +172,38 @@ class AffineSolution:
     r2: FloatArray
     rmse: FloatArray
     ill_conditioned: BoolArray
+    # joints whose twin effort stays at one level, so that a and b cannot be told apart: a is
+    # held at 1 there (``twincd.calibration.excitation``)
+    held: BoolArray
+    gain_share: FloatArray  # each joint's twin effort's spread over its RMS (``gain_share``)
+
+
+def gain_share(stats: AffineStats) -> FloatArray:
+    """Each joint's twin effort's part not reproduced by the intercept, at unit RMS: its spread
+    over its RMS (``twincd.calibration.excitation.conditioning`` of the one column)."""
+    out: FloatArray = conditioning(stats.n, stats.mean_x[:, None], stats.cxx[:, None, None])[:, 0]
+    return out
 
 
 def solve(stats: AffineStats) -> AffineSolution:
-    """Least squares per joint from merged statistics (closed form of eq. 3)."""
+    """Least squares per joint from merged statistics (closed form of eq. 3); where the twin's
+    effort stays at one level (``gain_share``), a is held at 1 and b fits what it leaves."""
     require_samples(stats.n, 2)
     n = stats.n
     cxx, cyy, cxy = stats.cxx, stats.cyy, stats.cxy
     degenerate = cxx <= 1e-12 * np.maximum(cyy, 1e-300)
     a = np.where(degenerate, 0.0, cxy / np.where(degenerate, 1.0, cxx))
-    b = stats.mean_y - a * stats.mean_x
     sse = np.maximum(cyy - a * cxy, 0.0)
+    share = gain_share(stats)
+    held = gain_held(share, np.sqrt(cxx / n), np.sqrt(sse / n))
+    if held.any():
+        a = np.where(held, PRIOR["a"], a)
+        sse = np.where(held, np.maximum(cyy - 2.0 * a * cxy + a * a * cxx, 0.0), sse)
+    b = stats.mean_y - a * stats.mean_x
     r2 = r_squared(sse, cyy)
     rmse = np.sqrt(sse / n)
     ill = degenerate | (np.sqrt(cxx) < CONDITION_RATIO * np.sqrt(cyy))
-    return AffineSolution(a, b, r2, rmse, ill)
+    return AffineSolution(a, b, r2, rmse, ill & ~held, held, share)
 
 
 def warn_ill_conditioned(

@@ -171,6 +171,9 @@ class Calibration:
     # the body each joint moves (its child link), for naming the link an event touched
     links: tuple[str, ...] | None = None
     depths: tuple[int, ...] | None = None  # each joint's depth in the kinematic tree
+    # per joint, the coefficients the fit logs' motion did not determine, held at their prior
+    # (``twincd.calibration.excitation``); None in files written before it was recorded
+    held: tuple[tuple[str, ...], ...] | None = None
 
     @property
     def coulomb_eps(self) -> tuple[float, ...]:
@@ -222,6 +225,7 @@ class Calibration:
                 n: {
                     "r2": None if self.r2 is None else float(self.r2[i]),
                     "rmse": None if self.rmse is None else float(self.rmse[i]),
+                    **({"held": list(self.held[i])} if self.held and self.held[i] else {}),
                 }
                 for i, n in enumerate(names)
             },
@@ -361,6 +365,7 @@ class Calibration:
                 fit_samples=int(fit.get("samples", 0)),
                 r2=column("r2"),
                 rmse=column("rmse"),
+                held=_held(per_joint, names),
                 fit_s=float(fit.get("seconds", 0.0)),
                 threshold=threshold,
                 created=str(d.get("created", "")),
@@ -717,6 +722,20 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
+def _held(per_joint: Mapping[str, Any], names: Sequence[str]) -> tuple[tuple[str, ...], ...] | None:
+    """``fit.joints.<joint>.held``, written for the joints that have held coefficients (None
+    when no joint does)."""
+    if not any("held" in (per_joint.get(n) or {}) for n in names):
+        return None
+    out = []
+    for n in names:
+        keys = (per_joint.get(n) or {}).get("held", [])
+        if not isinstance(keys, list) or not all(k in ("a", "c", "d") for k in keys):
+            raise ValueError(f"fit.joints.{n}.held must list some of a, c, d, not {keys!r}")
+        out.append(tuple(str(k) for k in keys))
+    return tuple(out)
+
+
 def calibration_from_fit(
     model: ResidualModel,
     joint_names: Sequence[str],
@@ -730,6 +749,7 @@ def calibration_from_fit(
 ) -> Calibration:
     """The calibration file's content from a fitted model (``fit_s_``: its training time)."""
     coefficients = model.coefficients()
+    held = getattr(model, "held_", None)
     return Calibration(
         joint_names=tuple(joint_names),
         a=model.a_,
@@ -741,6 +761,7 @@ def calibration_from_fit(
         simulated=simulated,
         fit_logs=tuple(logs),
         fit_samples=model.n_samples_,
+        held=None if held is None else tuple(held.per_joint(i) for i in range(len(joint_names))),
         r2=model.r2_,
         rmse=model.rmse_,
         fit_s=model.fit_s_,

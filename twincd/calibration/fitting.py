@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import statistics
 import time
 from collections.abc import Iterable, Sequence
@@ -12,7 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from twincd.calibration.affine import AffineSolution, clean_rows, solve, warn_ill_conditioned
+from twincd.calibration.affine import clean_rows, solve, warn_ill_conditioned
+from twincd.calibration.excitation import check_motion
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.calibration.models import (
     EPSILON_GRID,
@@ -33,6 +35,7 @@ from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
     from twincd.frames import FrameSink
+    from twincd.signal.filters import LowPass
 
 log = logging.getLogger("twincd")
 
@@ -172,6 +175,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         raise DataError("no logs to fit", "fit", "give at least one collision-free log")
     names = agreed_joints(parts)  # from the robot model (or by name), whichever log is first
     total = ResidualModel.merge(p.stats for p in parts)
+    check_motion(total.motion, names)  # before anything is said of the model
     if model is None:
         model = best_model(total)
         log.info("fit: model %s, the best these logs allow (--model affine is the paper's)", model)
@@ -179,14 +183,21 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
     name, sha = robots[0] if robots else (setup.robot, None)
     links, depths = _chain(name, names)
     start = time.perf_counter()
-    fitted = make_model(model, depth_order(depths, len(names))).solve(total)
+    fitted = make_model(model, depth_order(depths, len(names)))
+    fitted.joint_names_ = names
+    fitted.solve(total)
     fitted.fit_s_ = sum(p.seconds for p in parts) + time.perf_counter() - start
-    affine = solve(total.affine)
+    period = statistics.median(p.period_s for p in parts)
     # a friction model's slope a is conditioned by its other terms too: no affine warning
     if not fitted.needs_coulomb:
+        affine = solve(total.affine)
         warn_ill_conditioned(names, total.affine, affine.ill_conditioned, affine.a)
-    r2 = affine.r2 if fitted.r2_ is None else fitted.r2_
-    _warn_about_fit(names, affine, r2, [p.source for p in parts if not p.labelled])
+    for line in fitted.held_.messages(names):
+        log.warning("fit: %s", line)
+    r2 = fitted.r2_
+    assert r2 is not None
+    gain, error = twin_gain(fitted, total, independent_samples(total, setup.lowpass, period))
+    _warn_about_fit(names, fitted, gain, error, r2, [p.source for p in parts if not p.labelled])
     cal = calibration_from_fit(
         fitted,
         names,
@@ -196,7 +207,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         sha,
         any(p.simulated for p in parts),
         [p.source for p in parts],
-        period_s=statistics.median(p.period_s for p in parts),
+        period_s=period,
     )
     return replace(cal, links=links, depths=depths)
 
@@ -220,22 +231,77 @@ def _chain(
 
 # below this on every joint, the twin explains next to none of the measured effort
 LOW_R2 = 0.1
+# a gain on the twin's effort is said to be negative when it is below 0 by this many standard
+# errors (a gain the logs barely determine, on a joint whose twin effort hardly varies, is not)
+SIGN_ERRORS = 3.0
+
+
+def independent_samples(stats: FitStats, lowpass: LowPass, period_s: float) -> float:
+    """How many independent samples the fit's filtered signals hold: a signal low-passed at
+    f_c carries 2·f_c values a second (Nyquist), so n·min(1, 2·f_c·period)."""
+    return stats.affine.n * min(1.0, 2.0 * lowpass.cutoff_hz * period_s)
+
+
+def twin_gain(
+    model: ResidualModel, stats: FitStats, independent: float
+) -> tuple[FloatArray, FloatArray]:
+    """(D,) the gain the fitted model puts on the twin's effort, and its standard error with
+    ``independent`` samples: ``a`` for the affine and friction maps; for the identified map
+    the slope of its rigid-body effort a·τ̂̃ + Ỹθ on τ̂̃ (its ``a`` alone is only the share
+    left on the URDF's effort). The error is the residual's RMSE over the part of τ̂̃ the
+    model's other columns do not reproduce."""
+    rmse = np.asarray(model.rmse_, dtype=np.float64)
+    n = max(stats.affine.n, 1)
+    gain = np.asarray(model.a_, dtype=np.float64)
+    spread = np.sqrt(stats.affine.cxx / n)  # the affine map: τ̂̃ against the intercept alone
+    if model.needs_coulomb and stats.friction is not None:
+        at = np.array([EPSILON_GRID.index(float(e)) for e in model.epsilon_])  # type: ignore[attr-defined]
+        joints = np.arange(len(at))
+        cross = stats.friction.cross[at, joints, :3, :3] / stats.friction.n  # (D, 3, 3)
+        inverse = np.linalg.pinv(cross)
+        spread = 1.0 / np.sqrt(np.maximum(inverse[:, 0, 0], 1e-300))
+    theta = getattr(model, "theta_", None)
+    if theta is not None and stats.identified is not None:
+        cross = stats.identified.cross
+        p = theta.shape[1]
+        twin = np.maximum(cross[:, 0, 0], 1e-300)
+        gain = (gain * cross[:, 0, 0] + np.einsum("dp,dp->d", cross[:, 0, 1 : p + 1], theta)) / twin
+    error = rmse / np.maximum(spread * math.sqrt(max(independent, 1.0)), 1e-300)
+    return gain, error
 
 
 def _warn_about_fit(
-    names: Sequence[str], affine: AffineSolution, r2: FloatArray, unlabelled: list[str]
+    names: Sequence[str],
+    model: ResidualModel,
+    gain: FloatArray,
+    error: FloatArray,
+    r2: FloatArray,
+    unlabelled: list[str],
 ) -> None:
-    """Fits that are likely wrong say so (one line each): a twin's effort against the measured
-    one (a negative gain of the paper's map a·twin + b, whatever the model: a sign or a joint
-    map to check), a model that explains next to nothing (``r2``: the fitted model's; a wrong
-    robot model or joint map); logs without labels whose collisions, if any, were fitted as if
-    normal."""
-    negative = [n for n, a in zip(names, affine.a, strict=True) if a < 0]
+    """Fits that are likely wrong say so (one line each), of the model that was fitted: a gain
+    on the twin's effort below 0 by ``SIGN_ERRORS`` standard errors (``twin_gain``: the
+    measured effort runs against the twin's, a sign or a joint map to check; not where the
+    gain was held); a model that explains next to nothing (a wrong robot model or joint map);
+    logs without labels whose collisions, if any, were fitted as if normal."""
+    held = model.held_.a
+    negative = [
+        f"{n} ({g:+.3g} ± {e:.2g})"
+        for n, g, e, h in zip(names, gain, error, held, strict=True)
+        if not h and g + SIGN_ERRORS * e < 0
+    ]
     if negative:
+        what = (
+            "the slope of its rigid-body effort a·twin + Yθ on the twin's"
+            if getattr(model, "theta_", None) is not None
+            else "its gain a on the twin's effort"
+        )
         log.warning(
-            "fit: negative a (of a·twin + b) on %s: the twin's effort runs against the measured "
-            "one; check the robot model, the joint map and the effort sign",
+            "fit: the %s model's gain on the twin's effort is negative on %s (%s): the "
+            "measured effort runs against the twin's there; check the robot model, the joint "
+            "map and the effort sign",
+            model.kind,
             ", ".join(negative),
+            what,
         )
     if len(r2) and bool(np.all(np.nan_to_num(r2, nan=0.0) < LOW_R2)):
         log.warning(

@@ -26,6 +26,7 @@ et al.'s pairwise update of means and centred cross-products), like ``AffineStat
 
 from __future__ import annotations
 
+import logging
 import operator
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -39,17 +40,34 @@ import numpy as np
 from twincd.calibration.affine import (
     AffineStats,
     clean_mask,
+    gain_share,
     r_squared,
     require_samples,
     same_joints,
     solve,
     warn_ill_conditioned,
 )
+from twincd.calibration.excitation import (
+    COULOMB,
+    GAIN,
+    PRIOR,
+    VISCOUS,
+    Held,
+    MotionStats,
+    check_motion,
+    conditioning,
+    friction_held,
+    solve_held,
+    squared_error,
+    undetermined,
+)
 from twincd.errors import DataError, JointMismatchError, NotFittedError, UsageError
 from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.pipeline import PreparedLog
+
+log = logging.getLogger("twincd")
 
 
 AFFINE = "affine"
@@ -558,12 +576,16 @@ def depth_score(whitened: FloatArray, order: IndexArray | None = None) -> FloatA
 
 
 @lru_cache(maxsize=16)
-def depth_noise_median(joints: int) -> float:
-    """The median of ``depth_score`` over ``joints`` independent standard-normal residuals:
-    the clean score of a model whose residual is exactly its noise (0.648 for 6 joints, 0.688
-    for 7). By simulation with a fixed seed (2¹⁸ draws: ±0.003), the same in every run."""
+def depth_noise_median(joints: int, ratio: float = 1.0) -> float:
+    """The median of ``depth_score`` over ``joints`` independent normal residuals of standard
+    deviation ``ratio``: with 1, the clean score of a model whose residual is exactly its noise
+    (0.648 for 6 joints, 0.688 for 7); with 3, of a residual three times its noise (5.46 and
+    5.92). By simulation with a fixed seed (2¹⁸ draws: ±0.003), the same in every run."""
     rng = np.random.default_rng(0)
-    return float(np.median(depth_score(rng.standard_normal((1 << 18, max(joints, 1))))))
+    draws = rng.standard_normal((1 << 18, max(joints, 1)))
+    if ratio != 1.0:
+        draws = draws * ratio
+    return float(np.median(depth_score(draws)))
 
 
 @dataclass(frozen=True)
@@ -575,10 +597,19 @@ class FrictionSolution:
     epsilon: FloatArray
     r2: FloatArray
     rmse: FloatArray
+    # (D, 3) which of a, c, d the logs do not determine (held at ``excitation.PRIOR``), at the
+    # chosen ε (``twincd.calibration.excitation``)
+    held: BoolArray | None = None
 
 
-def solve_friction(stats: FrictionStats) -> FrictionSolution:
-    """Least squares per joint and ε from merged statistics; per joint the ε of least error."""
+def _friction_prior() -> FloatArray:
+    return np.array([PRIOR["a"], PRIOR["c"], PRIOR["d"]])
+
+
+def solve_friction(stats: FrictionStats, resting: BoolArray | None = None) -> FrictionSolution:
+    """Least squares per joint and ε from merged statistics; per joint the ε of least error.
+    Coefficients the logs do not determine (``excitation.friction_held``; ``resting``: the
+    joints that do not move) are held at their prior and the others fitted around them."""
     require_samples(stats.n, 5)
     cxx = stats.cross[..., :3, :3]  # (E, D, 3, 3)
     cxy = stats.cross[..., :3, 3]  # (E, D, 3)
@@ -587,6 +618,11 @@ def solve_friction(stats: FrictionStats) -> FrictionSolution:
     ridge = 1e-9 * (np.trace(cxx, axis1=-2, axis2=-1)[..., None, None] + 1e-12) * np.eye(3)
     beta = np.linalg.solve(cxx + ridge, cxy[..., None])[..., 0]  # (E, D, 3)
     sse = np.maximum(cyy - np.einsum("eda,eda->ed", beta, cxy), 0.0)
+    rmse = np.sqrt(sse / stats.n)
+    held = friction_held(stats.n, stats.mean[..., :3], stats.cross[..., :3, :3], resting, rmse)
+    if held.any():  # fitted again around the held ones (the shortcut for the error is LS's)
+        beta = solve_held(cxx, cxy, held, _friction_prior(), ridge)
+        sse = np.where(held.any(axis=-1), squared_error(cyy, cxy, cxx, beta), sse)
     best = np.argmin(sse, axis=0)  # (D,)
     joints = np.arange(sse.shape[1])
     coef = beta[best, joints]  # (D, 3)
@@ -603,6 +639,7 @@ def solve_friction(stats: FrictionStats) -> FrictionSolution:
         epsilon=np.asarray(EPSILON_GRID)[best],
         r2=r2,
         rmse=np.sqrt(err / stats.n),
+        held=held[best, joints],
     )
 
 
@@ -612,27 +649,78 @@ class IdentifiedSolution:
     theta: FloatArray  # (D, P): per joint, the regressor's weights
 
 
-def solve_identified(stats: IdentifiedStats) -> IdentifiedSolution:
+def _ridge_solve(
+    cxx: FloatArray, cxy: FloatArray, dead: BoolArray, prior: FloatArray
+) -> FloatArray:
+    """(D, m) ridge least squares on standardised columns, the ``dead`` ones held at ``prior``
+    (the others fit what they leave); columns that never vary get a zero weight."""
+    target = cxy - np.einsum("dab,db->da", cxx, prior)
+    spread = np.sqrt(np.diagonal(cxx, axis1=1, axis2=2))
+    live = spread > 1e-12 * np.maximum(spread.max(axis=1, keepdims=True), 1e-300)
+    live &= ~dead
+    unit = np.where(live, spread, 1.0)
+    gram = cxx / (unit[:, :, None] * unit[:, None, :]) * (live[:, :, None] & live[:, None, :])
+    gram = gram + IDENTIFIED_RIDGE * np.eye(cxx.shape[-1])
+    beta = np.linalg.solve(gram, (target / unit * live)[..., None])[..., 0] / unit
+    out: FloatArray = np.where(dead, prior, beta)
+    return out
+
+
+def _squared_error(
+    stats: IdentifiedStats, cxx: FloatArray, cxy: FloatArray, beta: FloatArray
+) -> FloatArray:
+    fitted = np.einsum("da,dab,db->d", beta, cxx, beta)
+    out: FloatArray = np.maximum(stats.cross[:, -1, -1] - 2 * (beta * cxy).sum(1) + fitted, 0.0)
+    return out
+
+
+def solve_identified(
+    stats: IdentifiedStats, resting: BoolArray | None = None
+) -> IdentifiedSolution:
     """Ridge least squares per joint and ε on standardised columns; per joint the ε of least
-    training error (as ``solve_friction``)."""
+    training error (as ``solve_friction``). Coefficients the logs do not determine are held at
+    their prior (a, c, d as ``solve_friction`` judges them on the same columns; a correction θ
+    of an inertial parameter whose regressor column stays at one level, at 0)."""
     require_samples(stats.n, 5)
     p, e = stats.params, len(EPSILON_GRID)
+    # the regressor's columns the intercept reproduces (zero columns excepted: never live)
+    share = conditioning(
+        stats.n,
+        stats.mean[:, :, None],
+        np.diagonal(stats.cross, axis1=1, axis2=2)[:, :, None, None],
+    )[:, :, 0]  # (D, K): each column's spread over its RMS
+    flat = undetermined(share) & (np.diagonal(stats.cross, axis1=1, axis2=2) > 0)
     sse = []
     betas = []
+    helds = []
     for i in range(e):
         # columns: τ̂̃, Ỹ (P), q̇̃, this ε's Coulomb feature; target τ̃ (the last)
         use = np.r_[0 : p + 2, p + 2 + i]
         cxx = stats.cross[:, use[:, None], use[None, :]]  # (D, m, m)
         cxy = stats.cross[:, use, -1]  # (D, m)
-        spread = np.sqrt(np.diagonal(cxx, axis1=1, axis2=2))
-        live = spread > 1e-12 * np.maximum(spread.max(axis=1, keepdims=True), 1e-300)
-        unit = np.where(live, spread, 1.0)  # a column that never varies gets a zero weight
-        gram = cxx / (unit[:, :, None] * unit[:, None, :]) * (live[:, :, None] & live[:, None, :])
-        gram = gram + IDENTIFIED_RIDGE * np.eye(len(use))
-        beta = np.linalg.solve(gram, (cxy / unit * live)[..., None])[..., 0] / unit
-        fitted = np.einsum("da,dab,db->d", beta, cxx, beta)
-        sse.append(np.maximum(stats.cross[:, -1, -1] - 2 * (beta * cxy).sum(1) + fitted, 0.0))
+        dead = np.zeros((len(cxx), len(use)), dtype=bool)
+        dead[:, 1 : p + 1] = flat[:, 1 : p + 1]
+        prior = np.zeros((len(cxx), len(use)))
+        beta = _ridge_solve(cxx, cxy, dead, prior)
+        error = _squared_error(stats, cxx, cxy, beta)
+        cols = np.array([0, p + 2 + i, p + 1])  # τ̂̃, Coulomb, q̇̃: as FrictionStats
+        held = friction_held(
+            stats.n,
+            stats.mean[:, cols],
+            stats.cross[:, cols[:, None], cols[None, :]],
+            resting,
+            np.sqrt(error / stats.n),
+        )  # (D, 3)
+        if held.any():  # fitted again around the held ones
+            dead[:, 0] = held[:, GAIN]
+            dead[:, -1] = held[:, COULOMB]
+            dead[:, p + 1] = held[:, VISCOUS]
+            prior[:, 0] = np.where(held[:, GAIN], PRIOR["a"], 0.0)
+            beta = _ridge_solve(cxx, cxy, dead, prior)
+            error = _squared_error(stats, cxx, cxy, beta)
+        sse.append(error)
         betas.append(beta)
+        helds.append(held)
     errors = np.array(sse)  # (E, D)
     best = np.argmin(errors, axis=0)
     joints = np.arange(errors.shape[1])
@@ -652,6 +740,7 @@ def solve_identified(stats: IdentifiedStats) -> IdentifiedSolution:
         epsilon=np.asarray(EPSILON_GRID)[best],
         r2=r2,
         rmse=np.sqrt(err / stats.n),
+        held=np.array(helds)[best, joints],
     )
     return IdentifiedSolution(friction, coef[:, 1 : p + 1])
 
@@ -686,6 +775,7 @@ class ResidualModel:
     n_samples_: int
     fit_s_: float
     joint_names_: tuple[str, ...]  # the joints of the logs ``fit`` saw
+    held_: Held  # what the logs' motion did not determine (set by ``solve``)
 
     def __init__(
         self,
@@ -716,7 +806,10 @@ class ResidualModel:
 
     def solve(self: M, stats: FitStats) -> M:
         """Fit from merged statistics; a whitened model also takes its scale from them (per
-        speed bin with ``stats.speed``, else one per joint)."""
+        speed bin with ``stats.speed``, else one per joint). Logs in which no joint moves are
+        refused; coefficients their motion does not determine are held (``held_``,
+        ``twincd.calibration.excitation``)."""
+        check_motion(stats.motion, getattr(self, "joint_names_", None))
         self._solve_map(stats)
         self.scale_ = None
         if self.whitened:
@@ -746,6 +839,9 @@ class ResidualModel:
         sol = solve(stats.affine)
         self.a_, self.b_, self.r2_, self.rmse_ = sol.a, sol.b, sol.r2, sol.rmse
         self.n_samples_ = stats.affine.n
+        none = np.zeros_like(sol.held)
+        resting = none if stats.resting is None else stats.resting
+        self.held_ = Held(sol.held, none, none, resting, sol.gain_share)
 
     def with_coefficients(
         self: M,
@@ -854,6 +950,21 @@ class ResidualModel:
         out: FloatArray = residual / np.maximum(self.scale_, _MIN_SCALE)[joints[None, :], bins]
         return out
 
+    def in_noise_units(
+        self, residual: FloatArray, velocity: FloatArray | None = None
+    ) -> FloatArray | None:
+        """(N, D) each joint's residual over the noise the fit left it: over its scale at its
+        speed (the depth statistic), its whitening scale, or its training RMSE (unwhitened);
+        on clean data the calibration fits, an RMS of about 1 per joint. None when the model
+        records no such scale."""
+        if self.statistic == "depth":
+            return self._by_speed(residual, velocity)
+        scale = self.scale_ if self.scale_ is not None else self.rmse_
+        if scale is None:
+            return None
+        out: FloatArray = residual / np.maximum(np.asarray(scale, np.float64), _MIN_SCALE)
+        return out
+
     def scores(self, inputs: Mapping[str, Any]) -> FloatArray:
         """Per-sample scores of prepared samples (``predict``'s inputs, ``effort_f``, and the raw
         ``velocity`` for the depth statistic)."""
@@ -876,7 +987,8 @@ class AffineModel(ResidualModel):
         """Only the affine statistics, unless the whitening scale needs the speed bins."""
         if self.whitened:
             return super().stats(inputs, clean)
-        return FitStats(AffineStats.from_arrays(inputs["sim_effort_f"], inputs["effort_f"], clean))
+        affine = AffineStats.from_arrays(inputs["sim_effort_f"], inputs["effort_f"], clean)
+        return FitStats(affine, motion=motion_stats(inputs, clean))
 
 
 class FrictionModel(ResidualModel):
@@ -897,12 +1009,16 @@ class FrictionModel(ResidualModel):
                 "fit",
                 "prepare the logs with setup_for_model(setup, model)",
             )
-        self._set_friction(solve_friction(stats.friction), stats.affine.n)
+        self._set_friction(solve_friction(stats.friction, stats.resting), stats)
 
-    def _set_friction(self, fr: FrictionSolution, samples: int) -> None:
+    def _set_friction(self, fr: FrictionSolution, stats: FitStats) -> None:
         self.a_, self.b_, self.c_, self.d_, self.epsilon_ = fr.a, fr.b, fr.c, fr.d, fr.epsilon
         self.r2_, self.rmse_ = fr.r2, fr.rmse
-        self.n_samples_ = samples
+        self.n_samples_ = stats.affine.n
+        held = np.zeros((len(fr.a), 3), dtype=bool) if fr.held is None else fr.held
+        share = gain_share(stats.affine)
+        resting = np.zeros(len(fr.a), dtype=bool) if stats.resting is None else stats.resting
+        self.held_ = Held(held[:, GAIN], held[:, COULOMB], held[:, VISCOUS], resting, share)
 
     def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
         out = super().predict(inputs)
@@ -952,8 +1068,8 @@ class IdentifiedModel(FrictionModel):
                 "fit",
                 "prepare the logs with the robot model (setup_for_model)",
             )
-        ident = solve_identified(stats.identified)
-        self._set_friction(ident.friction, stats.affine.n)
+        ident = solve_identified(stats.identified, stats.resting)
+        self._set_friction(ident.friction, stats)
         self.theta_ = ident.theta
 
     def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
@@ -1036,6 +1152,7 @@ def model_inputs(log: PreparedLog) -> dict[str, Any]:
         "regressor_f": log.regressor_f,
         "regressor_effort_f": log.regressor_effort_f,
         "velocity": log.states.velocity,
+        "position": log.states.position,
     }
 
 
@@ -1065,6 +1182,12 @@ class FitStats:
     speed: SpeedStats | None = None
     friction: FrictionStats | None = None
     identified: IdentifiedStats | None = None
+    motion: MotionStats | None = None  # how far each joint moved (``excitation``)
+
+    @property
+    def resting(self) -> BoolArray | None:
+        """The joints that do not move (None: not known)."""
+        return None if self.motion is None else self.motion.resting
 
     @classmethod
     def from_inputs(
@@ -1075,6 +1198,7 @@ class FitStats:
         no speed bins (an unwhitened model's fit, unless the identified model needs them)."""
         sim, effort = inputs["sim_effort_f"], inputs["effort_f"]
         affine = AffineStats.from_arrays(sim, effort, clean)
+        motion = motion_stats(inputs, clean)
         grid = tuple(inputs.get("coulomb_eps") or ()) == EPSILON_GRID
         friction = None
         if grid:
@@ -1083,7 +1207,7 @@ class FitStats:
             )
         regressor = inputs.get("regressor_f") if grid else None
         if not speed and regressor is None:
-            return cls(affine, None, friction, None)
+            return cls(affine, None, friction, None, motion)
         bins = SpeedStats.from_arrays(
             inputs["velocity"],
             sim,
@@ -1099,7 +1223,7 @@ class FitStats:
             # the identified model's moments are the speed bins' pooled: one product, not two
             n, mean, cross = bins.pooled()
             identified = IdentifiedStats(n, mean, cross)
-        return cls(affine, bins, friction, identified)
+        return cls(affine, bins, friction, identified, motion)
 
     @classmethod
     def from_cells(
@@ -1145,7 +1269,14 @@ class FitStats:
             both(self.speed, other.speed),
             both(self.friction, other.friction),
             both(self.identified, other.identified),
+            both(self.motion, other.motion),
         )
+
+
+def motion_stats(inputs: Mapping[str, Any], clean: BoolArray) -> MotionStats | None:
+    """How far each joint moved over the ``clean`` rows (None without positions)."""
+    position = inputs.get("position")
+    return None if position is None else MotionStats.from_arrays(position, clean)
 
 
 def depth_order(depths: Sequence[int] | None, joints: int) -> tuple[int, ...]:
@@ -1185,6 +1316,9 @@ class AffineCalibration(AffineModel):
             sol = solve(stats.affine)
             names = self.joint_names or getattr(self, "joint_names_", None)
             warn_ill_conditioned(names, stats.affine, sol.ill_conditioned, sol.a)
+            labels = list(names or [f"#{i + 1}" for i in range(len(sol.a))])
+            for line in self.held_.messages(labels):
+                log.warning("%s", line)
         return self
 
     def predict(self, inputs: Mapping[str, Any] | FloatArray) -> FloatArray:

@@ -179,6 +179,7 @@ class DetectionSummary:
     # what a report's figure draws (a sink of bounded envelopes), when a report was asked for
     trace: FrameSink | None = None
     clean_samples: int = 0  # judged samples not labelled as collisions
+    clean_flagged: int = 0  # of those, the flagged ones
     period_s: float = 0.0  # the log's nominal sampling period
     labels: LabelSpans = field(default_factory=LabelSpans)  # labelled spans, when labelled
 
@@ -222,4 +223,5 @@ class DetectionSummary:
         judged = np.ones(frame.n, bool) if edge is None else np.asarray(edge).reshape(-1) == 0
         clean = judged if labels is None else judged & ~np.asarray(labels, dtype=bool)
         self.clean_samples += int(np.count_nonzero(clean))
+        self.clean_flagged += int(np.count_nonzero(clean & np.asarray(frame["flag"], dtype=bool)))
         self.labels.push(frame["stamp_ns"], labels)

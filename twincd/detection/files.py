@@ -12,8 +12,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from twincd.detection.detect import DetectionSummary, ScoringStage
+from twincd.detection.detect import MOSTLY_FLAGGED, DetectionSummary, ScoringStage
 from twincd.detection.events import Event
+from twincd.errors import DataError
 from twincd.frames import Frame, FrameSink
 
 if TYPE_CHECKING:
@@ -54,6 +55,8 @@ class AlarmTally:
     source: str
     false_alarms: int
     clean_s: float
+    clean_samples: int = 0  # judged collision-free samples
+    clean_flagged: int = 0  # of those, flagged at the threshold
 
 
 @contextlib.contextmanager
@@ -73,19 +76,40 @@ def tally_false_alarms(path: str | Path, calibration: Calibration, setup: Setup)
     counts what its own logs give at the threshold it chose."""
     with _said_already():
         summary = detect_file(path, calibration, setup)
-    return AlarmTally(str(path), summary.false_alarms, summary.clean_s)
+    return AlarmTally(
+        str(path),
+        summary.false_alarms,
+        summary.clean_s,
+        summary.clean_samples,
+        summary.clean_flagged,
+    )
 
 
 def record_false_alarms(calibration: Calibration, tallies: Iterable[AlarmTally]) -> Calibration:
     """The calibration with its threshold's false alarms counted on ``tallies`` (its own logs)
     and their clean time; a warning when a budget's threshold gave more than the budget allows
-    for that time (``twincd.threshold.allowed_false_alarms``)."""
+    for that time (``twincd.threshold.allowed_false_alarms``). A threshold that flags most of
+    its own logs' collision-free samples (more than ``MOSTLY_FLAGGED``, as ``detect`` judges a
+    log the calibration does not fit) is refused: those logs are not collision-free data the
+    calibration fits (a score stuck at one level, σ = 0)."""
     from twincd.threshold import allowed_false_alarms
 
-    tallies = list(tallies)
+    tallies = sorted(tallies, key=lambda t: t.source)
     th = calibration.require_threshold()
     count = sum(t.false_alarms for t in tallies)
     seconds = sum(t.clean_s for t in tallies)
+    clean = sum(t.clean_samples for t in tallies)
+    flagged = sum(t.clean_flagged for t in tallies)
+    if clean and flagged > MOSTLY_FLAGGED * clean:
+        raise DataError(
+            f"these logs are not collision-free data the calibration fits: the threshold "
+            f"{th.value:.4g} set on them flags {100 * flagged / clean:.0f} % of their "
+            "collision-free samples (their score sits at one level: μ "
+            f"{th.mu:.4g}, σ {th.sigma:.3g})",
+            tallies[0].source + (f" and {len(tallies) - 1} more" if len(tallies) > 1 else ""),
+            "give collision-free logs of the arm at work as in the fit's logs (moving, with the "
+            "same payload, effort sign and scale), or fit the calibration on logs like these",
+        )
     if th.budget_per_hour is not None:
         allowed = allowed_false_alarms(th.budget_per_hour, seconds / 3600.0)
         if count > allowed:
