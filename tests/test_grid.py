@@ -72,12 +72,14 @@ def jittered(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def xarm_1khz(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small synthetic xArm 7 set at 1 kHz (train 2, val 1, test 1 paths of 10–12 s)."""
+    """A small synthetic xArm 7 set at 1 kHz (train 3, val 1, test 1 paths of 20–25 s: enough
+    training motion for the identified model to fit its validation path, which threshold
+    checks)."""
     from support.clitools import run
 
     root = tmp_path_factory.mktemp("xarm_1khz")
-    args = ["--seed", "3", "--train", "2", "--val", "1", "--test", "1", "--rate-hz", "1000"]
-    result = run("synth", root, *args, "--min-duration", "10", "--max-duration", "12", "-q")
+    args = ["--seed", "3", "--train", "3", "--val", "1", "--test", "1", "--rate-hz", "1000"]
+    result = run("synth", root, *args, "--min-duration", "20", "--max-duration", "25", "-q")
     assert result.exit_code == 0, result.output
     return root
 
