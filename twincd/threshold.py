@@ -129,14 +129,6 @@ def _weighted_median(values: FloatArray, counts: IntArray) -> float:
     return float(values[order][at])
 
 
-def allowed_false_alarms(per_hour: float, hours: float) -> int:
-    """The most false alarms that ``hours`` of clean data may give under a budget of
-    ``per_hour`` (its Poisson 95 % quantile: 3 in an hour at 1/h, 0 in a few minutes)."""
-    from scipy import stats
-
-    return int(stats.poisson.ppf(0.95, per_hour * hours))
-
-
 def check_threshold_choice(k_sigma: float | None, per_hour: float | None) -> None:
     """k or a budget (not both), each valid: checked before any work is done."""
     if k_sigma is not None and per_hour is not None:

@@ -78,6 +78,14 @@ def false_alarms(
     return sum(not bool(np.any((starts <= e.end_ns) & (ends >= e.start_ns))) for e in events)
 
 
+def allowed_false_alarms(per_hour: float, hours: float) -> int:
+    """The most false alarms that ``hours`` of clean data may give under a budget of
+    ``per_hour`` (its Poisson 95 % quantile: 3 in an hour at 1/h, 0 in a few minutes)."""
+    from scipy import stats
+
+    return int(stats.poisson.ppf(0.95, per_hour * hours))
+
+
 class LabelSpans:
     """The labelled spans of a log whose labels arrive block by block: (first, last) stamp of
     each maximal run of labelled samples, a run across blocks counted once."""

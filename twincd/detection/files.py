@@ -88,11 +88,11 @@ def tally_false_alarms(path: str | Path, calibration: Calibration, setup: Setup)
 def record_false_alarms(calibration: Calibration, tallies: Iterable[AlarmTally]) -> Calibration:
     """The calibration with its threshold's false alarms counted on ``tallies`` (its own logs)
     and their clean time; a warning when a budget's threshold gave more than the budget allows
-    for that time (``twincd.threshold.allowed_false_alarms``). A threshold that flags most of
+    for that time (``twincd.detection.events.allowed_false_alarms``). A threshold that flags most of
     its own logs' collision-free samples (more than ``MOSTLY_FLAGGED``, as ``detect`` judges a
     log the calibration does not fit) is refused: those logs are not collision-free data the
     calibration fits (a score stuck at one level, σ = 0)."""
-    from twincd.threshold import allowed_false_alarms
+    from twincd.detection.events import allowed_false_alarms
 
     tallies = sorted(tallies, key=lambda t: t.source)
     th = calibration.require_threshold()
