@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
+import pickle
 import shutil
 from pathlib import Path
 from typing import Any
@@ -186,3 +187,5 @@ def test_keep_going_gives_the_failures_and_every_log_failing_is_an_error(
     with pytest.raises(LogsFailed) as raised:
         twincd.detect_files([broken], cli_calibration, keep_going=True, step_summary=False)
     assert raised.value.exit_code == 2 and len(raised.value.failures) == 1
+    again = pickle.loads(pickle.dumps(raised.value))  # it may cross a process boundary
+    assert again.exit_code == 2 and again.message == raised.value.message

@@ -103,6 +103,9 @@ class LogsFailed(TwincdError):
         self.failures = list(failures)
         self.exit_code = max(f.error.exit_code for f in failures)
 
+    def __reduce__(self) -> tuple[type[LogsFailed], tuple[list[LogFailure]]]:  # type: ignore[override]
+        return (type(self), (self.failures,))
+
 
 @contextlib.contextmanager
 def _no_display(_logs: int, _what: str) -> Iterator[Progress]:
