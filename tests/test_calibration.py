@@ -15,13 +15,12 @@ from twincd.calibration import (
     AffineStats,
     Calibration,
     Threshold,
-    fit_calibration,
     solve,
 )
+from twincd.commands import fit_calibration
 from twincd.errors import CalibrationError, DataError, NotFittedError
 from twincd.io.logs import expand_logs
 from twincd.io.options import LogOptions
-from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass, edge_span
 
 A = np.array([1.39, 1.17, 21.7])
@@ -200,7 +199,7 @@ def test_threshold_is_required_for_detection():
 
 def test_fit_calibration_over_logs_recovers_the_gains(twin_dataset):
     paths = expand_logs([twin_dataset / "train"])
-    cal = fit_calibration(paths, Setup(lowpass=LowPass(5.0)))
+    cal = fit_calibration(paths, cutoff_hz=5.0, filter_kind="butterworth").calibration
     assert cal.joint_names == TWIN_JOINTS
     np.testing.assert_allclose(cal.a, GAINS, rtol=0.02)
     np.testing.assert_allclose(cal.b, OFFSET, atol=0.05)
@@ -213,7 +212,7 @@ def test_fit_calibration_over_logs_recovers_the_gains(twin_dataset):
 
 def test_labelled_collisions_are_excluded_from_the_fit(twin_dataset):
     paths = expand_logs([twin_dataset / "test"])
-    cal = fit_calibration(paths, Setup(lowpass=LowPass(5.0)))
+    cal = fit_calibration(paths, cutoff_hz=5.0, filter_kind="butterworth").calibration
     np.testing.assert_allclose(cal.a, GAINS, rtol=0.03)
     assert cal.fit_samples < 2 * 1600
 

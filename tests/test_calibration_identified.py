@@ -17,7 +17,7 @@ from support.builders import trajectory
 from support.clitools import assert_one_line_error, run
 from test_pipeline import jittered_xarm_log
 
-from twincd.calibration import Calibration, fit_calibration
+from twincd.calibration import Calibration
 from twincd.calibration.affine import AffineStats
 from twincd.calibration.models import (
     EPSILON_GRID,
@@ -27,12 +27,11 @@ from twincd.calibration.models import (
     fit_model,
     solve_identified,
 )
-from twincd.detection import OnlineDetector, detect_file, detect_log
+from twincd.commands import fit_calibration, threshold_calibration
+from twincd.detection import OnlineDetector, detect_log, detect_streamed
 from twincd.errors import CalibrationError, DataError
 from twincd.pipeline import Setup
 from twincd.signal.derivatives import differentiate
-from twincd.signal.filters import LowPass
-from twincd.threshold import threshold_calibration
 from twincd.twin.dynamics import (
     inertial_parameters,
     inverse_dynamics,
@@ -255,10 +254,17 @@ def test_broken_theta_is_refused(identified_cal: Path) -> None:
 def test_online_detector_equals_batch_with_an_identified_model(
     xarm_dataset: Path, chunk: int
 ) -> None:
-    setup = Setup(robot="xarm7", lowpass=LowPass(cutoff_hz=3.0, causal=True))
-    cal = fit_calibration(sorted((xarm_dataset / "train").glob("*.mcap")), setup, "identified")
+    train = sorted((xarm_dataset / "train").glob("*.mcap"))
+    cal = fit_calibration(
+        train,
+        model="identified",
+        robot="xarm7",
+        cutoff_hz=3.0,
+        causal=True,
+        filter_kind="butterworth",
+    ).calibration
     val = sorted((xarm_dataset / "val").glob("*.mcap"))
-    cal = threshold_calibration(val, cal, Setup.from_calibration(cal), 6.0)
+    cal = threshold_calibration(val, cal, k_sigma=6.0).calibration
     log = xarm_dataset / "test" / "test_000.mcap"
     scores: list[np.ndarray] = []
 
@@ -267,7 +273,7 @@ def test_online_detector_equals_batch_with_an_identified_model(
             if frame.n:
                 scores.append(frame["score"])
 
-    batch = detect_file(log, cal, Setup.from_calibration(cal), [Keep()])
+    batch = detect_streamed(log, cal, Setup.from_calibration(cal), [Keep()])
     assert batch.events
     states = Setup.from_calibration(cal).prepare(log).states
     det = OnlineDetector(cal)
@@ -300,7 +306,7 @@ def test_detect_log_on_a_whole_log_equals_the_stream(
             if frame.n:
                 scores.append(frame["score"])
 
-    streamed = detect_file(log, cal, setup, [Keep()])
+    streamed = detect_streamed(log, cal, setup, [Keep()])
     whole = detect_log(setup.prepare(log), cal)
     np.testing.assert_allclose(whole.scores, np.concatenate(scores), rtol=1e-9, atol=1e-12)
     assert whole.events == streamed.events and whole.events

@@ -23,14 +23,14 @@ from hypothesis import strategies as st
 from support.builders import XARM, Message, joint_state, write
 
 import twincd.grid
-from twincd.calibration import Calibration, fit_calibration
+from twincd.calibration import Calibration
 from twincd.calibration.models import EPSILON_GRID, SPEED_BINS, FitStats, speed_bin
 from twincd.chain import JointLayout, build_chain
-from twincd.detection import OnlineDetector, detect_file
+from twincd.commands import filter_settings, fit_calibration, threshold_calibration
+from twincd.detection import OnlineDetector, detect_streamed
 from twincd.grid import GRID_MIN_PERIODS, grid_period_ns
 from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass
-from twincd.threshold import threshold_calibration
 
 ZERO_PHASE = LowPass(1.5, 2, False, "critical")  # the identified models' default
 CAUSAL = LowPass(3.0, 2, True, "critical")
@@ -86,9 +86,9 @@ def xarm_1khz(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _calibration(root: Path, lowpass: LowPass) -> Calibration:
     """The best model (identified, whitened) fitted on ``root``/train, thresholded on val."""
-    cal = fit_calibration(sorted((root / "train").glob("*.mcap")), Setup(lowpass=lowpass))
+    cal = fit_calibration(sorted((root / "train").glob("*.mcap")), **filter_settings(lowpass))
     val = sorted((root / "val").glob("*.mcap"))
-    return threshold_calibration(val, cal, Setup.from_calibration(cal))
+    return threshold_calibration(val, cal.calibration).calibration
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +111,7 @@ def _detected(log: Path, cal: Calibration) -> dict[str, Any]:
                 rows.append({k: frame[k] for k in ("stamp_ns", "score", "flag", "residual")})
                 rows[-1]["velocity"] = frame["velocity"]
 
-    summary = detect_file(log, cal, Setup.from_calibration(cal), [Keep()])
+    summary = detect_streamed(log, cal, Setup.from_calibration(cal), [Keep()])
     out: dict[str, Any] = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
     out["events"] = summary.events
     return out
@@ -334,7 +334,7 @@ def test_fit_on_the_grid_is_the_per_sample_fit_within_the_noise(
     """The same samples counted (each at its cell's node), the same ε, and a fit as good."""
     monkeypatch.setattr(twincd.grid, "GRID_MIN_PERIODS", 10**9)
     train = sorted((xarm_1khz / "train").glob("*.mcap"))
-    per_sample = fit_calibration(train, Setup(lowpass=ZERO_PHASE))
+    per_sample = fit_calibration(train, jobs=1, **filter_settings(ZERO_PHASE)).calibration
     assert zero_phase_cal.fit_samples == per_sample.fit_samples
     assert zero_phase_cal.epsilon is not None and per_sample.epsilon is not None
     np.testing.assert_array_equal(zero_phase_cal.epsilon, per_sample.epsilon)

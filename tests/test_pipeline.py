@@ -15,11 +15,10 @@ import numpy as np
 import pytest
 from support.builders import XARM, Message, joint_state, write
 
-from twincd.calibration import fit_calibration
-from twincd.detection import OnlineDetector, detect_file
+from twincd.commands import fit_calibration, threshold_calibration
+from twincd.detection import OnlineDetector, detect_streamed
 from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass
-from twincd.threshold import threshold_calibration
 
 CAUSAL = LowPass(cutoff_hz=3.0, causal=True)
 
@@ -72,11 +71,16 @@ def test_block_size_does_not_change_the_answer(
 @pytest.fixture(scope="module", params=["affine", "friction-whitened"])
 def causal_calibration(twin_dataset: Path, request):  # type: ignore[no-untyped-def]
     # every calibration model runs live: the friction model's Coulomb features stream too
-    setup = Setup(lowpass=CAUSAL)
     train = sorted((twin_dataset / "train").glob("*.mcap"))
-    cal = fit_calibration(train, setup, request.param)
+    cal = fit_calibration(
+        train,
+        model=request.param,
+        cutoff_hz=CAUSAL.cutoff_hz,
+        causal=True,
+        filter_kind=CAUSAL.kind,
+    ).calibration
     val = sorted((twin_dataset / "val").glob("*.mcap"))
-    return threshold_calibration(val, cal, Setup.from_calibration(cal), 3.0)
+    return threshold_calibration(val, cal, k_sigma=3.0).calibration
 
 
 @pytest.mark.parametrize("chunk", [1, 7, 1000, None])
@@ -95,7 +99,7 @@ def test_online_detector_equals_batch_causal_detection(
             if frame.n:
                 rows.append({k: frame[k] for k in ("score", "flag")})
 
-    batch = detect_file(log, cal, setup, [Keep()])
+    batch = detect_streamed(log, cal, setup, [Keep()])
     assert batch.events, "the test log has labelled bumps: the detector should find them"
     prepared = replace(setup, lowpass=cal.lowpass).prepare(log)
     states = prepared.states

@@ -439,28 +439,6 @@ def threshold_from_parts(
     return replace(calibration, threshold=threshold)
 
 
-def threshold_calibration(
-    paths: Iterable[str | Path],
-    calibration: Calibration,
-    setup: Setup,
-    k_sigma: float | None = None,
-    false_alarms_per_hour: float | None = None,
-) -> Calibration:
-    """The threshold from collision-free logs (files, bags, folders of logs; each log once),
-    each streamed (see ``threshold_from_parts``), then, as ``twincd threshold`` does, the false
-    alarms it gives on them counted and a threshold that flags most of them refused
-    (``record_false_alarms``: ``detect``'s events, a second pass, since they need the
-    threshold)."""
-    from twincd.detection.files import record_false_alarms, tally_false_alarms
-    from twincd.io.logs import expand_logs
-
-    logs = expand_logs(paths)
-    setup = setup.for_logs(logs)
-    parts = [score_log(p, calibration, setup) for p in logs]
-    cal = threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
-    return record_false_alarms(cal, [tally_false_alarms(p, cal, setup) for p in logs])
-
-
 def threshold_prepared_logs(
     logs: Iterable[PreparedLog],
     calibration: Calibration,

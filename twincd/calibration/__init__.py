@@ -9,7 +9,7 @@ from twincd.calibration.affine import (
     solve,
 )
 from twincd.calibration.file import SCHEMA, Calibration, Threshold, calibration_from_fit
-from twincd.calibration.fitting import LogFit, fit_calibration, fit_log, merge_fits
+from twincd.calibration.fitting import LogFit, fit_log, merge_fits
 from twincd.calibration.models import (
     AffineCalibration,
     AffineModel,
@@ -36,7 +36,6 @@ __all__ = [
     "calibration_from_fit",
     "clean_mask",
     "clean_rows",
-    "fit_calibration",
     "fit_log",
     "make_model",
     "merge_fits",

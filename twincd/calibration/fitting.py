@@ -317,16 +317,3 @@ def _warn_about_fit(
             len(unlabelled),
             unlabelled[0] + (", ..." if len(unlabelled) > 1 else ""),
         )
-
-
-def fit_calibration(
-    paths: Iterable[str | Path], setup: Setup, model: str | None = None
-) -> Calibration:
-    """Fit ``model`` (None: the best the logs allow, ``best_model``) over ``paths`` (files, bags,
-    folders of logs; each log once) log by log (memory flat in the number of logs and
-    samples)."""
-    from twincd.io.logs import expand_logs
-
-    logs = expand_logs(paths)
-    setup = setup_for_model(setup, model).for_logs(logs)
-    return merge_fits([fit_log(path, setup) for path in logs], setup, model)

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("twincd")
 
 
-def detect_file(
+def detect_streamed(
     path: str | Path,
     calibration: Calibration,
     setup: Setup,
@@ -75,7 +75,7 @@ def tally_false_alarms(path: str | Path, calibration: Calibration, setup: Setup)
     no labelled push ± 200 ms), and the log's judged collision-free time: how ``threshold``
     counts what its own logs give at the threshold it chose."""
     with _said_already():
-        summary = detect_file(path, calibration, setup)
+        summary = detect_streamed(path, calibration, setup)
     return AlarmTally(
         str(path),
         summary.false_alarms,
