@@ -181,8 +181,6 @@ def detect(
             log.info("wrote %s (%d samples)", written_to, result.samples)
     summaries = [r.to_dict() for r in results]
     for result in results:
-        for line in result.warnings:
-            log.warning("%s", line)
         if json_:
             continue
         if result.events:

@@ -203,7 +203,7 @@ def evaluate(
     from twincd.io.logs import expand_logs
 
     cal = Calibration.load(calibration) if calibration is not None else None
-    names = parse_methods(methods, method_for(cal.kind) if cal is not None else "proposed")
+    names = parse_methods(methods, method_for(cal.model.kind) if cal is not None else "proposed")
     test_paths = expand_logs(logs)
     train_paths = expand_logs(train) if train else []
     val_paths = expand_logs(val) if val else []

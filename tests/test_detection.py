@@ -86,7 +86,7 @@ def test_threshold_streams_val_logs(calibrated, twin_dataset):
     assert th.k_sigma == 4.0 and th.samples == sum(k.sum() for k in kept) and len(th.logs) == 2
     scores = np.concatenate(
         [
-            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.a, calibrated.b)[k]
+            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.model.a_, calibrated.model.b_)[k]
             for lg, k in zip(logs, kept, strict=True)
         ]
     )
@@ -209,7 +209,9 @@ def test_filter_edges_never_flag_but_the_middle_does(tmp_path, twin_dataset):
 
     setup = Setup(lowpass=LowPass(1.0))
     cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup, "affine")
-    cal = threshold_calibration(expand_logs([twin_dataset / "val"]), cal, setup)
+    cal = threshold_calibration(
+        expand_logs([twin_dataset / "val"]), cal, Setup.from_calibration(cal)
+    )
     at_end = build_twin_log(tmp_path / "end.mcap", seed=7, bumps=[(15.8, 0.2, 8.0)], labels=False)
     middle = build_twin_log(tmp_path / "mid.mcap", seed=7, bumps=[(8.0, 0.2, 8.0)], labels=False)
     assert detect_file(middle, cal, Setup.from_calibration(cal)).events

@@ -31,8 +31,9 @@ import operator
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache, reduce
+from itertools import pairwise
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
@@ -61,7 +62,15 @@ from twincd.calibration.excitation import (
     squared_error,
     undetermined,
 )
-from twincd.errors import DataError, JointMismatchError, NotFittedError, UsageError
+from twincd.calibration.values import finite_array, finite_number
+from twincd.errors import (
+    CalibrationError,
+    DataError,
+    JointMismatchError,
+    NotFittedError,
+    UsageError,
+)
+from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
@@ -792,9 +801,28 @@ class ResidualModel:
         """The kind as calibration files name it (``MODEL_KINDS``)."""
         return f"{self.name}-whitened" if self.whitened else self.name
 
+    # ------------------------------------------------------------------ its features
+
+    @classmethod
+    def fit_features(cls, whitened: bool) -> ModelFeatures:
+        """What fitting a model of this class needs from the chain: the Coulomb features of
+        every ε candidate (friction), the whole regressor (identified), the speed bins'
+        statistics (whitened)."""
+        return ModelFeatures(
+            coulomb_eps=EPSILON_GRID if cls.needs_coulomb else (),
+            regressor=cls.needs_regressor,
+            speed_stats=whitened,
+        )
+
+    @property
+    def features(self) -> ModelFeatures:
+        """What this fitted model scores from (the chain computes exactly these)."""
+        self._check()
+        return ModelFeatures()
+
     # ------------------------------------------------------------------ fitting
 
-    def stats(self, inputs: Mapping[str, Any], clean: BoolArray) -> FitStats:
+    def stats(self, inputs: ModelInputs, clean: BoolArray) -> FitStats:
         """The statistics this model fits from, of prepared samples (``predict``'s inputs plus
         ``effort_f`` and the raw ``velocity``), rows where ``clean`` holds."""
         return FitStats.from_inputs(inputs, clean)
@@ -861,22 +889,43 @@ class ResidualModel:
         self._check()
         return {key: getattr(self, f"{key}_", None) for key in COEFFICIENTS}
 
+    def to_dict(self, joint_names: Sequence[str]) -> dict[str, Any]:
+        """The model's block of the calibration file (``model``, read back by ``read_model``):
+        its kind, how it scores (``statistic``; the depth statistic's ``speed_bins``) and each
+        joint's coefficients."""
+        coefficients = self.coefficients()
+        statistic: dict[str, Any] = {"statistic": self.statistic}
+        if self.statistic == "depth":
+            statistic["speed_bins"] = list(self.speed_bins)
+
+        def joint(i: int) -> dict[str, Any]:
+            out: dict[str, Any] = {}
+            for key in COEFFICIENTS:
+                values = coefficients[key]
+                if values is not None:
+                    out[key] = values[i].tolist() if values.ndim == 2 else float(values[i])
+            return out
+
+        return {
+            "kind": self.kind,
+            **statistic,
+            "joints": {n: joint(i) for i, n in enumerate(joint_names)},
+        }
+
     # ------------------------------------------------------------------ the map
 
-    def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
+    def predict(self, inputs: ModelInputs) -> FloatArray:
         """The twin's effort mapped to the real robot's, (N, D), from prepared samples
         (``sim_effort_f``; friction models also ``velocity_f``, ``coulomb_f`` and
-        ``coulomb_eps``; identified ones ``regressor_f``)."""
+        ``coulomb_eps``; identified ones ``regressor_f`` or ``regressor_effort_f``)."""
         self._check()
-        out: FloatArray = self.a_ * np.asarray(inputs["sim_effort_f"], dtype=np.float64) + self.b_
+        out: FloatArray = self.a_ * np.asarray(inputs.sim_effort_f, dtype=np.float64) + self.b_
         return out
 
-    def residual(
-        self, inputs: Mapping[str, Any], predicted: FloatArray | None = None
-    ) -> FloatArray:
+    def residual(self, inputs: ModelInputs, predicted: FloatArray | None = None) -> FloatArray:
         """τ̃ − f(τ̂̃, …), (N, D) (``predicted``: ``predict(inputs)``, when already known)."""
         twin = self.predict(inputs) if predicted is None else predicted
-        out: FloatArray = np.asarray(inputs["effort_f"], np.float64) - twin
+        out: FloatArray = np.asarray(inputs.measured, np.float64) - twin
         return out
 
     def residual_weights(self, params: int, coulomb: int) -> FloatArray:
@@ -900,11 +949,6 @@ class ResidualModel:
         """How residuals become a score (one of ``STATISTICS``; "sum" for unwhitened models)."""
         scale = getattr(self, "scale_", None)
         return "depth" if scale is not None and scale.ndim == 2 else "sum"
-
-    @property
-    def needs_speed(self) -> bool:
-        """Scoring reads each sample's joint speeds (``velocity``) as well as its residual."""
-        return self.statistic == "depth"
 
     def score(self, residual: FloatArray, velocity: FloatArray | None = None) -> FloatArray:
         """(N,) Σ_j r_j² (unwhitened), the depth statistic of r_j / s_j(|q̇_j|) (whitened,
@@ -965,10 +1009,10 @@ class ResidualModel:
         out: FloatArray = residual / np.maximum(np.asarray(scale, np.float64), _MIN_SCALE)
         return out
 
-    def scores(self, inputs: Mapping[str, Any]) -> FloatArray:
+    def scores(self, inputs: ModelInputs) -> FloatArray:
         """Per-sample scores of prepared samples (``predict``'s inputs, ``effort_f``, and the raw
         ``velocity`` for the depth statistic)."""
-        return self.score(self.residual(inputs), inputs.get("velocity"))
+        return self.score(self.residual(inputs), inputs.velocity)
 
     @property
     def joint_scale(self) -> FloatArray | None:
@@ -983,11 +1027,11 @@ class ResidualModel:
 class AffineModel(ResidualModel):
     """The seed paper's τ̃ ≈ a⊙τ̂̃ + b (eq. 3–4); unwhitened, its score is eq. 5."""
 
-    def stats(self, inputs: Mapping[str, Any], clean: BoolArray) -> FitStats:
+    def stats(self, inputs: ModelInputs, clean: BoolArray) -> FitStats:
         """Only the affine statistics, unless the whitening scale needs the speed bins."""
         if self.whitened:
             return super().stats(inputs, clean)
-        affine = AffineStats.from_arrays(inputs["sim_effort_f"], inputs["effort_f"], clean)
+        affine = AffineStats.from_arrays(inputs.sim_effort_f, inputs.measured, clean)
         return FitStats(affine, motion=motion_stats(inputs, clean))
 
 
@@ -1002,12 +1046,18 @@ class FrictionModel(ResidualModel):
     d_: FloatArray
     epsilon_: FloatArray
 
+    @property
+    def features(self) -> ModelFeatures:
+        """The Coulomb features at the ε its joints use (with the filtered velocity)."""
+        self._check()
+        return ModelFeatures(coulomb_eps=tuple(sorted({float(e) for e in self.epsilon_})))
+
     def _solve_map(self, stats: FitStats) -> None:
         if stats.friction is None:
             raise DataError(
                 f"the {self.kind} model needs Coulomb features for every ε candidate",
                 "fit",
-                "prepare the logs with setup_for_model(setup, model)",
+                "prepare the logs with the model's fit_features",
             )
         self._set_friction(solve_friction(stats.friction, stats.resting), stats)
 
@@ -1020,19 +1070,17 @@ class FrictionModel(ResidualModel):
         resting = np.zeros(len(fr.a), dtype=bool) if stats.resting is None else stats.resting
         self.held_ = Held(held[:, GAIN], held[:, COULOMB], held[:, VISCOUS], resting, share)
 
-    def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
+    def predict(self, inputs: ModelInputs) -> FloatArray:
         out = super().predict(inputs)
-        if inputs.get("coulomb_f") is None or inputs.get("velocity_f") is None:
+        if inputs.coulomb_f is None or inputs.velocity_f is None:
             raise DataError(
                 f"the {self.kind} model needs the filtered velocity and Coulomb features",
                 "scoring",
-                "prepare logs with the calibration's settings (Setup.from_calibration)",
+                "prepare logs with the model's features (ResidualModel.features)",
             )
-        coulomb = coulomb_columns(inputs["coulomb_f"], inputs["coulomb_eps"], self.epsilon_)
-        # (τ̂ term + Coulomb) + viscous, in that order: the bits of every file scored before
-        with_friction: FloatArray = (
-            out + self.c_ * coulomb + self.d_ * np.asarray(inputs["velocity_f"])
-        )
+        coulomb = coulomb_columns(inputs.coulomb_f, inputs.coulomb_eps, self.epsilon_)
+        # (τ̂ term + Coulomb) + viscous, in this order (the order fixes the rounding)
+        with_friction: FloatArray = out + self.c_ * coulomb + self.d_ * inputs.velocity_f
         return with_friction
 
     def residual_weights(self, params: int, coulomb: int) -> FloatArray:
@@ -1040,7 +1088,7 @@ class FrictionModel(ResidualModel):
             raise DataError(
                 f"the {self.kind} model's whitening needs every ε candidate's Coulomb feature",
                 "fit",
-                "prepare the logs with setup_for_model(setup, model)",
+                "prepare the logs with the model's fit_features",
             )
         w = super().residual_weights(params, coulomb)
         w[:, params + 1] = -self.d_
@@ -1059,6 +1107,11 @@ class IdentifiedModel(FrictionModel):
 
     theta_: FloatArray  # (D, P): per joint, the regressor's weights
 
+    @property
+    def features(self) -> ModelFeatures:
+        """Its Coulomb features, and Ỹθ filtered per joint with its own θ."""
+        return replace(super().features, regressor=True, theta=self.theta_)
+
     def _solve_map(self, stats: FitStats) -> None:
         if stats.friction is None:
             super()._solve_map(stats)  # the same error: the features of every ε are missing
@@ -1066,25 +1119,32 @@ class IdentifiedModel(FrictionModel):
             raise DataError(
                 f"the {self.kind} model needs the joint-torque regressor's statistics",
                 "fit",
-                "prepare the logs with the robot model (setup_for_model)",
+                "prepare the logs with the robot model (fit_features)",
             )
         ident = solve_identified(stats.identified, stats.resting)
         self._set_friction(ident.friction, stats)
         self.theta_ = ident.theta
 
-    def predict(self, inputs: Mapping[str, Any]) -> FloatArray:
+    def predict(self, inputs: ModelInputs) -> FloatArray:
         out = super().predict(inputs)
-        effort = inputs.get("regressor_effort_f")
+        effort = inputs.regressor_effort_f
         if effort is not None:  # Ỹθ filtered as one channel per joint (twincd.chain)
+            theta = inputs.regressor_theta
+            if theta is None or theta.shape != self.theta_.shape or np.any(theta != self.theta_):
+                raise DataError(
+                    f"the samples carry Ỹθ filtered with another θ than this {self.kind} model's",
+                    "scoring",
+                    "prepare logs with the model's own features (ResidualModel.features)",
+                )
             summed: FloatArray = out + np.asarray(effort, dtype=np.float64)
             return summed
-        regressor = inputs.get("regressor_f")
-        regressor_mask = inputs.get("regressor_mask")
+        regressor = inputs.regressor_f
+        regressor_mask = inputs.regressor_mask
         if regressor is None:
             raise DataError(
                 f"the {self.kind} model needs the filtered joint-torque regressor",
                 "scoring",
-                "prepare logs with the calibration's settings (Setup.from_calibration)",
+                "prepare logs with the model's features (ResidualModel.features)",
             )
         if regressor_mask is not None and np.ndim(regressor) == 2:
             if np.shape(regressor_mask) != self.theta_.shape:
@@ -1132,6 +1192,15 @@ def model_class(kind: str) -> tuple[type[ResidualModel], bool]:
     return MODEL_CLASSES[stem], whitened
 
 
+def fit_features(kind: str | None) -> ModelFeatures:
+    """What fitting ``kind`` (``MODEL_KINDS``) needs from the chain; None, the best model the
+    logs allow: every candidate's features, the regressor where a robot model is known."""
+    if kind is None:
+        return ModelFeatures(EPSILON_GRID, regressor=True, regressor_optional=True)
+    cls, whitened = model_class(kind)
+    return cls.fit_features(whitened)
+
+
 def make_model(
     kind: str, order: Sequence[int] | None = None, speed_bins: tuple[float, ...] = SPEED_BINS
 ) -> ResidualModel:
@@ -1141,19 +1210,20 @@ def make_model(
     return cls(whitened, joints, speed_bins)
 
 
-def model_inputs(log: PreparedLog) -> dict[str, Any]:
+def model_inputs(log: PreparedLog) -> ModelInputs:
     """What a ``ResidualModel`` reads, from a whole prepared log."""
-    return {
-        "effort_f": log.effort_f,
-        "sim_effort_f": log.sim_effort_f,
-        "velocity_f": log.velocity_f,
-        "coulomb_f": log.coulomb_f,
-        "coulomb_eps": log.coulomb_eps,
-        "regressor_f": log.regressor_f,
-        "regressor_effort_f": log.regressor_effort_f,
-        "velocity": log.states.velocity,
-        "position": log.states.position,
-    }
+    return ModelInputs(
+        effort_f=log.effort_f,
+        sim_effort_f=log.sim_effort_f,
+        velocity_f=log.velocity_f,
+        coulomb_f=log.coulomb_f,
+        coulomb_eps=log.coulomb_eps,
+        regressor_f=log.regressor_f,
+        regressor_effort_f=log.regressor_effort_f,
+        regressor_theta=log.features.theta,
+        velocity=log.states.velocity,
+        position=log.states.position,
+    )
 
 
 def fit_model(
@@ -1190,32 +1260,30 @@ class FitStats:
         return None if self.motion is None else self.motion.resting
 
     @classmethod
-    def from_inputs(
-        cls, inputs: Mapping[str, Any], clean: BoolArray, speed: bool = True
-    ) -> FitStats:
+    def from_inputs(cls, inputs: ModelInputs, clean: BoolArray, speed: bool = True) -> FitStats:
         """The statistics of prepared samples (``ResidualModel.predict``'s inputs plus
         ``effort_f`` and the raw ``velocity``), rows where ``clean`` holds; ``speed`` False:
         no speed bins (an unwhitened model's fit, unless the identified model needs them)."""
-        sim, effort = inputs["sim_effort_f"], inputs["effort_f"]
+        sim, effort = inputs.sim_effort_f, inputs.measured
         affine = AffineStats.from_arrays(sim, effort, clean)
         motion = motion_stats(inputs, clean)
-        grid = tuple(inputs.get("coulomb_eps") or ()) == EPSILON_GRID
+        grid = inputs.coulomb_eps == EPSILON_GRID
         friction = None
         if grid:
             friction = FrictionStats.from_arrays(
-                sim, inputs["velocity_f"], inputs["coulomb_f"], effort, clean
+                sim, _required(inputs.velocity_f), _required(inputs.coulomb_f), effort, clean
             )
-        regressor = inputs.get("regressor_f") if grid else None
+        regressor = inputs.regressor_f if grid else None
         if not speed and regressor is None:
             return cls(affine, None, friction, None, motion)
         bins = SpeedStats.from_arrays(
-            inputs["velocity"],
+            _required(inputs.velocity),
             sim,
             effort,
-            inputs.get("velocity_f"),
-            inputs["coulomb_f"] if grid else None,
+            inputs.velocity_f,
+            inputs.coulomb_f if grid else None,
             regressor,
-            inputs.get("regressor_mask"),
+            inputs.regressor_mask,
             clean,
         )
         identified = None
@@ -1227,32 +1295,32 @@ class FitStats:
 
     @classmethod
     def from_cells(
-        cls, inputs: Mapping[str, Any], count: IntArray, by_speed: IntArray, speed: bool = True
+        cls, inputs: ModelInputs, count: IntArray, by_speed: IntArray, speed: bool = True
     ) -> FitStats:
         """``from_inputs`` of a grid's nodes (``twincd.grid``), each standing for the samples of
         its cell: ``count`` (N,) the clean samples each row stands for, ``by_speed``
         (N, D, B) those per joint and bin of the joint's own speed (what ``speed_bin`` gives
         each sample, as scoring bins it). The sums are the samples', each sample counted at
         its cell's node."""
-        sim, effort = inputs["sim_effort_f"], inputs["effort_f"]
+        sim, effort = inputs.sim_effort_f, inputs.measured
         affine = AffineStats.from_weighted(sim, effort, count)
-        grid = tuple(inputs.get("coulomb_eps") or ()) == EPSILON_GRID
+        grid = inputs.coulomb_eps == EPSILON_GRID
         friction = None
         if grid:
             friction = FrictionStats.from_weighted(
-                sim, inputs["velocity_f"], inputs["coulomb_f"], effort, count
+                sim, _required(inputs.velocity_f), _required(inputs.coulomb_f), effort, count
             )
-        regressor = inputs.get("regressor_f") if grid else None
+        regressor = inputs.regressor_f if grid else None
         if not speed and regressor is None:
             return cls(affine, None, friction, None)
         bins = SpeedStats.from_weighted(
             by_speed,
             sim,
             effort,
-            inputs.get("velocity_f"),
-            inputs["coulomb_f"] if grid else None,
+            inputs.velocity_f,
+            inputs.coulomb_f if grid else None,
             regressor,
-            inputs.get("regressor_mask"),
+            inputs.regressor_mask,
         )
         identified = None
         if regressor is not None:
@@ -1273,10 +1341,21 @@ class FitStats:
         )
 
 
-def motion_stats(inputs: Mapping[str, Any], clean: BoolArray) -> MotionStats | None:
+def motion_stats(inputs: ModelInputs, clean: BoolArray) -> MotionStats | None:
     """How far each joint moved over the ``clean`` rows (None without positions)."""
-    position = inputs.get("position")
+    position = inputs.position
     return None if position is None else MotionStats.from_arrays(position, clean)
+
+
+def _required(values: FloatArray | None) -> FloatArray:
+    """Inputs a fit of the prepared features needs (the stream computed them)."""
+    if values is None:
+        raise DataError(
+            "the prepared samples lack an input the fit's features need",
+            "fit",
+            "prepare the logs with the model's features (fit_features)",
+        )
+    return values
 
 
 def depth_order(depths: Sequence[int] | None, joints: int) -> tuple[int, ...]:
@@ -1321,9 +1400,164 @@ class AffineCalibration(AffineModel):
                 log.warning("%s", line)
         return self
 
-    def predict(self, inputs: Mapping[str, Any] | FloatArray) -> FloatArray:
+    def predict(self, inputs: ModelInputs | FloatArray) -> FloatArray:
         """a⊙τ̂̃ + b: the twin's effort adjusted to the real robot (``inputs``: prepared
         samples, or the twin's effort τ̂̃ alone)."""
-        if isinstance(inputs, Mapping):
+        if isinstance(inputs, ModelInputs):
             return super().predict(inputs)
-        return super().predict({"sim_effort_f": inputs})
+        return super().predict(ModelInputs(sim_effort_f=np.asarray(inputs, dtype=np.float64)))
+
+
+# ------------------------------------------------------------------ the file's model block
+
+
+def _optional_column(
+    coeff: Mapping[str, Any], names: Sequence[str], key: str, where: str
+) -> FloatArray | None:
+    """A per-joint coefficient that only some models have: all joints or none."""
+    values = [coeff[n].get(key) for n in names]
+    if all(v is None for v in values):
+        return None
+    if any(v is None for v in values):
+        raise ValueError(f"coefficient {key!r} is missing for some joints")
+    return finite_array(values, names, key, where)
+
+
+def _speed_bins(model: Mapping[str, Any], where: str) -> tuple[float, ...] | None:
+    """The depth statistic's speed bins (None: a model scored by the sum): rising, positive,
+    finite edges."""
+    statistic = model["statistic"]
+    if statistic not in STATISTICS:
+        raise CalibrationError(
+            f"calibration field model.statistic is {statistic!r}, not one of "
+            f"{', '.join(STATISTICS)}",
+            where,
+            "re-run `twincd fit`",
+        )
+    if statistic == "sum":
+        return None
+    edges = model["speed_bins"]
+    if not isinstance(edges, list) or not edges:
+        raise CalibrationError(
+            "calibration field model.speed_bins is not a list of speeds",
+            where,
+            "re-run `twincd fit`",
+        )
+    out = tuple(finite_number(e, "model.speed_bins", where, positive=True) for e in edges)
+    if any(b <= a for a, b in pairwise(out)):
+        raise CalibrationError(
+            "calibration field model.speed_bins does not rise", where, "re-run `twincd fit`"
+        )
+    return out
+
+
+def _scale(
+    coeff: Mapping[str, Any],
+    names: Sequence[str],
+    speed_bins: tuple[float, ...] | None,
+    where: str,
+) -> FloatArray | None:
+    """The whitening scale: one number per joint (the sum), or one per speed bin (the depth
+    statistic), all joints or none."""
+    if speed_bins is None:
+        return _optional_column(coeff, names, "scale", where)
+    rows = [coeff[n].get("scale") for n in names]
+    bins = len(speed_bins) + 1
+    if any(not isinstance(r, list) or len(r) != bins for r in rows):
+        raise CalibrationError(
+            f"calibration field scale is not a list of {bins} numbers (one per speed bin) for "
+            "every joint",
+            where,
+            "re-run `twincd fit`",
+        )
+    return np.array(
+        [
+            [finite_number(v, f"scale[{n}]", where) for v in r]
+            for r, n in zip(rows, names, strict=True)
+        ]
+    )
+
+
+def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatArray | None:
+    """The identified models' per-joint regressor weights: all joints, of one length, or none."""
+    rows = [coeff[n].get("theta") for n in names]
+    if all(r is None for r in rows):
+        return None
+    if any(r is None for r in rows):
+        raise ValueError("coefficient 'theta' is missing for some joints")
+    lengths = {len(r) if isinstance(r, list) else -1 for r in rows}
+    if len(lengths) != 1 or -1 in lengths:
+        raise CalibrationError(
+            "calibration field theta is not a list of numbers of one length per joint",
+            where,
+            "re-run `twincd fit`",
+        )
+    length = lengths.pop()
+    if length == 0 or length % 10:
+        raise CalibrationError(
+            f"calibration field theta has {length} numbers per joint, not 10 per link",
+            where,
+            "re-run `twincd fit`",
+        )
+    return np.array(
+        [
+            [finite_number(v, f"theta[{n}]", where) for v in r]
+            for r, n in zip(rows, names, strict=True)
+        ],
+        dtype=np.float64,
+    )
+
+
+def _require_coefficients(kind: str, extra: Mapping[str, FloatArray | None], where: str) -> None:
+    cls, whitened = model_class(kind)
+    needed = (
+        (["c", "d", "epsilon"] if cls.needs_coulomb else [])
+        + (["scale"] if whitened else [])
+        + (["theta"] if cls.needs_regressor else [])
+    )
+    if extra.get("theta") is not None and not cls.needs_regressor:
+        raise CalibrationError(
+            f"the {kind} model has regressor weights (theta), which only identified models use",
+            where,
+            "re-run `twincd fit`",
+        )
+    missing = [k for k in needed if extra.get(k) is None]
+    if missing:
+        raise CalibrationError(
+            f"the {kind} model lacks its coefficient(s) {', '.join(missing)}",
+            where,
+            "re-run `twincd fit`",
+        )
+    eps, scale = extra.get("epsilon"), extra.get("scale")
+    if (eps is not None and not np.all(eps > 0)) or (scale is not None and not np.all(scale > 0)):
+        raise CalibrationError("epsilon and scale must be positive", where, "re-run `twincd fit`")
+
+
+def read_model(
+    raw: Mapping[str, Any],
+    names: Sequence[str],
+    order: Sequence[int],
+    where: str,
+    r2: FloatArray | None = None,
+    rmse: FloatArray | None = None,
+) -> ResidualModel:
+    """The fitted model of a calibration file's ``model`` block (``ResidualModel.to_dict``),
+    every number validated; ``order`` the joints base first (the depth statistic's), ``r2``
+    and ``rmse`` the fit's per joint. A ``CalibrationError`` for a block that is not one."""
+    kind = raw.get("kind")
+    if kind not in MODEL_KINDS:
+        raise CalibrationError(
+            f"unknown model kind {kind!r} (this twincd knows {', '.join(MODEL_KINDS)})",
+            where,
+            "re-run `twincd fit`",
+        )
+    coeff = raw["joints"]
+    a = finite_array([coeff[n]["a"] for n in names], names, "a", where)
+    b = finite_array([coeff[n]["b"] for n in names], names, "b", where)
+    extra = {key: _optional_column(coeff, names, key, where) for key in ("c", "d", "epsilon")}
+    speed_bins = _speed_bins(raw, where)
+    extra["scale"] = _scale(coeff, names, speed_bins, where)
+    extra["theta"] = _theta(coeff, names, where)
+    _require_coefficients(str(kind), extra, where)
+    model = make_model(str(kind), order, SPEED_BINS if speed_bins is None else speed_bins)
+    return model.with_coefficients({"a": a, "b": b, **extra}, r2, rmse)

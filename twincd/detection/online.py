@@ -113,7 +113,7 @@ class OnlineDetector:
         self.use_sim = (not calibration.simulated) if sim_effort is None else sim_effort
         # the twin's effort, or (identified models) the regressor, needs the robot model
         self.robot: RobotModel | None = None
-        if not self.use_sim or calibration.regressor:
+        if not self.use_sim or calibration.model.features.regressor:
             self.robot = robot_for(calibration.robot or DEFAULT_ROBOT, tuple(self.joint_names))
             check_urdf(self.robot, calibration.urdf_sha256, allow_urdf_change, source or where)
             undriven = [n for n in self.joint_names if n not in self.robot.joint_names]
@@ -164,18 +164,21 @@ class OnlineDetector:
         robot = self.robot
         layout = JointLayout(names, names if robot is None else robot.joint_names, names)
         twin = None if self.use_sim else robot
-        regressor = robot if self.calibration.regressor else None
+        model = self._scoring.model
+        regressor = robot if model.features.regressor else None
         built = build_chain(
-            self.calibration,
+            self.calibration.lowpass,
+            model.features,
             layout,
             self.period_s,
             twin,
             fill,
             regressor,
             self._threads,
-            model=self._scoring.model,
+            model=model,
         )
         self._scoring.regressor_mask = built.regressor_mask
+        self._scoring.regressor_theta = model.features.theta
         return built
 
     def _columns(self, values: object, n: int, what: str) -> FloatArray:
