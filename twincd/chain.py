@@ -300,7 +300,7 @@ class JointLayout:
 
 
 @dataclass(frozen=True)
-class TwinChain:
+class BuiltChain:
     """A built chain and what scoring its frames needs besides them."""
 
     chain: Chain
@@ -373,7 +373,7 @@ def build_chain(
     filtered: bool = True,
     nodes: bool = False,
     model: ResidualModel | None = None,
-) -> TwinChain:
+) -> BuiltChain:
     """The one chain for ``lowpass`` (zero-phase or causal) and a model's ``features`` (the
     friction models' ε, the identified models' θ: ``ResidualModel.features`` of a fitted
     ``model``) on frames whose joints are laid out as ``layout``: pick the twin's columns, twin
@@ -387,7 +387,7 @@ def build_chain(
     the samples by interpolation (``twincd.grid.GridStage``). What comes back on the samples:
     every filtered column by default (what a ``PreparedLog`` holds); with ``nodes``, all but
     the regressor's hundreds of entries, the grid keeping its filtered nodes for ``fit``
-    (``TwinChain.grid.take_nodes``); with a fitted ``model`` (scoring), its prediction
+    (``BuiltChain.grid.take_nodes``); with a fitted ``model`` (scoring), its prediction
     ``predicted``, computed on the nodes (every model is linear in its filtered inputs, so it
     commutes with the interpolation), with ``effort_f`` and ``sim_effort_f`` only."""
     causal = lowpass.causal
@@ -409,7 +409,7 @@ def build_chain(
             *edge_stages(lowpass, period_s),
             stage,
         ]
-        return TwinChain(Chain(stages), layout, period_s, mask, stage)
+        return BuiltChain(Chain(stages), layout, period_s, mask, stage)
     stages = [
         pick_columns(layout.to_twin),
         *twin_stages(twin, period_s, causal, fill_velocity, threads, regressor),
@@ -417,7 +417,7 @@ def build_chain(
     ]
     if filtered:
         stages += filter_stages(lowpass, period_s, features.coulomb_eps, mask, theta)
-    return TwinChain(Chain(stages), layout, period_s, mask)
+    return BuiltChain(Chain(stages), layout, period_s, mask)
 
 
 def _grid_stage(

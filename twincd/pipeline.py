@@ -27,8 +27,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from twincd.chain import (
+    BuiltChain,
     JointLayout,
-    TwinChain,
     build_chain,
     check_urdf,
     model_joints,
@@ -258,7 +258,7 @@ class PreparedStream:
                 break
         return head
 
-    def _set_up(self, first: Frame) -> TwinChain:
+    def _set_up(self, first: Frame) -> BuiltChain:
         """Decide, from the first samples, the twin source, the joints and the period, and
         build the chain."""
         assert self._log is not None

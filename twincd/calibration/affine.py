@@ -117,11 +117,6 @@ class AffineStats:
             cxy=(w * dx * dy).sum(axis=0),
         )
 
-    @classmethod
-    def from_log(cls, log_: PreparedLog) -> AffineStats:
-        """One log's statistics over its collision-free samples (the pure per-log step)."""
-        return cls.from_arrays(log_.sim_effort_f, log_.effort_f, clean_mask(log_))
-
     def __add__(self, other: AffineStats) -> AffineStats:
         if self.n == 0:
             return other

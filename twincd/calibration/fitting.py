@@ -178,7 +178,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         log.info("fit: model %s, the best these logs allow (--model affine is the paper's)", model)
     robots = sorted({p.robot for p in parts if p.robot is not None})
     name, sha = robots[0] if robots else (setup.robot, None)
-    links, depths = _chain(name, names)
+    links, depths = _links_and_depths(name, names)
     start = time.perf_counter()
     fitted = make_model(model, depth_order(depths, len(names)))
     fitted.joint_names_ = names
@@ -209,7 +209,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
     return replace(cal, links=links, depths=depths)
 
 
-def _chain(
+def _links_and_depths(
     robot: str | None, names: tuple[str, ...]
 ) -> tuple[tuple[str, ...] | None, tuple[int, ...] | None]:
     """Each joint's child link and depth, when the robot model can be loaded (else None: logs

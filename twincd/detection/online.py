@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.chain import JointLayout, TwinChain, build_chain, check_urdf, robot_for
+from twincd.chain import BuiltChain, JointLayout, build_chain, check_urdf, robot_for
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
 from twincd.detection.events import Event, EventRules
@@ -125,7 +125,7 @@ class OnlineDetector:
                     "detect with the log's own twin effort",
                 )
         self._threads = threads
-        self._chain: TwinChain | None = None
+        self._chain: BuiltChain | None = None
         # pushed rows not released yet: their stamps and whether they went down the chain
         self._held: deque[tuple[IntArray, BoolArray]] = deque()
         self._fill = False
@@ -158,7 +158,7 @@ class OnlineDetector:
         """Pushed samples not in any result yet (held by a coarse grid)."""
         return sum(len(stamps) for stamps, _ in self._held)
 
-    def _build(self, fill: bool) -> TwinChain:
+    def _build(self, fill: bool) -> BuiltChain:
         """The calibration's chain on pushed columns (the calibration's joints, in its order)."""
         names = self.joint_names
         robot = self.robot
