@@ -24,6 +24,7 @@ from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedLog, Setup
 from twincd.signal.features import ModelInputs
+from twincd.signal.moments import Moments
 from twincd.tail import (
     MIN_PEAKS,
     MISFIT_STUDIED,
@@ -72,17 +73,12 @@ class ScoreStats:
             return self
         if self.n == 0:
             return other
-        n = self.n + other.n
-        delta = other.mean - self.mean
         histogram = None
         if self.histogram is not None and other.histogram is not None:
             histogram = self.histogram + other.histogram
-        return ScoreStats(
-            n,
-            self.mean + delta * other.n / n,
-            self.m2 + other.m2 + delta * delta * self.n * other.n / n,
-            histogram,
-        )
+        mine, theirs = (Moments(s.n, np.float64(s.mean), np.float64(s.m2)) for s in (self, other))
+        merged = mine + theirs
+        return ScoreStats(int(merged.n), float(merged.mean), float(merged.m2), histogram)
 
     @property
     def mu(self) -> float:

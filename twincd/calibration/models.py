@@ -34,7 +34,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import lru_cache, reduce
 from itertools import pairwise
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -71,6 +71,7 @@ from twincd.errors import (
     UsageError,
 )
 from twincd.signal.features import ModelFeatures, ModelInputs
+from twincd.signal.moments import Moments
 from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
@@ -278,37 +279,17 @@ class FrictionStats:
         return cls(int(n), mean, cross)
 
     def __add__(self, other: FrictionStats) -> FrictionStats:
-        return FrictionStats(*merge_moments(self, other, joint_axis=1))
+        merged = _merged(self, other, joint_axis=1)
+        return FrictionStats(int(merged.n), merged.mean, merged.m2)
 
 
-class Moments(Protocol):
-    """Count, means (..., K) and centred cross-products (..., K, K) of K columns."""
-
-    @property
-    def n(self) -> int: ...
-    @property
-    def mean(self) -> FloatArray: ...
-    @property
-    def cross(self) -> FloatArray: ...
-
-
-def merge_moments(
-    mine: Moments, theirs: Moments, joint_axis: int
-) -> tuple[int, FloatArray, FloatArray]:
-    """Chan et al.'s exact pairwise merge of two ``Moments`` (of the same joints)."""
-    if mine.n == 0:
-        return theirs.n, theirs.mean, theirs.cross
-    if theirs.n == 0:
-        return mine.n, mine.mean, mine.cross
-    same_joints(mine.mean.shape[joint_axis], theirs.mean.shape[joint_axis])
-    n = mine.n + theirs.n
-    delta = theirs.mean - mine.mean
-    outer = delta[..., :, None] * delta[..., None, :]
-    return (
-        n,
-        mine.mean + delta * (theirs.n / n),
-        mine.cross + theirs.cross + outer * (mine.n * theirs.n / n),
-    )
+def _merged(
+    mine: FrictionStats | IdentifiedStats, theirs: FrictionStats | IdentifiedStats, joint_axis: int
+) -> Moments:
+    """The two statistics' moments merged (of the same joints: ``joint_axis`` of their means)."""
+    if mine.n and theirs.n:
+        same_joints(mine.mean.shape[joint_axis], theirs.mean.shape[joint_axis])
+    return Moments(mine.n, mine.mean, mine.cross) + Moments(theirs.n, theirs.mean, theirs.cross)
 
 
 @dataclass(frozen=True)
@@ -376,7 +357,8 @@ class IdentifiedStats:
         return int(self.mean.shape[1]) - 3 - len(EPSILON_GRID)
 
     def __add__(self, other: IdentifiedStats) -> IdentifiedStats:
-        return IdentifiedStats(*merge_moments(self, other, joint_axis=0))
+        merged = _merged(self, other, joint_axis=0)
+        return IdentifiedStats(int(merged.n), merged.mean, merged.m2)
 
 
 def speed_bin(speed: FloatArray, edges: Sequence[float] = SPEED_BINS) -> IntArray:
@@ -524,31 +506,16 @@ class SpeedStats:
                 "prepare every log with the same settings",
             )
         same_joints(self.n.shape[1], other.n.shape[1])
-        merged = _merge_counted((self.n, self.mean, self.cross), (other.n, other.mean, other.cross))
-        return SpeedStats(*merged, self.params, self.coulomb)
+        merged = Moments(self.n, self.mean, self.cross) + Moments(other.n, other.mean, other.cross)
+        return SpeedStats(np.asarray(merged.n), merged.mean, merged.m2, self.params, self.coulomb)
 
     def pooled(self) -> tuple[int, FloatArray, FloatArray]:
         """Count, means (D, K) and cross-products (D, K, K) over every bin: the statistics of
         one joint's columns regardless of speed (``IdentifiedStats``'s, in the same layout)."""
-        total = (self.n[0], self.mean[0], self.cross[0])
+        total = Moments(self.n[0], self.mean[0], self.cross[0])
         for b in range(1, len(self.n)):
-            total = _merge_counted(total, (self.n[b], self.mean[b], self.cross[b]))
-        return int(total[0].max(initial=0)), total[1], total[2]
-
-
-def _merge_counted(
-    mine: tuple[IntArray, FloatArray, FloatArray], theirs: tuple[IntArray, FloatArray, FloatArray]
-) -> tuple[IntArray, FloatArray, FloatArray]:
-    """Chan et al.'s pairwise merge where every cell has its own count (empty cells merge as
-    nothing): counts (...), means (..., K), centred cross-products (..., K, K)."""
-    n1, m1, c1 = mine
-    n2, m2, c2 = theirs
-    n = n1 + n2
-    total = np.maximum(n, 1)
-    delta = m2 - m1
-    mean = m1 + delta * (n2 / total)[..., None]
-    weight = (n1 * n2 / total)[..., None, None]
-    return n, mean, c1 + c2 + delta[..., :, None] * delta[..., None, :] * weight
+            total = total + Moments(self.n[b], self.mean[b], self.cross[b])
+        return int(np.max(total.n, initial=0)), total.mean, total.m2
 
 
 def speed_scale(stats: SpeedStats, model: ResidualModel, overall: FloatArray) -> FloatArray:
