@@ -112,14 +112,8 @@ def test_identified_model_recovers_a_plant_the_affine_map_cannot(xarm) -> None: 
     friction = FrictionStats.from_arrays(twin, qd, coulomb, effort)
     # on motion it was not fitted on, the residual is near the noise (0.01) on every joint
     twin2, y2, qd2, coulomb2, effort2 = _heavier_plant(xarm, 2000, 7)
-    unseen = ModelInputs(
-        effort_f=effort2,
-        sim_effort_f=twin2,
-        velocity_f=qd2,
-        coulomb_f=coulomb2,
-        coulomb_eps=EPSILON_GRID,
-        regressor_f=y2,
-    )
+    columns = {"effort_f": effort2, "sim_effort_f": twin2, "velocity_f": qd2}
+    unseen = ModelInputs.of({**columns, "coulomb_f": coulomb2, "regressor_f": y2}, EPSILON_GRID)
     rms = {}
     for kind in ("friction", "identified", "identified-whitened"):
         model = fit_model(kind, affine, friction, stats)
@@ -366,13 +360,8 @@ def test_masked_regressor_statistics_and_prediction_equal_the_whole_ones(xarm) -
     model = fit_model("identified", affine, friction, whole)
     # θ lives on the mask
     assert isinstance(model, IdentifiedModel) and not np.any(model.theta_[~mask])
-    inputs = ModelInputs(
-        effort_f=effort,
-        sim_effort_f=twin,
-        velocity_f=qd,
-        coulomb_f=coulomb,
-        coulomb_eps=EPSILON_GRID,
-    )
+    columns = {"effort_f": effort, "sim_effort_f": twin, "velocity_f": qd, "coulomb_f": coulomb}
+    inputs = ModelInputs.of(columns, EPSILON_GRID)
     full = model.predict(replace(inputs, regressor_f=y))
     compact = model.predict(replace(inputs, regressor_f=y[:, mask], regressor_mask=mask))
     np.testing.assert_allclose(compact, full, rtol=1e-12, atol=1e-12 * np.ptp(full))
