@@ -1,4 +1,4 @@
-"""The identified calibration models (twincd/calibration/models.py): the joint-torque regressor
+"""The identified calibration models (twincd/calibration/models/): the joint-torque regressor
 against RNEA, mergeable statistics, the recovery of a plant whose inertial parameters differ from
 the URDF's, the calibration file, and fit → threshold → detect, batch and live, end to end."""
 

@@ -1,4 +1,4 @@
-"""Calibration models beyond the paper's affine map (twincd/calibration/models.py): mergeable
+"""Calibration models beyond the paper's affine map (twincd/calibration/models/): mergeable
 friction statistics, the fit, whitened scores, the calibration JSON and the CLI end to end."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The whitened models' noise scale by speed and their depth statistic
-(twincd/calibration/models.py): the scale comes exactly out of the fit's one pass, merges in any
+(twincd/calibration/models/): the scale comes exactly out of the fit's one pass, merges in any
 split, the statistic is a z on every depth, and the calibration file keeps both (old files keep
 their one scale per joint and their sum)."""
 
