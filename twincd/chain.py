@@ -83,8 +83,8 @@ def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) ->
 def check_urdf(robot: RobotModel, expected: str | None, allow: bool, source: str) -> None:
     """The URDF a calibration was fitted with (its sha256, ``expected``) must be the one its
     twin runs on: a changed file is refused, or with ``allow`` said once for the log.
-    Calibrations that record no sha256 (older files, or fitted on a log's own twin effort
-    without a model) are not checked."""
+    Calibrations that record no sha256 (fitted on a log's own twin effort without a model, or
+    files that did not record it) are not checked."""
     if not expected or robot.urdf_sha256 == expected:
         return
     what = (

@@ -294,7 +294,7 @@ class PreparedStream:
         self.regressor_mask = built.regressor_mask
         self.grid = built.grid
         if built.grid is not None and self.regressor:
-            # the samples no longer carry the regressor's entries, only the grid's nodes do
+            # the regressor's entries are on the grid's nodes only, never on the samples
             # (fit's nodes all of them: fewer samples a block keep its sums' memory small)
             self._log.block_size = min(setup.block_size, GRID_BLOCK if self.nodes else 1 << 30)
         return built

@@ -45,8 +45,8 @@ class ResidualModel:
     Fitting is ``stats`` per log or block, an exact merge (``merge``, ``+``), then ``solve``.
     Whitening is a property of the score: ``whitened`` models divide each joint's residual by
     its training RMS, per bin of the joint's speed (``speed_bins``; the depth statistic over the
-    joints in ``order``, base first), or one per joint in files written before the bins (the
-    sum); the others score Σ_j r_j².
+    joints in ``order``, base first), or one per joint (``statistic`` "sum": Σ_j (r_j/s_j)²);
+    the others score Σ_j r_j².
     """
 
     name: ClassVar[str] = AFFINE  # the kind's stem in calibration files
@@ -230,8 +230,7 @@ class ResidualModel:
 
     def score(self, residual: FloatArray, velocity: FloatArray | None = None) -> FloatArray:
         """(N,) Σ_j r_j² (unwhitened), the depth statistic of r_j / s_j(|q̇_j|) (whitened,
-        from the (N, D) joint ``velocity``), or Σ_j (r_j/s_j)² (whitened, written before the
-        speed bins)."""
+        from the (N, D) joint ``velocity``), or Σ_j (r_j/s_j)² (whitened, one scale per joint)."""
         scale = self.scale_
         if scale is None or scale.ndim == 1:
             r = residual if scale is None else residual / np.maximum(scale, MIN_SCALE)

@@ -64,6 +64,5 @@ def fit_model(
     order: Sequence[int] | None = None,
 ) -> ResidualModel:
     """``kind`` fitted from merged statistics (``ResidualModel.solve``): a whitened model takes
-    its scale per speed bin from ``speed``, or without it one per joint (the sum, as files
-    written before the speed bins)."""
+    its scale per speed bin from ``speed``, or without it one per joint (scored by the sum)."""
     return make_model(kind, order).solve(FitStats(affine, speed, friction, identified))
