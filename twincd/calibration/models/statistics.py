@@ -3,7 +3,7 @@ merge: ``twincd.signal.moments.Moments``), and ``FitStats``, all of them at once
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
@@ -259,6 +259,19 @@ def speed_bin(speed: FloatArray, edges: Sequence[float] = SPEED_BINS) -> IntArra
 
 
 @dataclass(frozen=True)
+class _Columns:
+    """The per-joint columns ``SpeedStats`` bins: (N, D) efforts and velocity, the (N, E, D)
+    Coulomb features and the compact regressor with its mask (None: without them)."""
+
+    sim: FloatArray
+    effort: FloatArray
+    velocity: FloatArray
+    coulomb: FloatArray | None
+    y: FloatArray | None
+    kept: BoolArray | None
+
+
+@dataclass(frozen=True)
 class SpeedStats:
     """Mergeable statistics of each joint's model columns in bins of the joint's own speed.
 
@@ -304,39 +317,53 @@ class SpeedStats:
         ``IdentifiedStats.from_arrays``), rows where ``mask`` holds."""
         sim = np.asarray(sim_effort_f, dtype=np.float64)
         rows = np.ones(len(sim), bool) if mask is None else np.asarray(mask, bool)
-        joints = sim.shape[1]
         f = None if coulomb_f is None else coulomb_grid(coulomb_f, "whitening scale")[rows]
         y, kept = None, None
         if regressor_f is not None:
             y, kept = compact_regressor(regressor_f, regressor_mask)
             y = y[rows]
-        params = 0 if kept is None else kept.shape[1]
-        out = cls.zeros(joints, params, 0 if f is None else f.shape[1])
         bins = speed_bin(np.asarray(speed, dtype=np.float64)[rows])
         sim, effort = sim[rows], np.asarray(effort_f, dtype=np.float64)[rows]
         velocity = (
             np.zeros_like(sim) if velocity_f is None else np.asarray(velocity_f, np.float64)[rows]
         )
+
+        def cells(j: int) -> Iterator[tuple[int, Any, int, FloatArray | None]]:
+            for b in np.unique(bins[:, j]):
+                at = bins[:, j] == b
+                yield int(b), at, int(np.count_nonzero(at)), None
+
+        return cls._by_bin(_Columns(sim, effort, velocity, f, y, kept), cells)
+
+    @classmethod
+    def _by_bin(
+        cls, columns: _Columns, cells: Callable[[int], Iterable[tuple[int, Any, int, Any]]]
+    ) -> SpeedStats:
+        """The statistics of each joint's ``columns`` in each of its ``cells(j)``: (bin, the
+        rows in it, the samples they stand for, each row's weight or None)."""
+        sim, y, kept, f = columns.sim, columns.y, columns.kept, columns.coulomb
+        params = 0 if kept is None else kept.shape[1]
+        out = cls.zeros(sim.shape[1], params, 0 if f is None else f.shape[1])
         n, mean, cross = out.n.copy(), out.mean.copy(), out.cross.copy()
         ends = None if kept is None else np.cumsum(kept.sum(axis=1))
         with one_blas_thread():
-            for j in range(joints):
+            for j in range(sim.shape[1]):
                 if kept is None or y is None or ends is None:
                     joint_kept, joint_y = np.zeros(0, bool), np.zeros((len(sim), 0))
                 else:
                     joint_kept = kept[j]
                     joint_y = y[:, ends[j] - np.count_nonzero(kept[j]) : ends[j]]
                 coulomb = np.zeros((len(sim), 0)) if f is None else f[:, :, j]
-                for b in np.unique(bins[:, j]):
-                    at = bins[:, j] == b
-                    n[b, j] = np.count_nonzero(at)
+                for b, at, count, weight in cells(j):
+                    n[b, j] = count
                     mean[b, j], cross[b, j] = _joint_moments(
                         joint_kept,
                         sim[at, j],
                         joint_y[at],
-                        velocity[at, j],
+                        columns.velocity[at, j],
                         coulomb[at],
-                        effort[at, j],
+                        columns.effort[at, j],
+                        weight,
                     )
         return cls(n, mean, cross, params, out.coulomb)
 
@@ -355,39 +382,20 @@ class SpeedStats:
         ``weight`` (N, D, B) counts, per row, joint and bin of the joint's speed, the samples
         a row stands for."""
         sim = np.asarray(sim_effort_f, dtype=np.float64)
-        joints = sim.shape[1]
         f = None if coulomb_f is None else coulomb_grid(coulomb_f, "whitening scale")
         y, kept = None, None
         if regressor_f is not None:
             y, kept = compact_regressor(regressor_f, regressor_mask)
-        params = 0 if kept is None else kept.shape[1]
-        out = cls.zeros(joints, params, 0 if f is None else f.shape[1])
         effort = np.asarray(effort_f, dtype=np.float64)
         velocity = np.zeros_like(sim) if velocity_f is None else np.asarray(velocity_f, np.float64)
         w = np.asarray(weight, dtype=np.float64)
-        n, mean, cross = out.n.copy(), out.mean.copy(), out.cross.copy()
-        ends = None if kept is None else np.cumsum(kept.sum(axis=1))
-        with one_blas_thread():
-            for j in range(joints):
-                if kept is None or y is None or ends is None:
-                    joint_kept, joint_y = np.zeros(0, bool), np.zeros((len(sim), 0))
-                else:
-                    joint_kept = kept[j]
-                    joint_y = y[:, ends[j] - np.count_nonzero(kept[j]) : ends[j]]
-                coulomb = np.zeros((len(sim), 0)) if f is None else f[:, :, j]
-                for b in np.flatnonzero(w[:, j].any(axis=0)):
-                    at = np.flatnonzero(w[:, j, b])
-                    n[b, j] = int(w[at, j, b].sum())
-                    mean[b, j], cross[b, j] = _joint_moments(
-                        joint_kept,
-                        sim[at, j],
-                        joint_y[at],
-                        velocity[at, j],
-                        coulomb[at],
-                        effort[at, j],
-                        w[at, j, b],
-                    )
-        return cls(n, mean, cross, params, out.coulomb)
+
+        def cells(j: int) -> Iterator[tuple[int, Any, int, FloatArray | None]]:
+            for b in np.flatnonzero(w[:, j].any(axis=0)):
+                at = np.flatnonzero(w[:, j, b])
+                yield int(b), at, int(w[at, j, b].sum()), w[at, j, b]
+
+        return cls._by_bin(_Columns(sim, effort, velocity, f, y, kept), cells)
 
     def __add__(self, other: SpeedStats) -> SpeedStats:
         if (self.params, self.coulomb) != (other.params, other.coulomb):
