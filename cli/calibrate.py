@@ -80,32 +80,36 @@ ThresholdOut = Annotated[
 
 
 def fit_table(cal: Calibration) -> Table:
-    held = cal.held or ((),) * len(cal.joint_names)
+    held = cal.fit.held or ((),) * len(cal.joint_names)
+    c = cal.model.coefficients()
+    a, b, cs, ds, eps = c["a"], c["b"], c["c"], c["d"], c["epsilon"]
+    assert a is not None and b is not None
     caption = (
         "* held: not determined by these logs' motion (see the warning above)"
         if any(held)
         else None
     )
-    table = Table(title=f"{cal.kind} twin calibration ({cal.fit_samples} samples)", caption=caption)
-    friction = cal.c is not None and cal.d is not None and cal.epsilon is not None
+    title = f"{cal.model.kind} twin calibration ({cal.fit.samples} samples)"
+    table = Table(title=title, caption=caption)
+    friction = cs is not None and ds is not None and eps is not None
     extra = ("c (N·m)", "d (N·m·s)", "ε (rad/s)") if friction else ()
     for col in ("joint", "a", "b", *extra, "R²", "RMSE (N·m)"):
         table.add_column(col, justify="left" if col == "joint" else "right")
     for i, name in enumerate(cal.joint_names):
-        r2 = "n/a" if cal.r2 is None else f"{cal.r2[i]:.3f}"
-        rmse = "n/a" if cal.rmse is None else f"{cal.rmse[i]:.3g}"
+        r2 = "n/a" if cal.model.r2_ is None else f"{cal.model.r2_[i]:.3f}"
+        rmse = "n/a" if cal.model.rmse_ is None else f"{cal.model.rmse_[i]:.3g}"
 
         def mark(key: str, text: str, i: int = i) -> str:
             return f"{text}*" if key in held[i] else text
 
         more = []
-        if cal.c is not None and cal.d is not None and cal.epsilon is not None:
+        if cs is not None and ds is not None and eps is not None:
             more = [
-                mark("c", f"{cal.c[i]:+.3f}"),
-                mark("d", f"{cal.d[i]:+.3f}"),
-                f"{cal.epsilon[i]:g}",
+                mark("c", f"{cs[i]:+.3f}"),
+                mark("d", f"{ds[i]:+.3f}"),
+                f"{eps[i]:g}",
             ]
-        table.add_row(name, mark("a", f"{cal.a[i]:.3f}"), f"{cal.b[i]:+.3f}", *more, r2, rmse)
+        table.add_row(name, mark("a", f"{a[i]:.3f}"), f"{b[i]:+.3f}", *more, r2, rmse)
     return table
 
 

@@ -87,7 +87,7 @@ def test_threshold_streams_val_logs(calibrated, twin_dataset):
     assert th.k_sigma == 4.0 and th.samples == sum(k.sum() for k in kept) and len(th.logs) == 2
     scores = np.concatenate(
         [
-            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.a, calibrated.b)[k]
+            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.model.a_, calibrated.model.b_)[k]
             for lg, k in zip(logs, kept, strict=True)
         ]
     )

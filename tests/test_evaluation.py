@@ -112,7 +112,7 @@ def test_proposed_from_the_calibration(calibration, split):
     assert row["name"] == "proposed" and "unit" not in row
     assert row["auc"] > 0.9 and row["f1_best"] > 0.7
     assert row["threshold"] == pytest.approx(calibration.threshold.value)
-    assert row["train_s"] == calibration.fit_s
+    assert row["train_s"] == calibration.fit.seconds
     assert row["best_k"] in [s["k"] for s in row["sweep"]]
 
 

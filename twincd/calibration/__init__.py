@@ -8,7 +8,14 @@ from twincd.calibration.affine import (
     clean_rows,
     solve,
 )
-from twincd.calibration.file import SCHEMA, Calibration, Threshold, calibration_from_fit
+from twincd.calibration.file import (
+    SCHEMA,
+    Calibration,
+    FitInfo,
+    Threshold,
+    calibration_from_fit,
+    upgrade_v1,
+)
 from twincd.calibration.fitting import LogFit, fit_log, merge_fits
 from twincd.calibration.models import (
     AffineCalibration,
@@ -27,6 +34,7 @@ __all__ = [
     "AffineSolution",
     "AffineStats",
     "Calibration",
+    "FitInfo",
     "FitStats",
     "FrictionModel",
     "IdentifiedModel",
@@ -40,4 +48,5 @@ __all__ = [
     "make_model",
     "merge_fits",
     "solve",
+    "upgrade_v1",
 ]

@@ -87,7 +87,7 @@ def evaluate_logs(
         running, settings = split_options(options)
         cal = Calibration.load(calibration) if isinstance(calibration, str | Path) else calibration
         text = methods if methods is None or isinstance(methods, str) else ",".join(methods)
-        names = parse_methods(text, method_for(cal.kind) if cal is not None else "proposed")
+        names = parse_methods(text, method_for(cal.model.kind) if cal is not None else "proposed")
         test_paths = expand_logs(logs)
         train_paths = expand_logs(train) if train else []
         val_paths = expand_logs(val) if val else []

@@ -53,6 +53,7 @@ def fit_calibration(
     write; ``report``: a Markdown or HTML report, written first (both or neither). Neither may
     replace a file that is not twincd's own of its kind unless ``force``."""
     from twincd.calibration import fit_log, merge_fits
+    from twincd.calibration.models import fit_features
     from twincd.executors import Bound, gathered_warnings
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
@@ -69,11 +70,12 @@ def fit_calibration(
         setup, model = fit_setup(setup_options(settings), model)
         setup = setup.for_logs(paths)  # a named option no log has: refused before any work
         figure = report_path is not None and report_path.suffix.lower() == ".html"
-        work: Bound[Path, Any] = Bound(fit_log, setup)
+        features = fit_features(model)
+        work: Bound[Path, Any] = Bound(fit_log, setup, (), features)
         if figure:
             from twincd.reports.traces import fit_log_with_pairs
 
-            work = Bound(fit_log_with_pairs, setup)
+            work = Bound(fit_log_with_pairs, setup, features)
         done = running.each(work, paths, "fitting")
         parts = [part for part, _ in done.results] if figure else done.results
         cal = merge_fits(parts, setup, model)
@@ -93,7 +95,7 @@ def fit_calibration(
             log.info(
                 "wrote %s (%d samples from %d log(s))",
                 target,
-                cal.fit_samples,
-                len(cal.fit_logs),
+                cal.fit.samples,
+                len(cal.fit.logs),
             )
     return FitRun(calibration=cal, warnings=tuple(warnings), failures=tuple(done.failures))

@@ -34,11 +34,13 @@ def detect_streamed(
     to ``sinks``. The chain and the scoring are those of ``OnlineDetector``: with a causal
     calibration, a log pushed live in any chunking gives the same scores, flags and events."""
     summary = DetectionSummary(str(path), calibration.require_threshold().value)
-    # the stream's columns follow the calibration's joints (Setup.from_calibration)
+    # the stream reads the log the calibration's way, its columns in the calibration's joints
+    setup.check_against(calibration)
     stage = ScoringStage(calibration)
     with setup.open(path, model=stage.model) as stream:
         for frame in stream:
             stage.regressor_mask = stream.regressor_mask
+            stage.regressor_theta = stream.features.theta
             out, closed = stage.push(frame)
             _deliver(summary, sinks, out, closed)
         _deliver(summary, sinks, Frame(), stage.finish())

@@ -90,6 +90,7 @@ def judge_log(
     ``method``: who is said to flag a log mostly; ``keep``: keep the judged samples' scores
     (False: counts only, e.g. the false alarms of validation logs)."""
     source = str(Path(path))
+    setup.check_against(calibration)
     links = read_link_messages(path, link_topic, setup.strict) if link_topic else None
     tally = EventTally(None if links is None else links.values)
     stage = ScoringStage(calibration)
@@ -101,6 +102,7 @@ def judge_log(
     with setup.open(path, model=stage.model) as stream:
         for frame in stream:
             stage.regressor_mask = stream.regressor_mask
+            stage.regressor_theta = stream.features.theta
             start = time.perf_counter()
             out, closed = stage.push(frame)
             score_s += time.perf_counter() - start
