@@ -104,10 +104,10 @@ def phase_seconds(command: str, executor: str, fleet: Path) -> float:
     import importlib
 
     from twincd.calibration import Calibration, fit_log, merge_fits
-    from twincd.cluster import open_executor
     from twincd.detection import detect_streamed
-    from twincd.executors import PRELOAD, Bound
-    from twincd.pipeline import Setup
+    from twincd.executors.cluster import open_executor
+    from twincd.executors.local import PRELOAD, Bound
+    from twincd.prepare.setup import Setup
 
     for module in PRELOAD:
         importlib.import_module(module)
@@ -131,7 +131,7 @@ def per_log_costs(logs: list[Path]) -> dict[str, dict[str, float]]:
     os.environ["TWINCD_TWIN_THREADS"] = "1"  # one core's worth, as on a worker
     from twincd.calibration import Calibration, fit_log
     from twincd.detection import detect_streamed
-    from twincd.pipeline import Setup
+    from twincd.prepare.setup import Setup
 
     cal = Calibration.load(SAMPLES / "calibration.json")
     fit_setup, detect_setup = Setup(), Setup.from_calibration(cal)

@@ -23,8 +23,8 @@ from mcap.reader import make_reader
 from twincd.io.cdr import JOINT_STATE, joint_state_cdr
 from twincd.io.mcap import McapLogWriter
 from twincd.io.sources import open_reader
-from twincd.pipeline import read_log
-from twincd.simulate import simulate_log
+from twincd.prepare.setup import read_log
+from twincd.prepare.simulate import simulate_log
 from twincd.twin.dynamics import simulate_effort
 from twincd.twin.robot import load_robot
 

@@ -114,7 +114,7 @@ FIT_DEFAULT = "fit"
 DETECT_DEFAULT = "detect"
 EVALUATE_DEFAULT = "evaluate"
 EVALUATE_LIMIT = 2.0  # evaluate's seconds over detect's at the defaults
-# the default model's goals at 20 min (its coarse grid, twincd.grid): × rosbags' read pass
+# the default model's goals at 20 min (its coarse grid, twincd.prepare.grid): × rosbags' read pass
 DEFAULT_GOALS = {FIT_DEFAULT: 2.0, DETECT_DEFAULT: 5.0}
 SPEED_MINUTES = 20.0
 RSS_LIMIT_MB = 300.0

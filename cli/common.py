@@ -24,8 +24,8 @@ from twincd.errors import InternalError, OutputError, Terminated, TwincdError, r
 
 if TYPE_CHECKING:
     from twincd.commands import CommandRun
-    from twincd.executors import Progress
-    from twincd.run import LogFailure
+    from twincd.executors.local import Progress
+    from twincd.executors.run import LogFailure
 
 log = logging.getLogger("twincd")
 
@@ -303,10 +303,10 @@ SAMPLES_REDRAW_S = 0.1
 def samples_progress(description: str) -> Iterator[None]:
     """One log's samples as they stream through the chain, their rate and the time taken, on
     stderr (the caller checks it is a terminal); the library tells of each block
-    (``twincd.progress``) when the log runs in this process."""
+    (``twincd.prepare.progress``) when the log runs in this process."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-    from twincd.progress import listening
+    from twincd.prepare.progress import listening
 
     started = time.perf_counter()
     columns = (

@@ -24,7 +24,7 @@ from .options import (
 )
 
 if TYPE_CHECKING:
-    from twincd.inspect import Inspection
+    from twincd.commands.inspection import Inspection
 
 
 def _number(value: float | None, spec: str = ".4g") -> str:

@@ -137,7 +137,7 @@ REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "doosan_
 
 def score_log(path: Path, cal_path: Path) -> Scores:
     from twincd.calibration import Calibration, clean_rows
-    from twincd.pipeline import Setup
+    from twincd.prepare.setup import Setup
     from twincd.signal.features import ModelInputs
 
     cal = Calibration.load(cal_path)
@@ -352,9 +352,10 @@ def judge_pushes(s: Scores, threshold: float, mu: float) -> tuple[int, int, int]
 
 
 def library_rule(val: list[Scores]) -> tuple[float, float]:
-    """twincd's default (``twincd.threshold.budget_threshold`` for the depth statistic)."""
+    """twincd's default (``twincd.calibration.threshold.budget_threshold`` for the depth
+    statistic)."""
     from twincd.calibration.models import depth_noise_median
-    from twincd.threshold import budget_threshold
+    from twincd.calibration.threshold import budget_threshold
 
     total, ex = merged(val)
     noise = depth_noise_median(val[0].joints)
@@ -371,7 +372,7 @@ def rice_level(counts: int, hours: float, u: float, mu: float, sigma: float) -> 
 
 def rice_rule(val: list[Scores]) -> tuple[float, float]:
     """The last release's: Rice's formula from the excursions at μ + 2σ (median, MAD)."""
-    from twincd.tail import LEVELS
+    from twincd.calibration.tail import LEVELS
 
     total, ex = merged(val)
     mu, sigma = total.robust()  # type: ignore[attr-defined]
@@ -381,8 +382,8 @@ def rice_rule(val: list[Scores]) -> tuple[float, float]:
 
 
 def merged(val: list[Scores]) -> tuple[object, object]:
-    from twincd.tail import ExcursionCounter
-    from twincd.threshold import ScoreStats
+    from twincd.calibration.tail import ExcursionCounter
+    from twincd.calibration.threshold import ScoreStats
 
     total, ex = ScoreStats(), None
     for s in val:
@@ -400,7 +401,7 @@ def exp_rule(
     rate λ(u) counted, the scale β = b0·σ (or the peaks' median excess / ln 2 when larger)."""
 
     def rule(val: list[Scores]) -> tuple[float, float]:
-        from twincd.tail import LEVELS
+        from twincd.calibration.tail import LEVELS
 
         total, ex = merged(val)
         mu, sigma = total.robust()  # type: ignore[attr-defined]
@@ -473,7 +474,7 @@ def firm(work: Path) -> None:
         if not (where / "firm_val.npz").exists():
             save(where / "firm_val.npz", [score_log(val, where / "fit.json")])
         from twincd.calibration.models import depth_noise_median
-        from twincd.threshold import budget_threshold
+        from twincd.calibration.threshold import budget_threshold
 
         total, ex = merged(load(where / "firm_val.npz"))
         noise = depth_noise_median(JOINTS)

@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from twincd.calibration import AffineStats, solve
+from twincd.calibration.threshold import ScoreStats
 from twincd.detection import affine_score
 from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
 from twincd.io.logs import expand_logs
-from twincd.pipeline import PreparedLog, Setup
+from twincd.prepare.setup import PreparedLog, Setup
 from twincd.signal.filters import LowPass
-from twincd.threshold import ScoreStats
 
 CUTOFFS_HZ = (0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 5.0)
 

@@ -1,6 +1,6 @@
-"""How fine the coarse grid (``twincd.grid``) is: what the twin and the filter on cell means cost
-in accuracy against the same chain sample by sample, at 1 kHz, for grids of 32, 64 and 128 nodes
-per cut-off period — on a development set of its own, never on `sample_logs/test`.
+"""How fine the coarse grid (``twincd.prepare.grid``) is: what the twin and the filter on cell
+means cost in accuracy against the same chain sample by sample, at 1 kHz, for grids of 32, 64 and
+128 nodes per cut-off period — on a development set of its own, never on `sample_logs/test`.
 
 For each filter (zero-phase, fit's default critically damped 1.5 Hz; causal, 3 Hz) the best
 model is fitted sample by sample on the set's train paths and thresholded on its validation
@@ -26,11 +26,11 @@ from typing import Any
 
 import numpy as np
 
-import twincd.grid
+import twincd.prepare.grid
 from twincd.calibration import Calibration
 from twincd.commands import filter_settings, fit_calibration, threshold_calibration
 from twincd.detection import detect_streamed
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 from twincd.signal.filters import LowPass
 
 FILTERS = {
@@ -40,12 +40,12 @@ FILTERS = {
 OVERSAMPLING = (32, 64, 128)
 
 
-RULE = twincd.grid.GRID_MIN_PERIODS
+RULE = twincd.prepare.grid.GRID_MIN_PERIODS
 
 
 def per_sample(on: bool) -> None:
     """Every log sample by sample (as before the grid), or back to the grid's rule."""
-    twincd.grid.GRID_MIN_PERIODS = 10**9 if on else RULE
+    twincd.prepare.grid.GRID_MIN_PERIODS = 10**9 if on else RULE
 
 
 def scored(log: Path, cal: Calibration) -> dict[str, np.ndarray]:
@@ -100,12 +100,12 @@ def main() -> None:
         print(f"{name}: per sample, detect {time.process_time() - start:.1f} CPU s")
         per_sample(False)
         for r in OVERSAMPLING:
-            twincd.grid.GRID_OVERSAMPLING = r
-            grid = twincd.grid.grid_period_ns(lowpass.cutoff_hz, cal.period_s or 0.001)
+            twincd.prepare.grid.GRID_OVERSAMPLING = r
+            grid = twincd.prepare.grid.grid_period_ns(lowpass.cutoff_hz, cal.period_s or 0.001)
             print(
                 f"  {r:3d} nodes a cut-off period, grid {grid} ns: {compare(cal, tests, reference)}"
             )
-        twincd.grid.GRID_OVERSAMPLING = 64
+        twincd.prepare.grid.GRID_OVERSAMPLING = 64
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ import numpy as np
 import pinocchio as pin
 
 from twincd.calibration.models import EPSILON_GRID, FrictionStats, model_inputs
+from twincd.calibration.threshold import ScoreStats
 from twincd.detection.events import runs
 from twincd.detection.isolation import LinkIsolator
 from twincd.evaluation.methods import make_method
@@ -39,11 +40,10 @@ from twincd.evaluation.metrics import EventCounts, auc, best_of, event_counts, f
 from twincd.evaluation.own import ModelMethod
 from twincd.evaluation.proposed import ProposedMethod
 from twincd.io.logs import expand_logs
-from twincd.pipeline import PreparedLog, Setup
+from twincd.prepare.setup import PreparedLog, Setup
 from twincd.signal.features import ModelFeatures
 from twincd.signal.filters import FILTER_KINDS, LowPass
 from twincd.synth.plant import contact_torque
-from twincd.threshold import ScoreStats
 from twincd.twin.robot import child_links
 
 LINKS = ("link3", "link4", "link5", "link6")

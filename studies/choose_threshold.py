@@ -2,8 +2,9 @@
 
 ``twincd threshold`` extrapolates the threshold of a budget (false alarms per hour of
 collision-free time) from the peaks of the score's excursions on the validation logs (a
-generalised Pareto tail, ``twincd.tail``). This study sets it from short clean validation
-stretches and counts the false alarms it gives on other clean data, with μ + 4σ beside it:
+generalised Pareto tail, ``twincd.calibration.tail``). This study sets it from short clean
+validation stretches and counts the false alarms it gives on other clean data, with μ + 4σ beside
+it:
 
 1. ``synth`` (synthetic xArm 7, dev seeds ≥ 2): fit on short training paths, then per draw a
    100 s stretch of one long clean validation path sets the threshold and the other long paths
@@ -34,11 +35,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.calibration import Calibration, clean_rows
+from twincd.calibration.tail import ExcursionCounter
+from twincd.calibration.threshold import ScoreStats, budget_threshold
 from twincd.detection.events import runs
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 from twincd.signal.features import ModelInputs
-from twincd.tail import ExcursionCounter
-from twincd.threshold import ScoreStats, budget_threshold
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "doosan_m0609"
 TOLERANCE_S = 0.2  # as evaluate's event metrics: a flag ≤ 200 ms after a push finds it

@@ -45,7 +45,7 @@ from twincd.detection.events import runs
 from twincd.detection.isolation import LinkIsolator
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.own import ModelMethod
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 from twincd.synth.plant import SynthConfig, make_plant, simulate_path
 from twincd.twin.robot import child_links
 

@@ -34,7 +34,7 @@ def main() -> int:
     if not LOG.exists():
         print(f"{LOG.resolve()} is absent: nothing to study")
         return 0
-    from twincd.pipeline import read_log
+    from twincd.prepare.setup import read_log
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)

@@ -79,7 +79,7 @@ def found_pushes(log: Path, events: list[dict[str, Any]]) -> tuple[list[float], 
     link that first event names (the recordings label no links, so only how often one is
     named can be judged)."""
     from twincd.detection.events import runs
-    from twincd.pipeline import read_log
+    from twincd.prepare.setup import read_log
 
     states = read_log(log)
     assert states.labels is not None

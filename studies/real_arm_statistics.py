@@ -103,7 +103,7 @@ def rotations(
     """Fit once per (test, val) pair of ``plan`` on the other logs, through the library."""
     from twincd.calibration.fitting import fit_log, merge_fits
     from twincd.calibration.models import fit_features
-    from twincd.pipeline import Setup
+    from twincd.prepare.setup import Setup
     from twincd.signal.filters import LowPass
 
     base = Setup(robot=robot, lowpass=LowPass(cutoff_hz=cutoff, kind=kind))
@@ -135,7 +135,7 @@ def k_sigma(k: float, guard_s: float) -> Rule:
 
 def budget(per_hour: float, guard_s: float) -> Rule:
     def rule(val: Scored, score: str) -> float:
-        from twincd.tail import ExcursionCounter, fit_tail
+        from twincd.calibration.tail import ExcursionCounter, fit_tail
 
         counter = ExcursionCounter(val.period_s)
         counter.push(val.scores[score], val.clean(guard_s))
@@ -163,7 +163,7 @@ def rice(per_hour: float) -> Rule:
     then an exponential tail above the bulk, studies/choose_budget.py)."""
 
     def rule(val: Scored, score: str) -> float:
-        from twincd.tail import LEVELS, ExcursionCounter
+        from twincd.calibration.tail import LEVELS, ExcursionCounter
 
         clean = val.clean(0.0)
         s = val.scores[score][clean]

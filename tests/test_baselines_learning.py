@@ -22,7 +22,7 @@ from twincd.evaluation.baselines.windows import (
     windows,
 )
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, make_method
-from twincd.pipeline import PreparedLog
+from twincd.prepare.setup import PreparedLog
 
 
 @lru_cache(maxsize=1)

@@ -30,7 +30,7 @@ from twincd.calibration.models import (
 from twincd.commands import fit_calibration, threshold_calibration
 from twincd.detection import OnlineDetector, detect_log, detect_streamed
 from twincd.errors import CalibrationError, DataError
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 from twincd.signal.derivatives import differentiate
 from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.twin.dynamics import (
@@ -385,7 +385,7 @@ def test_streamed_frames_carry_only_the_masked_regressor(tmp_path: Path) -> None
     assert mask is not None and mask.shape == (7, 70)
     assert all(f["regressor_f"].shape == (f.n, int(mask.sum())) for f in frames)
     # the regressor's rows never come in blocks bigger than REGRESSOR_BLOCK, whatever asked
-    from twincd.pipeline import REGRESSOR_BLOCK
+    from twincd.prepare.setup import REGRESSOR_BLOCK
 
     assert setup.block_size_for(True) == 500 and setup.block_size_for(False) == 500
     big = replace(setup, block_size=1 << 20)

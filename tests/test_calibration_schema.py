@@ -13,7 +13,7 @@ import pytest
 from twincd.calibration import SCHEMA, Calibration, upgrade_v1
 from twincd.detection import detect_streamed
 from twincd.errors import CalibrationError
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 
 ROOT = Path(__file__).resolve().parents[1]
 V1 = ROOT / "tests" / "data" / "calibrations_v1"

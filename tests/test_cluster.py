@@ -1,7 +1,7 @@
-"""twincd.cluster and the executors end to end: -j 1, -j 2, ``--scheduler local`` and a real
-``dask scheduler`` with two ``dask worker`` processes (loopback only) give the same calibration,
-threshold, events and metrics on shuffled log orders; a worker killed mid-run is survived, or
-the run fails with one line and leaves no file behind."""
+"""twincd.executors.cluster and the executors end to end: -j 1, -j 2, ``--scheduler local`` and a
+real ``dask scheduler`` with two ``dask worker`` processes (loopback only) give the same
+calibration, threshold, events and metrics on shuffled log orders; a worker killed mid-run is
+survived, or the run fails with one line and leaves no file behind."""
 
 from __future__ import annotations
 
@@ -22,9 +22,9 @@ from support.clitools import assert_one_line_error, run
 
 pytest.importorskip("distributed")
 
-from twincd.cluster import DaskExecutor
 from twincd.errors import ClusterError, LogReadError, TwincdError, UsageError
-from twincd.executors import Bound
+from twincd.executors.cluster import DaskExecutor
+from twincd.executors.local import Bound
 
 TESTS = Path(__file__).parent
 START_TIMEOUT_S = 60

@@ -13,16 +13,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from twincd.calibration import Calibration, Threshold
+from twincd.calibration.threshold import ScoreStats, threshold_prepared_logs
 from twincd.commands import detect_file, fit_calibration
 from twincd.detection import affine_score, detect_log, find_events, residual, runs
+from twincd.detection.outputs import write_detection
 from twincd.errors import DataError, NotFittedError, OutputError
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.proposed import ProposedMethod
 from twincd.io.logs import expand_logs
-from twincd.outputs import write_detection
-from twincd.pipeline import Setup, read_log
+from twincd.prepare.setup import Setup, read_log
 from twincd.signal.filters import LowPass, edge_span
-from twincd.threshold import ScoreStats, threshold_prepared_logs
 
 
 def test_score_by_hand():

@@ -30,7 +30,7 @@ from support.clitools import run
 
 from twincd.calibration import Calibration
 from twincd.detection import OnlineDetector
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 
 RATES = (50, 100, 200, 500, 1000)
 SECONDS = 20.0

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from twincd.calibration import Threshold
+from twincd.calibration.threshold import threshold_prepared_logs
 from twincd.commands import fit_calibration
 from twincd.detection import detect_log
 from twincd.errors import DataError, UsageError
@@ -19,9 +20,8 @@ from twincd.evaluation.metrics import EventCounts, at_threshold, auc, event_coun
 from twincd.evaluation.runner import evaluate, parse_methods
 from twincd.evaluation.streamed import judge_log
 from twincd.io.logs import expand_logs
-from twincd.pipeline import PreparedLog, Setup
+from twincd.prepare.setup import PreparedLog, Setup
 from twincd.signal.filters import LowPass
-from twincd.threshold import threshold_prepared_logs
 
 
 class SeededNoise(ScoringMethod):

@@ -1,4 +1,4 @@
-"""twincd.executors: a pool changes the speed, never the answer or the error."""
+"""twincd.executors.local: a pool changes the speed, never the answer or the error."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from twincd.errors import LogReadError, TwincdError
-from twincd.executors import POOL_MIN_BYTES, Bound, Executor, start_method
+from twincd.executors.local import POOL_MIN_BYTES, Bound, Executor, start_method
 
 
 def _square_or_fail(x: int, bad: int) -> int:
@@ -91,7 +91,7 @@ def test_workers_are_forked_only_while_that_is_safe(monkeypatch: pytest.MonkeyPa
 
 
 def _twin_torque(n: int) -> float:
-    from twincd.chain import robot_for
+    from twincd.prepare.chain import robot_for
     from twincd.twin.dynamics import inverse_dynamics
 
     robot = robot_for("xarm7", tuple(f"joint{i}" for i in range(1, 8)))
@@ -104,7 +104,7 @@ def test_a_pool_after_the_twin_ran_on_threads_in_this_process_does_not_hang() ->
     OpenMP again. Run in a child process, so that this one stays fork-safe for other tests."""
     code = (
         "from tests.test_executors import _twin_torque\n"
-        "from twincd.executors import Executor, start_method\n"
+        "from twincd.executors.local import Executor, start_method\n"
         "_twin_torque(64)\n"
         "assert start_method() != 'fork', start_method()\n"
         "print(Executor(2).map(_twin_torque, [64, 64, 64]))\n"

@@ -344,7 +344,7 @@ def test_short_logs_are_refused(world, tmp_path):
 def test_a_log_mostly_at_the_filter_edges_is_warned_about(world, tmp_path):
     # 1.5 × the edge spans: two thirds of the log within them, a third judged (all of it within
     # them: too short to judge, tests/test_real_signals.py)
-    from twincd.pipeline import min_judged_s
+    from twincd.prepare.setup import min_judged_s
 
     spans = min_judged_s(Calibration.load(world["cal"]).lowpass, 0.01)
     log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5 * spans)

@@ -1,4 +1,4 @@
-"""twincd.frames: delayed stages keep every sample's columns together, in any chunking."""
+"""twincd.prepare.frames: delayed stages keep every sample's columns together, in any chunking."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twincd.frames import Chain, Derived, Frame, Mapped, prefetched
+from twincd.prepare.frames import Chain, Derived, Frame, Mapped, prefetched
 
 
 class Lag:

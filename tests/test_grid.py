@@ -1,5 +1,5 @@
-"""twincd.grid: the twin and the filter on a coarse grid where a log is sampled far faster than
-the filter keeps.
+"""twincd.prepare.grid: the twin and the filter on a coarse grid where a log is sampled far faster
+than the filter keeps.
 
 Properties: the grid is used only from GRID_MIN_PERIODS sample periods a cell up (100 Hz logs keep
 the per-sample chain, bit for bit); its cells are anchored on the stamps, so any block size gives
@@ -22,14 +22,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from support.builders import XARM, Message, joint_state, write
 
-import twincd.grid
+import twincd.prepare.grid
 from twincd.calibration import Calibration
 from twincd.calibration.models import EPSILON_GRID, SPEED_BINS, FitStats, speed_bin
-from twincd.chain import JointLayout, build_chain
 from twincd.commands import filter_settings, fit_calibration, threshold_calibration
 from twincd.detection import OnlineDetector, detect_streamed
-from twincd.grid import GRID_MIN_PERIODS, grid_period_ns
-from twincd.pipeline import Setup
+from twincd.prepare.chain import JointLayout, build_chain
+from twincd.prepare.grid import GRID_MIN_PERIODS, grid_period_ns
+from twincd.prepare.setup import Setup
 from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.signal.filters import LowPass
 
@@ -170,7 +170,7 @@ def test_a_100hz_log_keeps_the_per_sample_chain(lowpass: LowPass) -> None:
     layout = JointLayout(names, names, names)
     built = build_chain(lowpass, ModelFeatures(), layout, 0.01, None, False)
     assert built.grid is None
-    assert not any(isinstance(s, twincd.grid.GridStage) for s in built.chain.stages)
+    assert not any(isinstance(s, twincd.prepare.grid.GridStage) for s in built.chain.stages)
 
 
 def test_the_live_detector_holds_nothing_at_100hz(causal_cal: Calibration) -> None:
@@ -231,7 +231,7 @@ def _nodes(path: Path, setup: Setup) -> dict[str, np.ndarray]:
 def test_cells_are_anchored_on_absolute_stamps(jittered: Path, block: int) -> None:
     """A node per cell [m·G, (m+1)·G) of each segment, at the mean stamp of its samples,
     whatever the blocks: every sample's node is its cell's, in every chunking."""
-    from twincd.pipeline import read_log
+    from twincd.prepare.setup import read_log
 
     setup = Setup(robot="xarm7", lowpass=CAUSAL)
     whole = _nodes(jittered, replace(setup, block_size=1 << 20))
@@ -264,7 +264,7 @@ def test_cells_are_anchored_on_absolute_stamps(jittered: Path, block: int) -> No
 def test_live_detection_at_1khz_equals_batch_causal_detection(
     xarm_1khz: Path, causal_cal: Calibration, chunk: int | None
 ) -> None:
-    from twincd.pipeline import read_log
+    from twincd.prepare.setup import read_log
 
     log = xarm_1khz / "test" / "test_000.mcap"
     batch = _detected(log, causal_cal)
@@ -305,7 +305,7 @@ def test_live_detection_at_1khz_equals_batch_causal_detection(
 @pytest.fixture
 def per_sample(monkeypatch: pytest.MonkeyPatch) -> None:
     """The chain of every log sample by sample, as before the grid."""
-    monkeypatch.setattr(twincd.grid, "GRID_MIN_PERIODS", 10**9)
+    monkeypatch.setattr(twincd.prepare.grid, "GRID_MIN_PERIODS", 10**9)
 
 
 def test_coarse_scores_are_the_per_sample_scores_within_the_tolerance(
@@ -313,7 +313,7 @@ def test_coarse_scores_are_the_per_sample_scores_within_the_tolerance(
 ) -> None:
     log = xarm_1khz / "test" / "test_000.mcap"
     coarse = _detected(log, zero_phase_cal)
-    monkeypatch.setattr(twincd.grid, "GRID_MIN_PERIODS", 10**9)
+    monkeypatch.setattr(twincd.prepare.grid, "GRID_MIN_PERIODS", 10**9)
     _agree(zero_phase_cal, coarse, _detected(log, zero_phase_cal))
 
 
@@ -323,7 +323,7 @@ def test_detect_on_a_simulated_log_agrees_with_the_raw_log(
     """``simulate`` writes τ̂ of every sample (per sample, as it always did); ``detect`` on that
     log averages it into the grid's cells, on the raw log it runs the twin on the cells' means:
     the two agree within the tolerance."""
-    from twincd.simulate import simulate_log
+    from twincd.prepare.simulate import simulate_log
 
     raw = xarm_1khz / "test" / "test_000.mcap"
     simulated = tmp_path / "simulated.mcap"
@@ -335,7 +335,7 @@ def test_fit_on_the_grid_is_the_per_sample_fit_within_the_noise(
     xarm_1khz: Path, zero_phase_cal: Calibration, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The same samples counted (each at its cell's node), the same ε, and a fit as good."""
-    monkeypatch.setattr(twincd.grid, "GRID_MIN_PERIODS", 10**9)
+    monkeypatch.setattr(twincd.prepare.grid, "GRID_MIN_PERIODS", 10**9)
     train = sorted((xarm_1khz / "train").glob("*.mcap"))
     per_sample = fit_calibration(train, jobs=1, **filter_settings(ZERO_PHASE)).calibration
     assert zero_phase_cal.fit.samples == per_sample.fit.samples
@@ -382,7 +382,7 @@ def test_sums_over_nodes_that_stand_for_one_sample_each_are_the_samples_sums() -
 def test_a_live_stream_restarts_after_a_flush(xarm_1khz: Path, causal_cal: Calibration) -> None:
     """After ``flush`` the detector starts a new stream: the same log pushed again scores as
     the first time (its cells, anchored on the stamps, are the same)."""
-    from twincd.pipeline import read_log
+    from twincd.prepare.setup import read_log
 
     states = read_log(xarm_1khz / "val" / "val_000.mcap").select(causal_cal.joint_names)
     det = OnlineDetector(causal_cal)
@@ -406,7 +406,7 @@ def test_the_grid_stage_gives_the_same_bits_in_any_chunking(
 ) -> None:
     """The stage alone (the log's own twin effort: no robot), on jittered 1 kHz stamps with
     dropouts and a gap, split anywhere: causal, identical; zero-phase, within 1e-9."""
-    from twincd.frames import Frame
+    from twincd.prepare.frames import Frame
 
     rng = np.random.default_rng(seed)
     n, joints = 1500, 3

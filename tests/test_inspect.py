@@ -10,7 +10,7 @@ import pytest
 from support.builders import XARM, Message, joint_recording, joint_state, write
 from support.clitools import run
 
-from twincd.inspect import inspect_log
+from twincd.commands.inspection import inspect_log
 
 SAMPLE = Path(__file__).parents[1] / "sample_logs"
 PANDA = (

@@ -19,7 +19,7 @@ from twincd.errors import JointMismatchError, LogReadError
 from twincd.io.options import LogOptions
 from twincd.io.sources import open_reader
 from twincd.io.stream import LogStream, SampleBlock, iter_blocks
-from twincd.pipeline import read_log
+from twincd.prepare.setup import read_log
 
 OPTIONS = LogOptions()
 FIELDS = ("stamp_ns", "log_time_ns", "position", "velocity", "effort", "labels", "sim_effort")

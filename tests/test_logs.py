@@ -21,7 +21,7 @@ from support.builders import (
 from twincd.errors import LogReadError, TopicError, UsageError
 from twincd.io.logs import expand_logs
 from twincd.io.options import LogOptions, parse_joint_map
-from twincd.pipeline import read_log
+from twincd.prepare.setup import read_log
 
 
 @pytest.fixture

@@ -16,7 +16,7 @@ from support.builders import Message, joint_recording, write, write_by
 from support.clitools import run
 
 from twincd.io.logs import expand_logs
-from twincd.pipeline import read_log
+from twincd.prepare.setup import read_log
 
 
 def _recording(n: int = 300) -> list[Message]:

@@ -19,8 +19,8 @@ from twincd.calibration.models import ResidualModel
 from twincd.commands import fit_calibration
 from twincd.detection import OnlineDetector, detect_log, detect_streamed
 from twincd.errors import DataError, UsageError
-from twincd.frames import Frame
-from twincd.pipeline import Setup
+from twincd.prepare.frames import Frame
+from twincd.prepare.setup import Setup
 
 SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
 LOG = SAMPLE_LOGS / "test" / "test_000.mcap"
@@ -114,9 +114,9 @@ def test_batch_and_whole_log_score_the_calibration_s_own_model(
 def test_streamed_evaluate_and_the_report_score_the_calibration_s_own_model(
     shipped: Calibration, change: str
 ) -> None:
+    from twincd.detection.outputs import detect_and_write
     from twincd.evaluation.runner import evaluate, method_for
     from twincd.evaluation.streamed import judge_log
-    from twincd.outputs import detect_and_write
 
     other = changed(shipped, change)
     setup = Setup.from_calibration(shipped)

@@ -162,7 +162,7 @@ def test_a_default_label_topic_absent_is_no_error(tmp_path):
 
 def test_the_library_refuses_a_named_option_alike(tmp_path):
     from twincd import SetupOptions, fit_calibration
-    from twincd.pipeline import read_log  # noqa: F401 - the library's reader
+    from twincd.prepare.setup import read_log  # noqa: F401 - the library's reader
 
     log = arm_log(tmp_path / "a.mcap", "twincd", twin_topic="/controller/model_effort")
     with pytest.raises(TopicError, match="simulated effort topic /controller/model_efort"):

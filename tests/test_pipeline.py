@@ -1,4 +1,4 @@
-"""twincd.pipeline: one chain of stages for whole, chunked and live processing.
+"""twincd.prepare.setup: one chain of stages for whole, chunked and live processing.
 
 Properties: any block size gives the whole-log answer (causal: identical; zero-phase: within
 1e-9 of each signal's range), and the live detector fed in any chunking equals batch detection
@@ -17,7 +17,7 @@ from support.builders import XARM, Message, joint_state, write
 
 from twincd.commands import fit_calibration, threshold_calibration
 from twincd.detection import OnlineDetector, detect_streamed
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 from twincd.signal.filters import LowPass
 
 CAUSAL = LowPass(cutoff_hz=3.0, causal=True)
@@ -186,7 +186,7 @@ def test_joint_order_comes_from_names_not_from_the_first_log(twin_log, tmp_path:
     """Logs that carry their own twin effort and no robot model: whatever order their messages
     list the joints in, and whichever log comes first, the columns are in one order."""
     from twincd.calibration import fit_log, merge_fits
-    from twincd.pipeline import read_log
+    from twincd.prepare.setup import read_log
 
     a = twin_log(tmp_path / "a.mcap", seed=1, joints=("j1", "j2", "j3"))
     b = twin_log(tmp_path / "b.mcap", seed=2, joints=("j3", "j1", "j2"))
@@ -208,7 +208,7 @@ def test_joint_order_comes_from_names_not_from_the_first_log(twin_log, tmp_path:
 def test_joint_order_puts_the_model_first_then_names_naturally() -> None:
     from types import SimpleNamespace
 
-    from twincd.pipeline import joint_order
+    from twincd.prepare.setup import joint_order
 
     names = ["joint10", "grip", "joint2", "joint1"]
     assert joint_order(names, None) == ("grip", "joint1", "joint2", "joint10")
@@ -220,7 +220,7 @@ def test_logs_with_other_joints_are_refused_together(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
     from twincd.errors import JointMismatchError
-    from twincd.pipeline import agreed_joints
+    from twincd.prepare.setup import agreed_joints
 
     logs: list[Any] = [
         SimpleNamespace(source="b", joint_names=("j1", "j2")),
@@ -239,8 +239,8 @@ def test_logs_with_other_joints_are_refused_together(tmp_path: Path) -> None:
 def test_the_chain_follows_joint_names_whatever_the_columns(lowpass: LowPass) -> None:
     """``build_chain`` on frames whose columns are shuffled and carry a joint the twin does not
     use gives, joint by joint, what it gives on frames in the twin's order."""
-    from twincd.chain import JointLayout, build_chain
-    from twincd.frames import Frame
+    from twincd.prepare.chain import JointLayout, build_chain
+    from twincd.prepare.frames import Frame
     from twincd.signal.features import ModelFeatures
 
     rng = np.random.default_rng(3)

@@ -10,8 +10,8 @@ from support.clitools import run
 
 from twincd.calibration import Calibration
 from twincd.detection import detect_streamed
-from twincd.pipeline import Setup
-from twincd.progress import listening
+from twincd.prepare.progress import listening
+from twincd.prepare.setup import Setup
 
 
 def _terminal(monkeypatch) -> io.StringIO:

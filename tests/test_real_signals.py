@@ -215,7 +215,7 @@ def test_the_live_detector_checks_the_urdf(caplog: pytest.LogCaptureFixture) -> 
 def test_a_log_within_the_filters_edges_is_too_short_to_judge(
     tmp_path: Path, twin_calibration: Path
 ) -> None:
-    from twincd.pipeline import min_judged_s
+    from twincd.prepare.setup import min_judged_s
     from twincd.signal.filters import LowPass, edge_span
 
     cal = Calibration.load(twin_calibration)

@@ -14,9 +14,9 @@ import pytest
 from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
+from twincd.detection.outputs import detect_and_write
 from twincd.errors import OutputError, UsageError
-from twincd.outputs import detect_and_write
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 from twincd.reports import (
     append_step_summary,
     calibration_settings,
@@ -338,7 +338,7 @@ def test_fit_report_has_one_scatter_per_joint(twin_dataset, tmp_path):
 
 
 def test_thinned_pairs_stay_bounded():
-    from twincd.frames import Frame
+    from twincd.prepare.frames import Frame
     from twincd.reports import ThinnedPairs
 
     pairs = ThinnedPairs(points=100)

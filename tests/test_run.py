@@ -11,7 +11,7 @@ import pytest
 
 import twincd
 from twincd.errors import InternalError, LogReadError
-from twincd.run import LogFailure, all_or_nothing, run_logs
+from twincd.executors.run import LogFailure, all_or_nothing, run_logs
 
 
 def _work(path: Path) -> int:

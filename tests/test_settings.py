@@ -8,6 +8,7 @@ import pytest
 
 from twincd import Calibration, SetupOptions
 from twincd.calibration.models import fit_features
+from twincd.commands.settings import fit_setup
 from twincd.defaults import (
     DEFAULT_CAUSAL_CUTOFF_HZ,
     DEFAULT_CRITICAL_CUTOFF_HZ,
@@ -15,7 +16,6 @@ from twincd.defaults import (
 )
 from twincd.errors import UsageError
 from twincd.io.options import LogOptions
-from twincd.settings import fit_setup
 from twincd.signal.filters import LowPass
 
 

@@ -21,9 +21,9 @@ from support.builders import (
 )
 
 from twincd.io.mcap import QOS_KEY
-from twincd.pipeline import read_log
+from twincd.prepare.setup import read_log
+from twincd.prepare.simulate import default_output, simulate_log
 from twincd.signal.filters import LowPass
-from twincd.simulate import default_output, simulate_log
 
 
 def recording(n: int = 300) -> list[Message]:

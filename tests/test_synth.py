@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from twincd.io.cdr import typestore
-from twincd.pipeline import read_log
+from twincd.prepare.setup import read_log
 from twincd.synth import plant as synth
 from twincd.twin.dynamics import simulate_effort
 

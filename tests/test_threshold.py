@@ -1,7 +1,7 @@
-"""twincd/threshold.py and twincd/tail.py: the threshold of a false-alarm budget from the score's
-excursions (declustered peaks, a generalised Pareto tail; the depth statistic's bulk rate and an
-exponential tail), their merges, the calibration's record of them, the false alarms `threshold`
-counts on its own logs, and the CLI."""
+"""twincd/calibration/threshold.py and twincd/calibration/tail.py: the threshold of a false-alarm
+budget from the score's excursions (declustered peaks, a generalised Pareto tail; the depth
+statistic's bulk rate and an exponential tail), their merges, the calibration's record of them, the
+false alarms `threshold` counts on its own logs, and the CLI."""
 
 from __future__ import annotations
 
@@ -20,10 +20,7 @@ from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration, clean_mask
 from twincd.calibration.models import model_inputs
-from twincd.detection.events import runs
-from twincd.errors import CalibrationError, UsageError
-from twincd.pipeline import Setup
-from twincd.tail import (
+from twincd.calibration.tail import (
     DECLUSTER_GAP_S,
     LEVELS,
     MAX_PEAKS,
@@ -32,13 +29,16 @@ from twincd.tail import (
     Excursions,
     fit_tail,
 )
-from twincd.threshold import (
+from twincd.calibration.threshold import (
     LogScores,
     ScoreStats,
     budget_threshold,
     check_threshold_settings,
     threshold_from_parts,
 )
+from twincd.detection.events import runs
+from twincd.errors import CalibrationError, UsageError
+from twincd.prepare.setup import Setup
 
 
 def _excursions(scores: np.ndarray, usable: np.ndarray, period_s: float, cuts=()) -> Excursions:  # type: ignore[no-untyped-def]
@@ -359,7 +359,7 @@ def _rate_above(scores: np.ndarray, level: float, hours: float) -> float:
 
 
 def test_the_depth_budget_assumes_an_exponential_tail_above_the_bulk() -> None:
-    from twincd.tail import (
+    from twincd.calibration.tail import (
         BULK_LEVEL_SIGMA,
         BULK_TAIL_SCALE,
         LEVELS,
@@ -411,7 +411,7 @@ def test_the_depth_statistics_noise_only_median() -> None:
 
 
 def test_the_depth_budget_without_excursions_is_bounded_and_cautious() -> None:
-    from twincd.tail import fit_bulk_tail
+    from twincd.calibration.tail import fit_bulk_tail
 
     flat = 0.9 + 0.1 * (np.arange(6000) % 3)  # a spread, and nothing above μ + 2σ
     counter = ExcursionCounter(0.01)
@@ -426,7 +426,7 @@ def test_the_depth_budget_without_excursions_is_bounded_and_cautious() -> None:
 
 
 def test_the_depth_budget_measures_the_tail_once_the_data_allow() -> None:
-    from twincd.tail import TARGET_PEAKS, fit_bulk_tail
+    from twincd.calibration.tail import TARGET_PEAKS, fit_bulk_tail
 
     rng = np.random.default_rng(5)
     long = _laplace_process(rng, 3.0)

@@ -16,15 +16,15 @@ from support import synthlogs
 from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration, Threshold
-from twincd.commands import threshold_calibration
-from twincd.detection.files import AlarmTally, record_false_alarms
-from twincd.errors import DataError
-from twincd.pipeline import Setup
-from twincd.threshold import (
+from twincd.calibration.threshold import (
     MISFIT_REFUSED,
     score_log,
     threshold_prepared_logs,
 )
+from twincd.commands import threshold_calibration
+from twincd.detection.files import AlarmTally, record_false_alarms
+from twincd.errors import DataError
+from twincd.prepare.setup import Setup
 
 FORMS = ("mcap", "rosbag2-sqlite3")
 

@@ -36,25 +36,25 @@ if TYPE_CHECKING:
         simulate_logs,
         threshold_calibration,
     )
+    from twincd.commands.settings import SetupOptions
     from twincd.detection import OnlineDetector
     from twincd.detection.detect import detect_log as detect
     from twincd.errors import TwincdError
+    from twincd.executors.run import LogFailure, LogRun, run_logs
     from twincd.io.logs import expand_logs
     from twincd.io.options import LogOptions
     from twincd.live import watch
-    from twincd.pipeline import Setup, read_log
-    from twincd.run import LogFailure, LogRun, run_logs
-    from twincd.settings import SetupOptions
+    from twincd.prepare.setup import Setup, read_log
 
 from twincd.version import __version__
 
 # name → "module" or "module:attribute" (when the library names it otherwise)
 _EXPORTS = {
     "LogOptions": "twincd.io.options",
-    "read_log": "twincd.pipeline",
+    "read_log": "twincd.prepare.setup",
     "expand_logs": "twincd.io.logs",
-    "Setup": "twincd.pipeline",
-    "SetupOptions": "twincd.settings",
+    "Setup": "twincd.prepare.setup",
+    "SetupOptions": "twincd.commands.settings",
     "Calibration": "twincd.calibration",
     "fit_calibration": "twincd.commands",
     "threshold_calibration": "twincd.commands",
@@ -65,9 +65,9 @@ _EXPORTS = {
     "inspect_logs": "twincd.commands",
     "detect": "twincd.detection:detect_log",
     "OnlineDetector": "twincd.detection",
-    "run_logs": "twincd.run",
-    "LogRun": "twincd.run",
-    "LogFailure": "twincd.run",
+    "run_logs": "twincd.executors.run",
+    "LogRun": "twincd.executors.run",
+    "LogFailure": "twincd.executors.run",
     "TwincdError": "twincd.errors",
     "watch": "twincd.live",
 }

@@ -22,7 +22,7 @@ DEFAULT_CAUSAL_CUTOFF_HZ = 3.0
 DEFAULT_K_SIGMA = 4.0  # the paper's μ + 4σ
 # `threshold`'s budget for the default models (scored by the depth statistic): false alarms per
 # hour of collision-free time, extrapolated from the score's excursions on the validation logs
-# (twincd.threshold.threshold_from_parts; studies/real_arm_statistics.py)
+# (twincd.calibration.threshold.threshold_from_parts; studies/real_arm_statistics.py)
 DEFAULT_FALSE_ALARMS_PER_HOUR = 1.0
 DEFAULT_REPEATS = 5  # the paper's Table II: deep methods as mean ± std over five runs
 

@@ -24,7 +24,7 @@ def _take_arm(folder: Path) -> bool:
 
 
 if KILL_DIR:
-    from twincd.outputs import McapSink
+    from twincd.detection.outputs import McapSink
 
     _write = McapSink.write
 

@@ -11,11 +11,11 @@ from pathlib import Path
 from typing import Any
 
 from twincd.calibration.models import ResidualModel, depth_order, read_model
+from twincd.calibration.tail import TAIL_METHODS, TailFit
 from twincd.calibration.values import finite_array, finite_number
 from twincd.errors import CalibrationError, NotFittedError
 from twincd.io.options import LogOptions
 from twincd.signal.filters import LowPass
-from twincd.tail import TAIL_METHODS, TailFit
 from twincd.types import FloatArray
 from twincd.version import __version__
 

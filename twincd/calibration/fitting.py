@@ -30,13 +30,13 @@ from twincd.calibration.models import (
     speed_bin,
 )
 from twincd.errors import DataError
-from twincd.frames import Frame
-from twincd.pipeline import PreparedStream, Setup, agreed_joints
+from twincd.prepare.frames import Frame
+from twincd.prepare.setup import PreparedStream, Setup, agreed_joints
 from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
-    from twincd.frames import FrameSink
+    from twincd.prepare.frames import FrameSink
     from twincd.signal.filters import LowPass
 
 log = logging.getLogger("twincd")
@@ -66,7 +66,7 @@ def fit_log(
     """Stream one log through read → twin → filter into the statistics of the model kinds
     ``features`` prepares for (``fit_features``; None: the best model's, every kind's);
     every frame also goes to ``sinks`` (e.g. what a report's figure draws). On a coarse grid
-    (``twincd.grid``: a 1 kHz log) the sums run over the grid's nodes, each standing for the
+    (``twincd.prepare.grid``: a 1 kHz log) the sums run over the grid's nodes, each standing for the
     samples of its cell (``FitStats.from_cells``)."""
     stats: FitStats | None = None
     seconds = 0.0
@@ -214,8 +214,8 @@ def _links_and_depths(
 ) -> tuple[tuple[str, ...] | None, tuple[int, ...] | None]:
     """Each joint's child link and depth, when the robot model can be loaded (else None: logs
     with their own twin effort need no model, and isolation then names joints' links less)."""
-    from twincd.chain import robot_for
     from twincd.errors import TwincdError
+    from twincd.prepare.chain import robot_for
     from twincd.twin.robot import child_links
 
     if robot is None:

@@ -78,11 +78,11 @@ def detect_files(
     ``junit``: written after every log (all or nothing); ``step_summary``: the Markdown
     summary appended to ``$GITHUB_STEP_SUMMARY`` when it is set."""
     from twincd.calibration import Calibration
-    from twincd.executors import Bound, gathered_warnings
+    from twincd.detection.outputs import detect_and_write, detect_targets
+    from twincd.executors.local import Bound, gathered_warnings
+    from twincd.executors.run import all_or_nothing
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.outputs import detect_and_write, detect_targets
-    from twincd.run import all_or_nothing
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)

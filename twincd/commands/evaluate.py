@@ -77,11 +77,11 @@ def evaluate_logs(
     ``scheduler``). ``min_f1`` and ``min_auc``: gates (``EvaluateRun.missed``). ``report``,
     ``junit``, ``step_summary`` and ``options`` as ``detect_files``'."""
     from twincd.calibration import Calibration
-    from twincd.cluster import open_executor
     from twincd.evaluation.runner import evaluate, method_for, parse_methods
-    from twincd.executors import gathered_warnings
+    from twincd.executors.cluster import open_executor
+    from twincd.executors.local import gathered_warnings
+    from twincd.executors.run import LogRun, all_or_nothing
     from twincd.io.logs import expand_logs
-    from twincd.run import LogRun, all_or_nothing
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)

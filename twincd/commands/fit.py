@@ -49,16 +49,16 @@ def fit_calibration(
     ``options``: the reading settings (``Settings``: ``robot``, ``topic``, ``cutoff_hz``, …)
     and how to run the logs (``RunOptions``: ``jobs``, ``scheduler``, ``keep_going``, …).
     Unless a filter is given, the identified models (and the best model) filter without
-    overshoot at 1.5 Hz (``twincd.settings.fit_setup``). ``output``: the calibration JSON to
-    write; ``report``: a Markdown or HTML report, written first (both or neither). Neither may
+    overshoot at 1.5 Hz (``twincd.commands.settings.fit_setup``). ``output``: the calibration JSON
+    to write; ``report``: a Markdown or HTML report, written first (both or neither). Neither may
     replace a file that is not twincd's own of its kind unless ``force``."""
     from twincd.calibration import fit_log, merge_fits
     from twincd.calibration.models import fit_features
-    from twincd.executors import Bound, gathered_warnings
+    from twincd.commands.settings import fit_setup
+    from twincd.executors.local import Bound, gathered_warnings
+    from twincd.executors.run import all_or_nothing
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
-    from twincd.run import all_or_nothing
-    from twincd.settings import fit_setup
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)

@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from typing_extensions import Unpack
 
     from twincd.calibration import Calibration
-    from twincd.inspect import Inspection
+    from twincd.commands.inspection import Inspection
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,11 +39,11 @@ def inspect_logs(
     **settings: Unpack[Settings],
 ) -> InspectRun:
     """``twincd inspect``: what each of ``logs`` holds and what twincd will make of it
-    (``twincd.inspect.inspect_log``), read with ``settings`` (with ``calibration``: its own,
-    which a setting may not contradict, and its joints checked)."""
+    (``twincd.commands.inspection.inspect_log``), read with ``settings`` (with ``calibration``: its
+    own, which a setting may not contradict, and its joints checked)."""
     from twincd.calibration import Calibration
-    from twincd.executors import gathered_warnings
-    from twincd.inspect import inspect_log
+    from twincd.commands.inspection import inspect_log
+    from twincd.executors.local import gathered_warnings
     from twincd.io.logs import expand_logs
 
     with gathered_warnings() as warnings:

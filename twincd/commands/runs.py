@@ -11,11 +11,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict, TypeVar
 
 from twincd.errors import TwincdError
-from twincd.run import LogFailure, LogRun, run_logs, warn_failure
+from twincd.executors.run import LogFailure, LogRun, run_logs, warn_failure
 
 if TYPE_CHECKING:
-    from twincd.executors import MapExecutor, Progress
-    from twincd.settings import SetupOptions
+    from twincd.commands.settings import SetupOptions
+    from twincd.executors.local import MapExecutor, Progress
     from twincd.signal.filters import LowPass
 
 T = TypeVar("T")
@@ -83,7 +83,7 @@ def filter_settings(lowpass: LowPass) -> Settings:
 
 
 def setup_options(settings: Settings) -> SetupOptions:
-    from twincd.settings import SetupOptions
+    from twincd.commands.settings import SetupOptions
 
     return SetupOptions(**settings)
 

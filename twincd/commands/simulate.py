@@ -19,7 +19,7 @@ from twincd.errors import UsageError
 if TYPE_CHECKING:
     from typing_extensions import Unpack
 
-    from twincd.simulate import SimulateResult
+    from twincd.prepare.simulate import SimulateResult
 
 # settings of the filter and the calibration: simulate writes the twin's effort as computed
 _NOT_FOR_SIMULATE = ("cutoff_hz", "filter_order", "filter_kind", "causal", "allow_urdf_change")
@@ -45,12 +45,12 @@ def simulate_logs(
     ``<log>.twin.mcap`` beside it, to ``output`` (a file for one log, a folder for several),
     or over a bare ``.mcap`` input (``in_place``). ``options`` as ``fit_calibration``'s (no
     filter setting: the twin's effort is written as computed)."""
-    from twincd.executors import Bound, gathered_warnings
+    from twincd.detection.outputs import distinct_targets, make_output_folder
+    from twincd.executors.local import Bound, gathered_warnings
     from twincd.io.atomic import check_target, check_writable
     from twincd.io.logs import expand_logs
     from twincd.io.named import settle_named
-    from twincd.outputs import distinct_targets, make_output_folder
-    from twincd.simulate import default_output, simulate_item
+    from twincd.prepare.simulate import default_output, simulate_item
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)
@@ -104,7 +104,7 @@ def simulate_logs(
         work: Bound[tuple[Path, Path | None], SimulateResult] = Bound(
             simulate_item, asked.robot, reading, in_place, asked.strict
         )
-        from twincd.run import all_or_nothing
+        from twincd.executors.run import all_or_nothing
 
         with all_or_nothing() as written:
             written.extend(t for t in targets if t is not None)

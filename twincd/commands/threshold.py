@@ -62,24 +62,24 @@ def threshold_calibration(
     collision-free ``logs`` (files, bags, folders of logs; each log once), each streamed: by
     default a false-alarm budget for the models scored by depth, μ + 4σ for the others;
     ``k_sigma`` keeps μ + kσ, ``false_alarms_per_hour`` sets the budget
-    (``twincd.threshold.threshold_from_parts``). Then, in a second pass, the false alarms the
-    threshold gives on these logs are counted (``detect``'s events, as ``evaluate`` counts
-    them) and a threshold that flags most of them is refused.
+    (``twincd.calibration.threshold.threshold_from_parts``). Then, in a second pass, the false
+    alarms the threshold gives on these logs are counted (``detect``'s events, as ``evaluate``
+    counts them) and a threshold that flags most of them is refused.
 
     ``options`` as ``fit_calibration``'s; the reading settings are the calibration's by
     default, and one that contradicts it is an error. ``output``: where to write the
     calibration (None: nowhere)."""
     from twincd.calibration import Calibration
-    from twincd.detection.files import AlarmTally, record_false_alarms, tally_false_alarms
-    from twincd.executors import Bound, gathered_warnings
-    from twincd.io.atomic import check_target
-    from twincd.io.logs import expand_logs
-    from twincd.threshold import (
+    from twincd.calibration.threshold import (
         LogScores,
         check_threshold_choice,
         score_log,
         threshold_from_parts,
     )
+    from twincd.detection.files import AlarmTally, record_false_alarms, tally_false_alarms
+    from twincd.executors.local import Bound, gathered_warnings
+    from twincd.io.atomic import check_target
+    from twincd.io.logs import expand_logs
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)

@@ -11,7 +11,7 @@ from twincd.detection.events import Event, EventRules, EventTracker, find_events
 from twincd.detection.files import detect_streamed
 from twincd.detection.online import OnlineDetector, OnlineResult
 from twincd.detection.score import affine_score, residual
-from twincd.frames import FrameSink
+from twincd.prepare.frames import FrameSink
 
 __all__ = [
     "DetectionSummary",

@@ -14,13 +14,13 @@ import numpy as np
 from twincd.calibration.models import model_inputs
 from twincd.detection.events import Event, EventRules, EventTracker, LabelSpans, false_alarms
 from twincd.detection.isolation import isolator_for
-from twincd.frames import Frame, FrameSink
+from twincd.prepare.frames import Frame, FrameSink
 from twincd.signal.features import ModelInputs
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.pipeline import PreparedLog
+    from twincd.prepare.setup import PreparedLog
 
 log = logging.getLogger("twincd")
 
@@ -97,7 +97,7 @@ class ScoringStage:
         ``coulomb_f`` for friction models) plus ``predicted`` (the model's effort), ``residual``,
         ``score`` and ``flag`` columns, and the events that closed in it."""
         inputs = ModelInputs.of(frame, self.coulomb_eps, self.regressor_mask, self.regressor_theta)
-        # a grid's frames carry the prediction, made on its nodes (twincd.chain.build_chain)
+        # a grid's frames carry the prediction, made on its nodes (twincd.prepare.chain.build_chain)
         predicted = frame["predicted"] if "predicted" in frame else self.model.predict(inputs)
         r = self.model.residual(inputs, predicted)
         # the events weigh joints as the score does: by their noise at their speed, if known

@@ -1,7 +1,7 @@
 """Detection on a log file, streamed block by block at flat memory: the log's frames (read,
-twinned and filtered by ``twincd.pipeline``, down the chain ``twincd.chain.build_chain`` builds
-for the calibration, zero-phase or causal) scored, flagged and grouped into events. Only counts
-and events are kept; per-sample results go to sinks."""
+twinned and filtered by ``twincd.prepare.setup``, down the chain
+``twincd.prepare.chain.build_chain`` builds for the calibration, zero-phase or causal) scored,
+flagged and grouped into events. Only counts and events are kept; per-sample results go to sinks."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING
 from twincd.detection.detect import MOSTLY_FLAGGED, DetectionSummary, ScoringStage
 from twincd.detection.events import Event
 from twincd.errors import DataError
-from twincd.frames import Frame, FrameSink
+from twincd.prepare.frames import Frame, FrameSink
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.pipeline import Setup
+    from twincd.prepare.setup import Setup
 
 log = logging.getLogger("twincd")
 

@@ -1,7 +1,7 @@
 """Live detection (contract: Live detection): samples pushed one at a time or in blocks of any size.
 
-The detector runs the calibration's causal chain, built by ``twincd.chain.build_chain`` as for
-a log on disk — causal Savitzky–Golay derivative (the window ends at the newest sample), RNEA,
+The detector runs the calibration's causal chain, built by ``twincd.prepare.chain.build_chain`` as
+for a log on disk — causal Savitzky–Golay derivative (the window ends at the newest sample), RNEA,
 causal low-pass filter — and the same scoring and event stages as batch detection, so
 pushing a log in any chunking gives the scores, flags and events of ``twincd detect`` with that
 (causal) calibration. Every stage keeps bounded state: a few samples of derivative context, the
@@ -15,8 +15,8 @@ periods), are scored but never flagged, for the filter's settling time
 
 Latency: on logs sampled at up to a few hundred hertz no stage holds a sample back, so each
 push returns a score for every sample it carried. Sampled far faster than the filter keeps
-(``twincd.grid``: 1 kHz), the twin and the filter run on a coarse grid, and a sample waits for
-its grid cell to end: a push returns the samples whose cells have ended (the held ones of
+(``twincd.prepare.grid``: 1 kHz), the twin and the filter run on a coarse grid, and a sample waits
+for its grid cell to end: a push returns the samples whose cells have ended (the held ones of
 earlier pushes first), each sample at most ``OnlineDetector.hold_s`` (one grid period, ≈ 5 ms
 at 1 kHz under 3 Hz) late; ``flush`` scores the held ones when a stream ends. What delays a
 detection is the causal low-pass filter itself: a step in effort shows in the score after
@@ -36,12 +36,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.chain import BuiltChain, JointLayout, build_chain, check_urdf, robot_for
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
 from twincd.detection.events import Event, EventRules
 from twincd.errors import CalibrationError, DataError, JointMismatchError
-from twincd.frames import Frame
+from twincd.prepare.chain import BuiltChain, JointLayout, build_chain, check_urdf, robot_for
+from twincd.prepare.frames import Frame
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
@@ -147,8 +147,8 @@ class OnlineDetector:
     @property
     def hold_s(self) -> float:
         """The longest a sample waits in the chain before it is scored: one grid period where
-        the twin and the filter run on a coarse grid (``twincd.grid``), else 0."""
-        from twincd.grid import grid_period_ns
+        the twin and the filter run on a coarse grid (``twincd.prepare.grid``), else 0."""
+        from twincd.prepare.grid import grid_period_ns
 
         grid = grid_period_ns(self.calibration.lowpass.cutoff_hz, self.period_s)
         return 0.0 if grid is None else grid * 1e-9

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from twincd.errors import UsageError
-from twincd.pipeline import PreparedLog
+from twincd.prepare.setup import PreparedLog
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:

@@ -30,6 +30,13 @@ import numpy as np
 
 from twincd.calibration import Calibration, Threshold
 from twincd.calibration.models import EPSILON_GRID, MODEL_KINDS, model_class
+from twincd.calibration.threshold import (
+    LogScores,
+    ScoreStats,
+    same_rule,
+    score_log,
+    threshold_from_parts,
+)
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 from twincd.detection.detect import FlagCount
 from twincd.detection.events import EventRules
@@ -37,14 +44,13 @@ from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
 from twincd.evaluation.metrics import EventCounts, ScoredUnits, best_of, event_counts
 from twincd.evaluation.streamed import JudgedLog, judge_log
-from twincd.executors import Bound
+from twincd.executors.local import Bound
 from twincd.io.links import read_links
 from twincd.io.logs import expand_logs
 from twincd.io.named import settle_named
 from twincd.io.options import LogOptions
-from twincd.pipeline import PreparedLog, Setup, agreed_joints, prepare_log
+from twincd.prepare.setup import PreparedLog, Setup, agreed_joints, prepare_log
 from twincd.signal.features import ModelFeatures
-from twincd.threshold import LogScores, ScoreStats, same_rule, score_log, threshold_from_parts
 from twincd.types import BoolArray, FloatArray
 
 T = TypeVar("T")

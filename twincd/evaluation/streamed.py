@@ -6,9 +6,9 @@ labelled and of unlabelled samples, each sorted at the log's end: ``ScoredUnits`
 per log its event counts (``EventTally``), a few numbers per labelled event.
 
 ``judge_log`` judges a test (or validation) log at a calibration's threshold (what a validation
-log contributes to μ, σ and a threshold rule is ``twincd.threshold.score_log``'s, as `threshold`
-computes it). It is a module-level function of picklable arguments: any executor maps it over
-logs.
+log contributes to μ, σ and a threshold rule is ``twincd.calibration.threshold.score_log``'s, as
+`threshold` computes it). It is a module-level function of picklable arguments: any executor maps
+it over logs.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from twincd.types import FloatArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.pipeline import Setup
+    from twincd.prepare.setup import Setup
 
 
 @dataclass(frozen=True)

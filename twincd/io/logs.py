@@ -3,7 +3,7 @@
 ``expand_logs`` turns the paths a user gives (files, rosbag2 folders, folders of logs) into
 logs, leaving out twincd's own copies beside their source. ``JointStates`` holds one log's
 samples as per-log arrays, no global state, so per-log work stays pure and can run anywhere;
-``twincd.pipeline.read_log`` fills it from the block stream (``twincd.io.stream``).
+``twincd.prepare.setup.read_log`` fills it from the block stream (``twincd.io.stream``).
 """
 
 from __future__ import annotations

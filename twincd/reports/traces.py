@@ -19,8 +19,8 @@ if TYPE_CHECKING:
 
     from twincd.calibration.fitting import LogFit
     from twincd.detection.events import Event
-    from twincd.frames import Frame
-    from twincd.pipeline import Setup
+    from twincd.prepare.frames import Frame
+    from twincd.prepare.setup import Setup
     from twincd.signal.features import ModelFeatures
 
 

@@ -1,6 +1,7 @@
 """What a calibration model reads from the prepared stream, typed: ``ModelFeatures`` says which
-filtered inputs the chain computes for a model (``twincd.chain.build_chain``), ``ModelInputs``
-holds them, sample by sample, for the model to fit or score.
+filtered inputs the chain computes for a model (``twincd.prepare.chain.build_chain``),
+``ModelInputs`` holds them, sample by sample, for the model to fit or score, and
+``FittedModel`` is what the chain asks of a fitted model (its features, its prediction).
 
 A fitted model declares its own features (``ResidualModel.features``: its ε, its regressor
 weights θ), so what scores a log is always the model itself; a fit asks for the features of
@@ -10,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -106,3 +107,15 @@ class ModelInputs:
                 "pass the filtered measured effort (effort_f) with the twin's",
             )
         return self.effort_f
+
+
+class FittedModel(Protocol):
+    """What preparing and scoring a log asks of a fitted model
+    (``twincd.calibration.models.ResidualModel`` is one): the features the chain computes for
+    it, and its prediction of the measured effort from them. The chain runs below the models,
+    so it knows them only through this."""
+
+    @property
+    def features(self) -> ModelFeatures: ...
+
+    def predict(self, inputs: ModelInputs) -> FloatArray: ...

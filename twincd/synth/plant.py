@@ -89,7 +89,7 @@ from scipy.interpolate import make_interp_spline
 
 from twincd.defaults import SYNTH_SEGMENT_S
 from twincd.errors import DataError, OutputError, UsageError
-from twincd.executors import Executor, Progress
+from twincd.executors.local import Executor, Progress
 from twincd.io.cdr import bool_cdr, header, joint_state_cdr, serialize, typestore
 from twincd.twin.dynamics import inverse_dynamics
 from twincd.twin.robot import RobotModel, load_robot

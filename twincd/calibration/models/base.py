@@ -28,7 +28,7 @@ from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
-    from twincd.pipeline import PreparedLog
+    from twincd.prepare.setup import PreparedLog
 
 
 log = logging.getLogger("twincd")
@@ -121,7 +121,11 @@ class ResidualModel:
         if self.whitened:
             assert self.rmse_ is not None
             speed = stats.speed
-            self.scale_ = self.rmse_ if speed is None else speed_scale(speed, self, self.rmse_)
+            if speed is None:
+                self.scale_ = self.rmse_
+            else:
+                w = self.residual_weights(speed.params, speed.coulomb)
+                self.scale_ = speed_scale(speed, w, self.b_, self.rmse_)
         return self
 
     def fit(self: M, logs: Iterable[PreparedLog]) -> M:

@@ -46,7 +46,7 @@ class IdentifiedModel(FrictionModel):
     def predict(self, inputs: ModelInputs) -> FloatArray:
         out = super().predict(inputs)
         effort = inputs.regressor_effort_f
-        if effort is not None:  # Ỹθ filtered as one channel per joint (twincd.chain)
+        if effort is not None:  # Ỹθ filtered as one channel per joint (twincd.prepare.chain)
             theta = inputs.regressor_theta
             if theta is None or theta.shape != self.theta_.shape or np.any(theta != self.theta_):
                 raise DataError(

@@ -474,8 +474,8 @@ class FitStats:
     def from_cells(
         cls, inputs: ModelInputs, count: IntArray, by_speed: IntArray, speed: bool = True
     ) -> FitStats:
-        """``from_inputs`` of a grid's nodes (``twincd.grid``), each standing for the samples of
-        its cell: ``count`` (N,) the clean samples each row stands for, ``by_speed``
+        """``from_inputs`` of a grid's nodes (``twincd.prepare.grid``), each standing for the
+        samples of its cell: ``count`` (N,) the clean samples each row stands for, ``by_speed``
         (N, D, B) those per joint and bin of the joint's own speed (what ``speed_bin`` gives
         each sample, as scoring bins it). The sums are the samples', each sample counted at
         its cell's node."""

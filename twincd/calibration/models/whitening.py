@@ -4,24 +4,21 @@ fit's statistics, and the depth statistic over the joints."""
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from twincd.calibration.models.constants import MIN_BIN_SAMPLES, MIN_SCALE
 from twincd.calibration.models.statistics import SpeedStats
 from twincd.types import FloatArray, IndexArray
 
-if TYPE_CHECKING:
-    from twincd.calibration.models.base import ResidualModel
 
-
-def speed_scale(stats: SpeedStats, model: ResidualModel, overall: FloatArray) -> FloatArray:
-    """(D, B) each joint's residual RMS under ``model`` in each bin of its own speed, exact
-    from ``stats``; a bin with fewer than ``MIN_BIN_SAMPLES`` samples takes ``overall`` (D,)."""
-    w = model.residual_weights(stats.params, stats.coulomb)
+def speed_scale(
+    stats: SpeedStats, w: FloatArray, b: FloatArray, overall: FloatArray
+) -> FloatArray:
+    """(D, B) each joint's residual RMS in each bin of its own speed, exact from ``stats``, for
+    the residual ``w · features − b`` (a model's ``residual_weights`` and offset ``b_``); a bin
+    with fewer than ``MIN_BIN_SAMPLES`` samples takes ``overall`` (D,)."""
     spread = np.einsum("dk,bdkl,dl->bd", w, stats.cross, w)
-    offset = np.einsum("bdk,dk->bd", stats.mean, w) - model.b_
+    offset = np.einsum("bdk,dk->bd", stats.mean, w) - b
     sse = np.maximum(spread, 0.0) + stats.n * offset**2
     rms = np.sqrt(sse / np.maximum(stats.n, 1))
     enough = stats.n >= MIN_BIN_SAMPLES

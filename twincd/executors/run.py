@@ -4,13 +4,13 @@ outputs of a run that fails are removed again.
 
 >>> from twincd import Setup, run_logs
 >>> from twincd.calibration import fit_log
->>> from twincd.executors import Bound
+>>> from twincd.executors.local import Bound
 >>> run = run_logs(Bound(fit_log, Setup()), paths, jobs=2, keep_going=True)  # doctest: +SKIP
 >>> run.results, run.failures, run.exit_code  # doctest: +SKIP
 
 The function must be picklable to run on processes or a cluster (a module-level function, or
-``twincd.executors.Bound`` for one with settings); results come back in the order of the items,
-whatever the executor.
+``twincd.executors.local.Bound`` for one with settings); results come back in the order of the
+items, whatever the executor.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar, cast
 from twincd.errors import TwincdError
 
 if TYPE_CHECKING:
-    from twincd.executors import MapExecutor, Progress
+    from twincd.executors.local import MapExecutor, Progress
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -86,7 +86,7 @@ def run_logs(
         written.extend(outputs)
         if executor is not None:
             return _run_on(executor, func, items, keep_going, progress, on_failure)
-        from twincd.cluster import open_executor
+        from twincd.executors.cluster import open_executor
 
         with open_executor(jobs, scheduler, _paths(items)) as opened:
             return _run_on(opened, func, items, keep_going, progress, on_failure)
@@ -100,7 +100,7 @@ def _run_on(
     progress: Progress | None,
     on_failure: Callable[[LogFailure], None],
 ) -> LogRun[R]:
-    from twincd.executors import Captured, log_path
+    from twincd.executors.local import Captured, log_path
 
     run: LogRun[R] = LogRun()
     for item, outcome in zip(items, executor.map(Captured(func, keep_going), items, progress)):
@@ -116,7 +116,7 @@ def _run_on(
 
 
 def _paths(items: Sequence[object]) -> list[Path]:
-    from twincd.executors import log_path
+    from twincd.executors.local import log_path
 
     return [p for p in map(log_path, items) if p is not None]
 

@@ -3,7 +3,7 @@ pick the twin's joint columns, twin them (velocity where the log has none, accel
 τ̂ = RNEA(q, q̇, q̈), the joint-torque regressor for identified models), put the joints in the
 output order, low-pass filter τ, τ̂ and the model's other inputs alike.
 
-The same function builds the chain of a log streamed from disk (``twincd.pipeline``, which
+The same function builds the chain of a log streamed from disk (``twincd.prepare.setup``, which
 feeds ``fit``, ``threshold`` and ``detect`` with a zero-phase or a causal filter) and of live
 samples (``twincd.detection.OnlineDetector``): the filter's kind comes from the settings, the
 joints from a ``JointLayout``, so a causal calibration gives the same numbers in batch and live.
@@ -20,14 +20,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from twincd.errors import CalibrationError, UsageError
-from twincd.frames import Chain, Derived, Frame, Mapped, Stage
-from twincd.grid import GridStage, grid_period_ns
-from twincd.signal.features import ModelFeatures, ModelInputs
+from twincd.prepare.frames import Chain, Derived, Frame, Mapped, Stage
+from twincd.prepare.grid import GridStage, grid_period_ns
+from twincd.signal.features import FittedModel, ModelFeatures, ModelInputs
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
-    from twincd.calibration.models import ResidualModel
     from twincd.signal.unwrap import StreamingUnwrap
     from twincd.twin.robot import RobotModel
 
@@ -144,7 +143,7 @@ def twin_stages(
 
     Columns must be in the robot's joint order. ``robot`` None: the frames carry
     ``sim_effort`` already, only the velocity (and the regressor) is completed. ``on_grid``
-    (a grid's nodes, ``twincd.grid``): with the regressor of the twin's own model, τ̂ is
+    (a grid's nodes, ``twincd.prepare.grid``): with the regressor of the twin's own model, τ̂ is
     Y θ_URDF (RNEA is linear in the inertial parameters; equal to 1e-13) instead of a second
     pass of the dynamics.
     """
@@ -209,7 +208,7 @@ def filter_stages(
     and D channels are filtered instead of hundreds. Without either, nothing more is filtered:
     the seed's model costs what it did.
 
-    ``on_grid``: the frames are a grid's nodes (``twincd.grid``): their ``coulomb`` column
+    ``on_grid``: the frames are a grid's nodes (``twincd.prepare.grid``): their ``coulomb`` column
     ((N, E, joints), the cells' means of tanh(q̇/ε)) is filtered instead of tanh of their
     velocity, Y_j θ_j is summed over the whole regressor row (``inertial_effort``), and the
     zero-phase edges are left to the samples."""
@@ -372,24 +371,25 @@ def build_chain(
     threads: int | None = None,
     filtered: bool = True,
     nodes: bool = False,
-    model: ResidualModel | None = None,
+    model: FittedModel | None = None,
 ) -> BuiltChain:
     """The one chain for ``lowpass`` (zero-phase or causal) and a model's ``features`` (the
-    friction models' ε, the identified models' θ: ``ResidualModel.features`` of a fitted
+    friction models' ε, the identified models' θ: ``FittedModel.features`` of a fitted
     ``model``) on frames whose joints are laid out as ``layout``: pick the twin's columns, twin
     (``twin`` None: the frames carry ``sim_effort``; ``regressor``: the robot model whose
     joint-torque regressor the identified models need, ``layout.twin`` in its order), put the
     joints in the output order, and with ``filtered`` low-pass filter (``filtered=False`` stops
     after the twin: what ``simulate`` writes).
 
-    Where the log is sampled far faster than the filter keeps (``twincd.grid.grid_period_ns``:
-    a 1 kHz log), the twin and the filter run on a coarse grid's cell means and come back on
-    the samples by interpolation (``twincd.grid.GridStage``). What comes back on the samples:
-    every filtered column by default (what a ``PreparedLog`` holds); with ``nodes``, all but
-    the regressor's hundreds of entries, the grid keeping its filtered nodes for ``fit``
-    (``BuiltChain.grid.take_nodes``); with a fitted ``model`` (scoring), its prediction
-    ``predicted``, computed on the nodes (every model is linear in its filtered inputs, so it
-    commutes with the interpolation), with ``effort_f`` and ``sim_effort_f`` only."""
+    Where the log is sampled far faster than the filter keeps
+    (``twincd.prepare.grid.grid_period_ns``: a 1 kHz log), the twin and the filter run on a coarse
+    grid's cell means and come back on the samples by interpolation
+    (``twincd.prepare.grid.GridStage``). What comes back on the samples: every filtered column by
+    default (what a ``PreparedLog`` holds); with ``nodes``, all but the regressor's hundreds of
+    entries, the grid keeping its filtered nodes for ``fit`` (``BuiltChain.grid.take_nodes``); with
+    a fitted ``model`` (scoring), its prediction ``predicted``, computed on the nodes (every model
+    is linear in its filtered inputs, so it commutes with the interpolation), with ``effort_f`` and
+    ``sim_effort_f`` only."""
     causal = lowpass.causal
     mask = None
     if filtered and regressor is not None:
@@ -426,7 +426,7 @@ def _grid_stage(
     layout: JointLayout,
     grid_ns: int,
     period_s: float,
-    models: tuple[RobotModel | None, RobotModel | None, ResidualModel | None],
+    models: tuple[RobotModel | None, RobotModel | None, FittedModel | None],
     threads: int | None,
     nodes: bool,
 ) -> GridStage:
@@ -478,7 +478,7 @@ def _grid_stage(
 
 
 def _predicting(
-    model: ResidualModel,
+    model: FittedModel,
     eps: tuple[float, ...],
     mask: BoolArray | None,
     theta: FloatArray | None,
@@ -500,7 +500,7 @@ def _predicting(
     return Mapped(predict)
 
 
-def joint_epsilon(model: ResidualModel, eps: Sequence[float], joints: int) -> FloatArray | None:
+def joint_epsilon(model: FittedModel, eps: Sequence[float], joints: int) -> FloatArray | None:
     """Each joint's ε of a fitted friction model, when every one is among ``eps`` (else None:
     the chain then prepares every ε's features, and the model says what is missing)."""
     epsilon = getattr(model, "epsilon_", None)

@@ -13,7 +13,7 @@ filter would run on every sample. ``GridStage`` runs them on cells instead:
    anti-alias filter: a box of one cell has its zeros at the grid's rate and its multiples,
    which is where noise would fold into the pass band (point samples instead let the
    acceleration's noise fold in at ~20 % of the residual's noise).
-3. On the nodes, the twin's stages as they run per sample (``twincd.chain``): q̈ by the
+3. On the nodes, the twin's stages as they run per sample (``twincd.prepare.chain``): q̈ by the
    Savitzky–Golay derivative of the node velocities (on their real times: differentiated after
    the averaging, the noise folded in lands where a derivative is small), τ̂ = RNEA, the
    regressor, then the same low-pass filter designed for the grid's period.
@@ -24,8 +24,8 @@ filter would run on every sample. ``GridStage`` runs them on cells instead:
    node), so that a sample waits for its own cell to end and never longer: a causal chain or a
    live detector holds a sample at most one grid period.
 
-``twincd.chain.build_chain`` builds the stage; scoring adds the fitted model's prediction to the
-node chain (the models are linear in their filtered inputs) and ``fit`` sums the nodes
+``twincd.prepare.chain.build_chain`` builds the stage; scoring adds the fitted model's prediction
+to the node chain (the models are linear in their filtered inputs) and ``fit`` sums the nodes
 themselves (``keep_nodes``). A node depends on the stamps and values of its own cell and of
 earlier nodes of its segment (and, zero-phase, later ones) only, and the cell sums add samples
 in their order: chunked runs equal one run. The choice of the grid and the error it makes are
@@ -41,7 +41,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from twincd.frames import Chain, Frame
+from twincd.prepare.frames import Chain, Frame
 from twincd.signal.stream import DEFAULT_GAP_FACTOR, Segmenter
 from twincd.types import FloatArray, IntArray
 
@@ -158,7 +158,7 @@ class GridStage:
     computes, interpolated at each sample's stamp (see the module's docstring).
 
     ``nodes`` is the chain run on the node frames (twin and filter, built by
-    ``twincd.chain.build_chain``); it gets ``stamp_ns``, ``node`` (a serial number),
+    ``twincd.prepare.chain.build_chain``); it gets ``stamp_ns``, ``node`` (a serial number),
     ``position``, ``velocity``, ``effort``, optionally ``sim_effort`` and ``coulomb``
     ((N, E, joints): the means of tanh(q̇/ε) for each of ``coulomb_eps``, or (N, 1, joints) of
     tanh(q̇_j/ε_j) for each joint's own ``joint_eps``, what a fitted model reads). Of its output,

@@ -1,7 +1,7 @@
 """Progress within a log: whoever listens (the CLI, drawing on a terminal) is told of the
 samples each block of a log brings as it streams through the chain (``PreparedStream``); the
 library itself draws nothing. The listener is per context (a ``ContextVar``): work that runs in
-other processes, or on a cluster, reports per log instead (``twincd.run.run_logs``)."""
+other processes, or on a cluster, reports per log instead (``twincd.executors.run.run_logs``)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """From a log on disk to the arrays every method works on: a log streamed block by block
 (``Setup.open``, a ``PreparedStream``) or whole (``Setup.prepare``, a ``PreparedLog``), read and
-sent down the chain of ``twincd.chain`` (twin, or the log's own ``/twincd/sim_effort``, then the
-low-pass filter).
+sent down the chain of ``twincd.prepare.chain`` (twin, or the log's own ``/twincd/sim_effort``,
+then the low-pass filter).
 
 ``Setup.open(path)`` streams a log of any length at flat memory (what ``fit``, ``threshold``,
 ``detect``, ``simulate`` and ``evaluate``'s calibration model use); ``Setup.prepare(path)``
@@ -26,7 +26,12 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from twincd.chain import (
+from twincd.defaults import DEFAULT_ROBOT
+from twincd.errors import DataError, JointMismatchError, UsageError
+from twincd.io.logs import JointStates
+from twincd.io.options import LogOptions
+from twincd.io.stream import iter_blocks, warn_ignored_joints
+from twincd.prepare.chain import (
     BuiltChain,
     JointLayout,
     build_chain,
@@ -36,23 +41,17 @@ from twincd.chain import (
     robot_for,
     warn_unwrapped,
 )
-from twincd.defaults import DEFAULT_ROBOT
-from twincd.errors import DataError, JointMismatchError, UsageError
-from twincd.frames import Frame, prefetched
-from twincd.io.logs import JointStates
-from twincd.io.options import LogOptions
-from twincd.io.stream import iter_blocks, warn_ignored_joints
-from twincd.progress import samples_done
+from twincd.prepare.frames import Frame, prefetched
+from twincd.prepare.progress import samples_done
 from twincd.signal.checks import SignalChecks
 from twincd.signal.derivatives import differentiate
-from twincd.signal.features import ModelFeatures
+from twincd.signal.features import FittedModel, ModelFeatures
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
 if TYPE_CHECKING:
-    from twincd.calibration.models import ResidualModel
-    from twincd.grid import GridStage
     from twincd.io.stream import LogStream
+    from twincd.prepare.grid import GridStage
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
@@ -62,8 +61,8 @@ DEFAULT_BLOCK = 16384  # samples per block: bounded memory, per-block Python cos
 # samples per block with the joint-torque regressor (identified models): each sample then
 # carries hundreds of filtered values, and a block's copies must stay a few MB
 REGRESSOR_BLOCK = 2048
-# samples per block when fit sums a coarse grid's nodes (twincd.grid): the nodes' regressor and
-# its products stay a few MB (16384 took fit's peak RSS from 236 to 287 MB on a 1 kHz log)
+# samples per block when fit sums a coarse grid's nodes (twincd.prepare.grid): the nodes' regressor
+# and its products stay a few MB (16384 took fit's peak RSS from 236 to 287 MB on a 1 kHz log)
 GRID_BLOCK = 8192
 # samples looked at before the stages are set up: enough for a stable nominal period
 PEEK_SAMPLES = 1001
@@ -155,14 +154,14 @@ class PreparedStream:
     ``filtered=False`` stops after the twin (what ``simulate`` writes); ``need_effort=False``
     accepts logs without measured effort. ``features``: what the chain computes for a model
     (``twincd.signal.features.ModelFeatures``: a fit's); with a fitted ``model``, its own
-    (``ResidualModel.features``), never another's.
+    (``FittedModel.features``), never another's.
 
     On logs sampled far faster than the filter keeps, the twin and the filter run on a coarse
-    grid (``twincd.grid``; ``grid`` is then its stage): ``nodes=True`` keeps its filtered nodes
-    (``take_nodes``) for ``fit``, and the frames then carry each sample's ``node`` instead of
+    grid (``twincd.prepare.grid``; ``grid`` is then its stage): ``nodes=True`` keeps its filtered
+    nodes (``take_nodes``) for ``fit``, and the frames then carry each sample's ``node`` instead of
     the regressor's entries; with a fitted ``model`` (scoring) the frames carry its prediction
     ``predicted`` and of the filtered columns only ``effort_f`` and ``sim_effort_f``
-    (``twincd.chain.build_chain``). Without a grid both change nothing.
+    (``twincd.prepare.chain.build_chain``). Without a grid both change nothing.
     """
 
     def __init__(
@@ -173,7 +172,7 @@ class PreparedStream:
         need_effort: bool = True,
         force_simulate: bool = False,
         nodes: bool = False,
-        model: ResidualModel | None = None,
+        model: FittedModel | None = None,
         features: ModelFeatures | None = None,
     ) -> None:
         if model is not None and features is not None:
@@ -666,7 +665,7 @@ class Setup:
 
     def prepare(self, path: str | Path, features: ModelFeatures | None = None) -> PreparedLog:
         """One whole log in memory (for the baselines, evaluate's fitted methods, studies),
-        with ``features`` (a model's: ``ResidualModel.features``, or a fit's)."""
+        with ``features`` (a model's: ``FittedModel.features``, or a fit's)."""
         with self.open(path, features=features) as stream:
             return stream.read_whole()
 

@@ -123,10 +123,10 @@ def _finite(value: Any) -> Any:
 
 @contextmanager
 def _captured_warnings() -> Iterator[list[str]]:
-    """The ``twincd`` logger's warnings held back (``twincd.executors.captured_warnings``) and
+    """The ``twincd`` logger's warnings held back (``twincd.executors.local.captured_warnings``) and
     nothing less said, whatever level the logger is set to: an inspection returns its warnings
     as data (the caller shows them with the log they belong to)."""
-    from twincd.executors import captured_warnings
+    from twincd.executors.local import captured_warnings
 
     level = log.level
     log.setLevel(logging.WARNING)
@@ -218,7 +218,7 @@ def _inspect(
     if found.sampling is not None:
         _warn_if_too_short(found.path, found.sampling, calibration)
     # what fit and detect refuse, refused here alike (the same checks, the same words)
-    from twincd.pipeline import require_effort, require_enough_samples
+    from twincd.prepare.setup import require_effort, require_enough_samples
 
     require_effort(has_effort, found.path, found.joint_topic or options.topic)
     require_enough_samples(usable, found.path)
@@ -268,11 +268,11 @@ def _match_robot(
     found.ignored = tuple(j for j in in_log if j not in full.joint_names)
     found.locked = tuple(j for j in full.joint_names if j not in in_log)
     if found.robot_is_default:  # as fit and detect: the default model only on its own joints
-        from twincd.chain import require_default_robot
+        from twincd.prepare.chain import require_default_robot
 
         require_default_robot(in_log, found.path)
     if calibration is not None and not has_own_twin:
-        from twincd.chain import check_urdf
+        from twincd.prepare.chain import check_urdf
 
         check_urdf(full, calibration.urdf_sha256, allow_urdf_change, found.path)
     return load_robot(name, keep=in_log)  # the model detect will use (its warnings too)
@@ -359,9 +359,9 @@ def _read_samples(
     """Ranges, sampling and the signal checks into ``found``; the samples fit and detect would
     use (finite position and effort, and the log's twin effort where it has one), and whether
     the log has measured effort (as the stream decides it)."""
-    from twincd.chain import warn_unwrapped
     from twincd.io.stream import iter_blocks
-    from twincd.pipeline import warn_velocity_from_position
+    from twincd.prepare.chain import warn_unwrapped
+    from twincd.prepare.setup import warn_velocity_from_position
     from twincd.signal import nominal_period
     from twincd.signal.checks import SignalChecks
     from twincd.signal.unwrap import StreamingUnwrap
@@ -444,7 +444,7 @@ def _warn_if_at_rest(source: str, spans: FloatArray) -> None:
 
 def _warn_if_too_short(source: str, sampling: Sampling, calibration: Calibration | None) -> None:
     """What detect would say of a log no sample of which lies outside the filter's edges."""
-    from twincd.pipeline import min_judged_s, warn_short
+    from twincd.prepare.setup import min_judged_s, warn_short
     from twincd.signal.filters import LowPass
 
     lowpass = calibration.lowpass if calibration is not None else LowPass()

@@ -1,8 +1,8 @@
 """The detection threshold from the score on collision-free logs: the threshold of a false-alarm
-budget per hour of collision-free time extrapolated from the score's excursions (``twincd.tail``:
-an exponential tail above the bulk for the depth statistic, the default models' score; peaks
-over threshold and a generalised Pareto tail for other scores), or the paper's μ + kσ
-(``threshold_from_parts``).
+budget per hour of collision-free time extrapolated from the score's excursions
+(``twincd.calibration.tail``: an exponential tail above the bulk for the depth statistic, the
+default models' score; peaks over threshold and a generalised Pareto tail for other scores), or the
+paper's μ + kσ (``threshold_from_parts``).
 
 Everything a log contributes merges exactly in any order: μ and σ from mergeable sums, the
 median and MAD from a fixed histogram, the excursions' peaks per level, and the clean time.
@@ -20,12 +20,7 @@ import numpy as np
 
 from twincd.calibration import Calibration, Threshold, clean_mask, clean_rows
 from twincd.calibration.models import depth_noise_median, model_inputs
-from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
-from twincd.errors import DataError, UsageError
-from twincd.pipeline import PreparedLog, Setup
-from twincd.signal.features import ModelInputs
-from twincd.signal.moments import Moments
-from twincd.tail import (
+from twincd.calibration.tail import (
     MIN_PEAKS,
     MISFIT_STUDIED,
     ExcursionCounter,
@@ -33,6 +28,11 @@ from twincd.tail import (
     fit_bulk_tail,
     fit_tail,
 )
+from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
+from twincd.errors import DataError, UsageError
+from twincd.prepare.setup import PreparedLog, Setup
+from twincd.signal.features import ModelInputs
+from twincd.signal.moments import Moments
 from twincd.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger("twincd")
@@ -165,9 +165,9 @@ def budget_threshold(
     noise_median: float = 0.0,
 ) -> Threshold:
     """The threshold x of a false-alarm budget extrapolated from the score's excursions (see
-    ``twincd.tail``), never below μ, as μ + kσ with its k; with it the tail fit and the clean
-    time judged (the false alarms the logs give at x are ``detect``'s events: counted once x is
-    known, ``twincd.detection.files.record_false_alarms``).
+    ``twincd.calibration.tail``), never below μ, as μ + kσ with its k; with it the tail fit and the
+    clean time judged (the false alarms the logs give at x are ``detect``'s events: counted once x
+    is known, ``twincd.detection.files.record_false_alarms``).
 
     ``depth``: the score is the depth statistic: μ and σ are the median and MAD, and the
     excursions' rate at μ + 2σ is carried to the budget by an exponential tail (``fit_bulk_tail``,
@@ -290,7 +290,7 @@ def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogSc
             inputs = ModelInputs.of(
                 frame, stream.coulomb_eps, stream.regressor_mask, stream.features.theta
             )
-            # a grid's frames carry the prediction, made on its nodes (twincd.chain)
+            # a grid's frames carry the prediction, made on its nodes (twincd.prepare.chain)
             residual = model.residual(inputs, frame.get("predicted"))
             velocity = inputs.velocity
             speed = None if velocity is None else np.asarray(velocity, dtype=np.float64)

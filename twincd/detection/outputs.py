@@ -20,11 +20,11 @@ from twincd.detection.detect import DetectionSummary, LogDetection
 from twincd.detection.events import Event
 from twincd.detection.files import detect_streamed
 from twincd.errors import OutputError, UsageError
-from twincd.frames import Frame, FrameSink
+from twincd.prepare.frames import Frame, FrameSink
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.pipeline import Setup
+    from twincd.prepare.setup import Setup
 
 RESIDUAL_TOPIC = "/twincd/residual"
 SCORE_TOPIC = "/twincd/score"

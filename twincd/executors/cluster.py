@@ -1,4 +1,4 @@
-"""Per-log work on a Dask cluster: the same ``map`` as the local executor (twincd.executors),
+"""Per-log work on a Dask cluster: the same ``map`` as the local executor (twincd.executors.local),
 run by ``dask.distributed`` (the optional extra ``twincd[dask]``).
 
 - ``address`` is a running scheduler's (``tcp://host:8786``), or ``"local"``: a LocalCluster of
@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from twincd.errors import ClusterError, LogReadError, UsageError
-from twincd.executors import Executor, MapExecutor, Progress, log_path, samples_in
+from twincd.executors.local import Executor, MapExecutor, Progress, log_path, samples_in
 
 T = TypeVar("T")
 R = TypeVar("R")

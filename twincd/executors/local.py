@@ -1,5 +1,5 @@
 """Running per-log work over many logs: serially, on a pool of local processes, or (in
-twincd.cluster) on a Dask cluster.
+twincd.executors.cluster) on a Dask cluster.
 
 Every command is one shape: a pure per-log function of (path, settings) that returns a small
 picklable result (fit statistics, score statistics, a detection summary), and a merge that does
@@ -43,9 +43,9 @@ PRELOAD = (
     "numpy",
     "scipy.linalg.lapack",
     "pinocchio",
-    "twincd.pipeline",
-    "twincd.outputs",
-    "twincd.threshold",
+    "twincd.prepare.setup",
+    "twincd.detection.outputs",
+    "twincd.calibration.threshold",
     "twincd.io.stream",
     "mcap.reader",  # and the decompressors it loads
     "lz4.frame",
@@ -298,7 +298,8 @@ class Bound(Generic[T, R]):
 
 
 class MapExecutor(Protocol):
-    """What every backend offers (local processes here, a Dask cluster in twincd.cluster)."""
+    """What every backend offers (local processes here, a Dask cluster in
+    twincd.executors.cluster)."""
 
     def map(
         self, func: Callable[[T], R], items: Sequence[T], progress: Progress | None = None

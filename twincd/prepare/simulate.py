@@ -10,7 +10,7 @@ from twincd.errors import UsageError
 from twincd.io.cdr import JOINT_STATE
 from twincd.io.logs import TWIN_SUFFIX
 from twincd.io.options import LogOptions
-from twincd.pipeline import Setup
+from twincd.prepare.setup import Setup
 
 
 @dataclass(frozen=True)

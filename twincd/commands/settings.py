@@ -21,7 +21,7 @@ from twincd.errors import UsageError
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.io.options import LogOptions
-    from twincd.pipeline import Setup
+    from twincd.prepare.setup import Setup
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -69,7 +69,7 @@ class SetupOptions:
         if calibration is None:
             return self._without_calibration()
         self._check_against(calibration)
-        from twincd.pipeline import Setup
+        from twincd.prepare.setup import Setup
 
         setup = Setup.from_calibration(calibration)
         setup = replace(
@@ -83,7 +83,7 @@ class SetupOptions:
         return setup
 
     def _without_calibration(self) -> Setup:
-        from twincd.pipeline import Setup
+        from twincd.prepare.setup import Setup
         from twincd.signal.filters import LowPass
 
         default_cutoff = DEFAULT_CAUSAL_CUTOFF_HZ if self.causal else DEFAULT_CUTOFF_HZ
