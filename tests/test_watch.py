@@ -200,7 +200,17 @@ def test_the_session_file_holds_what_arrived_and_twincds_channels(
     session = tmp_path / "session.mcap"
     with Replay(log, speed=SPEED) as replay:
         result = run(
-            "watch", replay.url, "-c", causal_cal, "--json", "--idle-timeout", "1", "-o", session
+            "watch",
+            replay.url,
+            "-c",
+            causal_cal,
+            "--json",
+            "--idle-timeout",
+            "1",
+            "-o",
+            session,
+            "--label-topic",
+            "/collision_flag",
         )
     assert result.exit_code == 1, result.stderr
     summary = _lines(result.stdout)[-1]
@@ -234,10 +244,72 @@ def test_the_session_file_holds_what_arrived_and_twincds_channels(
     other.write_bytes(log.read_bytes())
     refused = run("watch", "ws://127.0.0.1:1", "-c", causal_cal, "-o", other)
     assert_one_line_error(refused, "overwrite")
+    # labels on another topic than the calibration's could not be judged with it later
+    refused = run("watch", "ws://127.0.0.1:1", "-c", causal_cal, "--label-topic", "/contact")
+    assert_one_line_error(refused, "contradicts the calibration's /collision_flag")
+    assert "--label-topic" in refused.stderr
 
 
-def test_a_killed_session_stays_readable(twin_dataset, causal_cal, tmp_path):
-    log = twin_dataset / "test" / "test_0.mcap"
+@pytest.fixture(scope="module")
+def xarm_causal(xarm_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A causal calibration whose twin runs on the robot model (the logs carry no twin)."""
+    path = tmp_path_factory.mktemp("watch_xarm") / "causal.json"
+    assert run("fit", xarm_dataset / "train", "-o", path, "--causal", "-q").exit_code == 0
+    assert run("threshold", xarm_dataset / "val", "-c", path, "-q").exit_code == 0
+    return path
+
+
+def test_a_session_records_the_twin_effort_computed_live(xarm_dataset, xarm_causal, tmp_path):
+    log = next((xarm_dataset / "test").glob("*.mcap"))
+    assert "/twincd/sim_effort" not in _topics(log)
+    expected = json.loads(run("detect", log, "-c", xarm_causal, "--json", "-q").stdout)["logs"][0]
+    session = tmp_path / "session.mcap"
+    with Replay(log, speed=SPEED) as replay:
+        result = run(
+            "watch", replay.url, "-c", xarm_causal, "--json", "--idle-timeout", "1", "-o", session
+        )
+    assert result.exit_code == (1 if expected["events"] else 0), result.stderr
+    summary = _lines(result.stdout)[-1]
+    assert summary["samples"] == expected["samples"]
+    topics = _topics(session)
+    for topic in ("/twincd/sim_effort", "/twincd/residual", "/twincd/score", "/twincd/collision"):
+        assert topics[topic] == expected["samples"], topic
+    # the session's τ̂ is what detect's twin computes: detect now takes it from the file
+    # instead of simulating, and finds the same events to the last bit
+    inspected = json.loads(run("inspect", session, "--json", "-q").stdout)
+    assert "/twincd/sim_effort" in json.dumps(inspected)
+    again = json.loads(run("detect", session, "-c", xarm_causal, "--json", "-q").stdout)["logs"][0]
+    assert again["events"] == expected["events"]
+
+
+def _partial_topics(path: Path) -> dict[str, int]:
+    """Messages per topic of an MCAP file read as a stream up to its damage."""
+    from mcap.stream_reader import StreamReader
+
+    counts: dict[str, int] = {}
+    channels: dict[int, str] = {}
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False).records:
+                kind = type(record).__name__
+                if kind == "Channel":
+                    channels[record.id] = record.topic
+                elif kind == "Message":
+                    topic = channels[record.channel_id]
+                    counts[topic] = counts.get(topic, 0) + 1
+        except Exception:  # the cut: what came before it is what a reader gets
+            pass
+    return counts
+
+
+@pytest.mark.parametrize("twin", ["from the source", "computed live"])
+def test_a_killed_session_stays_readable(
+    twin_dataset, causal_cal, xarm_dataset, xarm_causal, tmp_path, twin
+):
+    if twin == "from the source":
+        log, cal = twin_dataset / "test" / "test_0.mcap", causal_cal
+    else:
+        log, cal = next((xarm_dataset / "test").glob("*.mcap")), xarm_causal
     session = tmp_path / "killed.mcap"
     with Replay(log, speed=4.0, loop=True) as replay:
         proc = subprocess.Popen(
@@ -248,7 +320,7 @@ def test_a_killed_session_stays_readable(twin_dataset, causal_cal, tmp_path):
                 "watch",
                 replay.url,
                 "-c",
-                str(causal_cal),
+                str(cal),
                 "-o",
                 str(session),
                 "-q",
@@ -258,10 +330,141 @@ def test_a_killed_session_stays_readable(twin_dataset, causal_cal, tmp_path):
         time.sleep(2.0)
         proc.kill()
         proc.wait(10)
-    result = run("detect", session, "-c", causal_cal, "--json")
+    result = run("detect", session, "-c", cal, "--json")
     assert result.exit_code in (0, 1), result.stderr
     assert "truncated" in result.stderr or "damage" in result.stderr, result.stderr
     assert json.loads(result.stdout)["logs"][0]["samples"] > 100
+    topics = _partial_topics(session)
+    for topic in ("/joint_states", "/twincd/sim_effort", "/twincd/residual", "/twincd/score"):
+        assert topics.get(topic, 0) > 100, (topic, topics)
+
+
+def test_a_source_lost_mid_session_prints_the_summary_and_exits_2(twin_dataset, causal_cal):
+    import threading
+
+    log = twin_dataset / "test" / "test_0.mcap"
+    replay = Replay(log, speed=SPEED)
+
+    def stop_when_done() -> None:
+        replay.done.wait(30)
+        replay.stop()  # the server goes away and does not come back
+
+    stopper = threading.Thread(target=stop_when_done)
+    stopper.start()
+    try:
+        result = run("watch", replay.url, "-c", causal_cal, "--json", "--connect-timeout", "1")
+    finally:
+        stopper.join(30)
+        replay.stop()
+    assert_one_line_error(result, "went away and did not come back within 1 s")
+    summary = _lines(result.stdout)[-1]
+    assert summary["type"] == "summary" and summary["ended"] == "source lost"
+    assert summary["samples"] > 1000 and summary["collision"] is True  # what came is judged
+
+
+def _swapped(messages: list[tuple[str, int, bytes]], late: set[int]) -> list:
+    """Joint states sent out of order: each pair of neighbours swapped (10 ms apart, within
+    the reorder window), and the ones numbered in ``late`` sent 50 messages later."""
+    states = [i for i, m in enumerate(messages) if m[0] == "/joint_states"]
+    order = list(range(len(messages)))
+    for a, b in zip(states[1::2], states[2::2], strict=False):
+        order[a], order[b] = order[b], order[a]
+    for k in sorted(late, reverse=True):
+        i = order.index(states[k])
+        order.insert(i + 2 * 50, order.pop(i))  # twin effort messages between: 2 per sample
+    return [messages[i] for i in order]
+
+
+def test_samples_out_of_order_are_sorted_within_the_window(twin_dataset, causal_cal):
+    log = twin_dataset / "test" / "test_0.mcap"
+    expected = json.loads(run("detect", log, "-c", causal_cal, "--json", "-q").stdout)["logs"][0]
+    channels, messages = read_messages(log)
+    with Replay(channels=channels, messages=_swapped(messages, set()), speed=SPEED) as replay:
+        result = run("watch", replay.url, "-c", causal_cal, "--json", "--idle-timeout", "1")
+    lines = _lines(result.stdout)
+    assert lines[-1]["late"] == 0 and lines[-1]["samples"] == expected["samples"]
+    events = [{k: v for k, v in d.items() if k not in ("type", "segment")} for d in lines[:-1]]
+    assert events == expected["events"]
+    # later than the window: dropped and counted, the rest judged
+    late = {300, 700, 1100}
+    with Replay(channels=channels, messages=_swapped(messages, late), speed=SPEED) as replay:
+        result = run("watch", replay.url, "-c", causal_cal, "--json", "--idle-timeout", "1")
+    summary = _lines(result.stdout)[-1]
+    assert summary["late"] == len(late)
+    assert summary["samples"] == expected["samples"] - len(late)
+
+
+def test_a_terminal_shows_a_status_line(twin_dataset, causal_cal):
+    import pty
+    import threading
+
+    log = twin_dataset / "test" / "test_0.mcap"
+    threshold = json.loads(causal_cal.read_text())["threshold"]["value"]
+    master, slave = pty.openpty()
+    chunks: list[bytes] = []
+
+    def read() -> None:
+        while True:
+            try:
+                data = os.read(master, 4096)
+            except OSError:
+                return
+            if not data:
+                return
+            chunks.append(data)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    with Replay(log, speed=4.0) as replay:
+        env = {k: v for k, v in os.environ.items() if k not in ("NO_COLOR", "TERM")}
+        cmd = ["watch", replay.url, "-c", str(causal_cal), "--idle-timeout", "1", "--duration", "3"]
+        proc = subprocess.run(
+            [sys.executable, "-m", "twincd_cli.main", *cmd],
+            stdout=subprocess.PIPE,
+            stderr=slave,
+            env={**env, "TERM": "xterm"},
+            timeout=60,
+            check=False,
+        )
+    os.close(slave)
+    reader.join(5)
+    os.close(master)
+    shown = b"".join(chunks).decode(errors="replace")
+    status = [line for line in shown.split("\r") if " Hz, latency " in line]
+    assert status, shown
+    # rate, latency, score against the threshold, events, samples
+    assert f"/ {threshold:.3g}," in status[-1] and "event(s)" in status[-1], status[-1]
+    assert " Hz, latency " not in proc.stdout.decode()  # stdout keeps events and the summary
+    assert proc.returncode in (0, 1)
+
+
+def test_a_push_without_twin_effort_is_skipped(causal_cal, twin_dataset):
+    """Samples whose twin effort did not come (NaN) are skipped, alone or a whole push of
+    them, and the others score as if those had never been pushed."""
+    from twincd import Calibration
+    from twincd.detection import OnlineDetector
+    from twincd.pipeline import read_log
+
+    cal = Calibration.load(causal_cal)
+    states = read_log(twin_dataset / "test" / "test_1.mcap")
+    assert states.sim_effort is not None and states.effort is not None
+    n = 600
+    stamp, pos, vel = states.stamp_ns[:n], states.position[:n], states.velocity[:n]
+    eff, sim = states.effort[:n], states.sim_effort[:n].copy()
+    gone = np.zeros(n, bool)
+    gone[200:240] = True  # a whole push without it
+    gone[[5, 301, 302, 450]] = True  # single samples
+    sim[gone] = np.nan
+    whole = OnlineDetector(cal)
+    ref = whole.push(stamp[~gone], pos[~gone], vel[~gone], eff[~gone], sim[~gone])
+    det = OnlineDetector(cal)
+    parts = [
+        det.push(stamp[a:b], pos[a:b], vel[a:b], eff[a:b], sim[a:b])
+        for a, b in ((0, 200), (200, 240), (240, 241), (241, 600))
+    ]
+    score = np.concatenate([p.score for p in parts])
+    assert np.isnan(score[gone]).all() and det.skipped == int(gone.sum())
+    np.testing.assert_array_equal(score[~gone], ref.score)
 
 
 # ---------------------------------------------------------------- the ros2 source (rclpy)
@@ -299,8 +502,10 @@ def test_the_ros_extra_is_guarded_by_platform_markers():
     assert all("platform_machine == 'x86_64'" in req and "Linux" in req for req in extra)
 
 
-def test_ros2_gives_the_events_of_detect_causal(twin_dataset, causal_cal):
+def test_ros2_gives_the_events_of_detect_causal(twin_dataset, causal_cal, monkeypatch):
     _rclpy_or_skip()
+    # a domain of its own: another test run on this machine publishes on none of it
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(40 + os.getpid() % 50))
     import threading
 
     import rclpy
@@ -324,7 +529,11 @@ def test_ros2_gives_the_events_of_detect_causal(twin_dataset, causal_cal):
         target=lambda: items.extend(watch("ros2", causal_cal, idle_timeout_s=1.5))
     )
     thread.start()
-    time.sleep(1.0)
+    deadline = time.monotonic() + 30
+    while any(p.get_subscription_count() == 0 for p in pubs.values()):  # discovery
+        assert time.monotonic() < deadline, "watch never subscribed"
+        time.sleep(0.05)
+    time.sleep(0.2)
     for topic, _, data in messages:
         if topic in pubs:
             pubs[topic].publish(deserialize_message(data, JointState))
@@ -336,3 +545,20 @@ def test_ros2_gives_the_events_of_detect_causal(twin_dataset, causal_cal):
     assert isinstance(summary, WatchSummary)
     events = [i.event.to_dict() for i in items if isinstance(i, WatchEvent)]
     assert events == expected["events"]
+
+
+def test_ros2_without_the_topic_is_exit_2_after_the_timeout(causal_cal, monkeypatch):
+    _rclpy_or_skip()
+    monkeypatch.setenv("ROS_DOMAIN_ID", "37")  # nobody publishes there
+    start = time.monotonic()
+    result = run("watch", "ros2", "-c", causal_cal, "--connect-timeout", "0.5")
+    assert time.monotonic() - start < 20
+    assert_one_line_error(result, "waited 0.5 s for topic(s) /joint_states")
+    assert "on ROS 2 (domain 37)" in result.stderr and "ROS_DOMAIN_ID" in result.stderr
+
+
+def test_ros2_without_rclpy_says_how_to_get_it(causal_cal, monkeypatch):
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # as where neither ROS 2 nor the extra is
+    result = run("watch", "ros2", "-c", causal_cal, "--connect-timeout", "0.5")
+    assert_one_line_error(result, "rclpy is not installed")
+    assert "twincd[ros]" in result.stderr and "setup.bash" in result.stderr

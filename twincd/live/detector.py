@@ -6,10 +6,10 @@ holds at the end of a segment. A detector whose results carry no stamps returns 
 pushed sample, at once.
 
 With ``twin=True`` (a recorded session) and a calibration whose twin runs on the robot model,
-each pushed sample's τ̂ is computed as ``twincd simulate`` computes it (the calibration's
-derivative, inverse dynamics per sample, no filter: ``build_chain(..., filtered=False)``) on
-the samples the detector takes, and returned with the push (``Scored.twin``), for
-``/twincd/sim_effort``.
+each pushed sample's τ̂ is computed per sample on the samples the detector takes, through the
+calibration's chain up to the twin (its causal derivative, inverse dynamics; no filter, no
+grid: ``build_chain(..., filtered=False)``, what ``detect --causal`` twins on at 100 Hz), and
+returned with the push (``Scored.twin``), for ``/twincd/sim_effort``.
 """
 
 from __future__ import annotations
