@@ -562,3 +562,21 @@ def test_ros2_without_rclpy_says_how_to_get_it(causal_cal, monkeypatch):
     result = run("watch", "ros2", "-c", causal_cal, "--connect-timeout", "0.5")
     assert_one_line_error(result, "rclpy is not installed")
     assert "twincd[ros]" in result.stderr and "setup.bash" in result.stderr
+
+
+def test_ros2_with_another_type_on_the_topic_is_exit_2(causal_cal, monkeypatch):
+    _rclpy_or_skip()
+    import rclpy
+    from std_msgs.msg import String
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(40 + (os.getpid() + 1) % 50))
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("twincd_test_other_type", context=context)
+    node.create_publisher(String, "/joint_states", 10)
+    try:
+        result = run("watch", "ros2", "-c", causal_cal, "--connect-timeout", "10")
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+    assert_one_line_error(result, "topic /joint_states carries std_msgs/msg/String")
