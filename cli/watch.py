@@ -70,7 +70,11 @@ def _summary_line(item: WatchSummary) -> str:
 @command
 def watch(
     source: Annotated[
-        str, typer.Argument(help="ws://HOST:PORT (a foxglove_bridge) or ros2 (rclpy).")
+        str,
+        typer.Argument(
+            help="ws://HOST:PORT (a foxglove_bridge), ros2 (rclpy) or zenoh/tcp/HOST:PORT "
+            "(rmw_zenoh's router)."
+        ),
     ],
     calibration: CalibrationIn,
     topic: Topic = None,

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -579,4 +580,111 @@ def test_ros2_with_another_type_on_the_topic_is_exit_2(causal_cal, monkeypatch):
     finally:
         node.destroy_node()
         rclpy.shutdown(context=context)
+    assert_one_line_error(result, "topic /joint_states carries std_msgs/msg/String")
+
+
+# ---------------------------------------------------------------- the zenoh source (rmw_zenoh)
+
+
+def _zenoh_or_skip() -> Any:
+    try:
+        import zenoh
+    except ImportError:
+        if os.environ.get("CI") == "true":  # CI installs twincd[zenoh]: its wheels are abi3
+            pytest.fail("twincd[zenoh] should have installed eclipse-zenoh")
+        pytest.skip("eclipse-zenoh is not installed (the extra twincd[zenoh])")
+    return zenoh
+
+
+class _ZenohRobot:
+    """A Zenoh peer listening on a free port that publishes as rmw_zenoh does."""
+
+    def __init__(self, zenoh: Any) -> None:
+        self.port = _free_port()
+        config = zenoh.Config()
+        config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{self.port}"]))
+        config.insert_json5("scouting/multicast/enabled", "false")
+        self.session = zenoh.open(config)
+        self.source = f"zenoh/tcp/127.0.0.1:{self.port}"
+
+    def publisher(self, topic: str, dds_type: str) -> Any:
+        key = f"0/{topic.strip('/')}/{dds_type}/RIHS01_{'0' * 64}"
+        return self.session.declare_publisher(key)
+
+    def wait_for_watch(self, publisher: Any) -> None:
+        deadline = time.monotonic() + 30
+        while not publisher.matching_status.matching:  # watch subscribed
+            assert time.monotonic() < deadline, "watch never subscribed"
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def test_zenoh_gives_the_events_of_detect_causal(twin_dataset, causal_cal, monkeypatch):
+    zenoh = _zenoh_or_skip()
+    import threading
+
+    from twincd.live import WatchEvent, WatchSummary, watch
+
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    log = twin_dataset / "test" / "test_0.mcap"
+    expected = json.loads(run("detect", log, "-c", causal_cal, "--json", "-q").stdout)["logs"][0]
+    _, messages = read_messages(log)
+    robot = _ZenohRobot(zenoh)
+    joint_state = "sensor_msgs::msg::dds_::JointState_"
+    pubs = {t: robot.publisher(t, joint_state) for t in ("/joint_states", "/twincd/sim_effort")}
+    items: list[object] = []
+    thread = threading.Thread(
+        target=lambda: items.extend(watch(robot.source, causal_cal, idle_timeout_s=1.5))
+    )
+    thread.start()
+    try:
+        for pub in pubs.values():
+            robot.wait_for_watch(pub)
+        for topic, _, data in messages:
+            if topic in pubs:
+                pubs[topic].put(data)
+                time.sleep(0.0003)
+        thread.join(30)
+    finally:
+        robot.close()
+    summary = items[-1]
+    assert isinstance(summary, WatchSummary) and summary.samples == expected["samples"]
+    events = [i.event.to_dict() for i in items if isinstance(i, WatchEvent)]
+    assert events == expected["events"]
+
+
+def test_zenoh_without_a_router_is_exit_2_after_the_timeout(causal_cal):
+    _zenoh_or_skip()
+    start = time.monotonic()
+    result = run(
+        "watch", f"zenoh/tcp/127.0.0.1:{_free_port()}", "-c", causal_cal, "--connect-timeout", "0.5"
+    )
+    assert time.monotonic() - start < 10
+    assert_one_line_error(result, "cannot reach the Zenoh router within 0.5 s")
+
+
+def test_zenoh_with_another_type_on_the_topic_is_exit_2(causal_cal):
+    zenoh = _zenoh_or_skip()
+    import threading
+
+    robot = _ZenohRobot(zenoh)
+    done = threading.Event()
+
+    other = robot.publisher("/joint_states", "std_msgs::msg::dds_::String_")
+
+    def publish() -> None:
+        while not done.is_set():
+            other.put(b"x")
+            time.sleep(0.05)
+
+    publisher = threading.Thread(target=publish, daemon=True)
+    publisher.start()
+    try:
+        result = run("watch", robot.source, "-c", causal_cal, "--connect-timeout", "10")
+    finally:
+        done.set()
+        publisher.join(35)
+        robot.close()
     assert_one_line_error(result, "topic /joint_states carries std_msgs/msg/String")
