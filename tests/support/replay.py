@@ -3,9 +3,9 @@
 ``Replay(log, speed=…)`` starts a server on a free port (its own ``foxglove.Context``, so that
 servers of different tests never share channels), advertises every topic of the MCAP ``log``
 (or ``channels``: topic → (schema name, schema text)), and, once a client subscribes to the
-first topic (and to each of ``WATCHED`` the log has), publishes the log's messages ``speed`` times faster than they were recorded, with
-the log time of *now* (as foxglove_bridge stamps what it receives). ``loop=True`` starts again
-at the end until stopped.
+first topic (and to each of ``WATCHED`` the log has, up to 5 s), publishes the log's messages
+``speed`` times faster than they were recorded, with the log time of *now* (as foxglove_bridge
+stamps what it receives). ``loop=True`` starts again at the end until stopped.
 """
 
 from __future__ import annotations
