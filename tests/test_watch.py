@@ -3,6 +3,7 @@ tiny logs; watch must give the events of ``detect --causal`` on the same message
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -25,12 +26,17 @@ from support.replay import Replay, read_messages
 SPEED = 16.0  # replay this much faster than recorded: 16 s of log in 1 s
 
 
+def _fit_causal(dataset: Path, folder: Path) -> Path:
+    """A causal calibration fitted on ``dataset``/train, its threshold set on ``dataset``/val."""
+    path = folder / "causal.json"
+    assert run("fit", dataset / "train", "-o", path, "--causal", "-q").exit_code == 0
+    assert run("threshold", dataset / "val", "-c", path, "-q").exit_code == 0
+    return path
+
+
 @pytest.fixture(scope="module")
 def causal_cal(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("watch_cal") / "causal.json"
-    assert run("fit", twin_dataset / "train", "-o", path, "--causal", "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
-    return path
+    return _fit_causal(twin_dataset, tmp_path_factory.mktemp("watch_cal"))
 
 
 def _lines(output: str) -> list[dict[str, object]]:
@@ -254,10 +260,7 @@ def test_the_session_file_holds_what_arrived_and_twincds_channels(
 @pytest.fixture(scope="module")
 def xarm_causal(xarm_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A causal calibration whose twin runs on the robot model (the logs carry no twin)."""
-    path = tmp_path_factory.mktemp("watch_xarm") / "causal.json"
-    assert run("fit", xarm_dataset / "train", "-o", path, "--causal", "-q").exit_code == 0
-    assert run("threshold", xarm_dataset / "val", "-c", path, "-q").exit_code == 0
-    return path
+    return _fit_causal(xarm_dataset, tmp_path_factory.mktemp("watch_xarm"))
 
 
 def test_a_session_records_the_twin_effort_computed_live(xarm_dataset, xarm_causal, tmp_path):
@@ -395,6 +398,15 @@ def test_samples_out_of_order_are_sorted_within_the_window(twin_dataset, causal_
     assert summary["samples"] == expected["samples"] - len(late)
 
 
+def _pty_text(fd: int) -> str:
+    """All a pseudo-terminal shows until its other side closes."""
+    chunks = []
+    with contextlib.suppress(OSError):  # EIO once the other side is closed
+        while data := os.read(fd, 4096):
+            chunks.append(data)
+    return b"".join(chunks).decode(errors="replace")
+
+
 def test_a_terminal_shows_a_status_line(twin_dataset, causal_cal):
     import pty
     import threading
@@ -402,19 +414,8 @@ def test_a_terminal_shows_a_status_line(twin_dataset, causal_cal):
     log = twin_dataset / "test" / "test_0.mcap"
     threshold = json.loads(causal_cal.read_text())["threshold"]["value"]
     master, slave = pty.openpty()
-    chunks: list[bytes] = []
-
-    def read() -> None:
-        while True:
-            try:
-                data = os.read(master, 4096)
-            except OSError:
-                return
-            if not data:
-                return
-            chunks.append(data)
-
-    reader = threading.Thread(target=read, daemon=True)
+    texts: list[str] = []
+    reader = threading.Thread(target=lambda: texts.append(_pty_text(master)), daemon=True)
     reader.start()
     with Replay(log, speed=4.0) as replay:
         env = {k: v for k, v in os.environ.items() if k not in ("NO_COLOR", "TERM")}
@@ -430,7 +431,7 @@ def test_a_terminal_shows_a_status_line(twin_dataset, causal_cal):
     os.close(slave)
     reader.join(5)
     os.close(master)
-    shown = b"".join(chunks).decode(errors="replace")
+    shown = "".join(texts)
     status = [line for line in shown.split("\r") if " Hz, latency " in line]
     assert status, shown
     # rate, latency, score against the threshold, events, samples

@@ -22,16 +22,7 @@ from typing import Protocol
 
 from twincd.errors import TwincdError
 
-__all__ = [
-    "Arrival",
-    "Source",
-    "SourceError",
-    "SourceLost",
-    "Wanted",
-    "open_source",
-    "ros_type",
-    "take_queued",
-]
+__all__ = ["Arrival", "Source", "SourceError", "SourceLost", "Wanted", "open_source", "ros_type"]
 
 
 class SourceError(TwincdError):
