@@ -689,3 +689,32 @@ def test_zenoh_with_another_type_on_the_topic_is_exit_2(causal_cal):
         publisher.join(35)
         robot.close()
     assert_one_line_error(result, "topic /joint_states carries std_msgs/msg/String")
+
+
+def test_zenoh_router_lost_mid_session_prints_the_summary_and_exits_2(twin_dataset, causal_cal):
+    zenoh = _zenoh_or_skip()
+    import threading
+
+    _, messages = read_messages(twin_dataset / "test" / "test_0.mcap")
+    robot = _ZenohRobot(zenoh)
+    joint_state = "sensor_msgs::msg::dds_::JointState_"
+    pubs = {t: robot.publisher(t, joint_state) for t in ("/joint_states", "/twincd/sim_effort")}
+
+    def publish_then_go() -> None:
+        for pub in pubs.values():
+            robot.wait_for_watch(pub)
+        for topic, _, data in messages[: len(messages) // 2]:
+            if topic in pubs:
+                pubs[topic].put(data)
+                time.sleep(0.0003)
+        robot.close()  # the router goes away and does not come back
+
+    publisher = threading.Thread(target=publish_then_go)
+    publisher.start()
+    try:
+        result = run("watch", robot.source, "-c", causal_cal, "--json", "--connect-timeout", "2")
+    finally:
+        publisher.join(30)
+    assert_one_line_error(result, "went away and did not come back within 2 s")
+    summary = _lines(result.stdout)[-1]
+    assert summary["ended"] == "source lost" and summary["samples"] > 300
