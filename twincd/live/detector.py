@@ -124,7 +124,9 @@ class LiveDetector:
             names = tuple(self.joint_names)
             layout = JointLayout(names, robot.joint_names, names)
             fill = det.velocity_from_position
-            built = build_chain(self.calibration, layout, det.period_s, robot, fill, None, 1, False)
+            built = build_chain(
+                self.calibration, layout, det.period_s, robot, fill, threads=1, filtered=False
+            )
             self._twin_chain = built.chain
         # the rows the detector takes: finite ones (samples come sorted by the reorder buffer)
         ok = np.isfinite(position).all(axis=1) & np.isfinite(effort).all(axis=1)
