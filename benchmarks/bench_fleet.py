@@ -17,7 +17,7 @@ What it does, in one run:
    the best of --repeats counts. ``twincd --version`` is timed too: the fixed start-up cost.
 3. Checks that every executor gives the same answer: the calibration's a, b (to 1e-12
    relative) and ``detect --json`` (equal).
-4. Measures the per-log cost in this process (``fit_log`` and ``detect_file``, one log after
+4. Measures the per-log cost in this process (``fit_log`` and ``detect_streamed``, one log after
    another, one twin thread, after a warm-up) and the pickled size of each per-log result
    (what travels back from a worker), and prints the estimate.
 
@@ -105,7 +105,7 @@ def phase_seconds(command: str, executor: str, fleet: Path) -> float:
 
     from twincd.calibration import Calibration, fit_log, merge_fits
     from twincd.cluster import open_executor
-    from twincd.detection import detect_file
+    from twincd.detection import detect_streamed
     from twincd.executors import PRELOAD, Bound
     from twincd.pipeline import Setup
 
@@ -122,7 +122,7 @@ def phase_seconds(command: str, executor: str, fleet: Path) -> float:
             setup = Setup()
             merge_fits(pool.map(Bound(fit_log, setup), paths), setup)
         else:
-            pool.map(Bound(detect_file, cal, Setup.from_calibration(cal)), paths)
+            pool.map(Bound(detect_streamed, cal, Setup.from_calibration(cal)), paths)
         return time.perf_counter() - start
 
 
@@ -130,14 +130,14 @@ def per_log_costs(logs: list[Path]) -> dict[str, dict[str, float]]:
     """Seconds per log (one core) and pickled result bytes, fit and detect, in this process."""
     os.environ["TWINCD_TWIN_THREADS"] = "1"  # one core's worth, as on a worker
     from twincd.calibration import Calibration, fit_log
-    from twincd.detection import detect_file
+    from twincd.detection import detect_streamed
     from twincd.pipeline import Setup
 
     cal = Calibration.load(SAMPLES / "calibration.json")
     fit_setup, detect_setup = Setup(), Setup.from_calibration(cal)
     steps = {
         "fit": lambda p: fit_log(p, fit_setup),
-        "detect": lambda p: detect_file(p, cal, detect_setup),
+        "detect": lambda p: detect_streamed(p, cal, detect_setup),
     }
     costs = {}
     for name, step in steps.items():

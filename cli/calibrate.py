@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import logging
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -12,17 +9,8 @@ import typer
 from rich.table import Table
 
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
-from twincd.run import all_or_nothing
 
-from .common import (
-    WARNINGS,
-    check_reports,
-    command,
-    error_docs,
-    exit_if_failed,
-    run_per_log,
-    stdout,
-)
+from .common import command, finish, json_document, run_options, stdout
 from .options import (
     AllowUrdfChange,
     CalibrationIn,
@@ -45,51 +33,90 @@ from .options import (
     SimTopic,
     Strict,
     Topic,
-    setup_options,
+    settings,
 )
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration, Threshold
 
-log = logging.getLogger("twincd")
+
+Model = Annotated[
+    str | None,
+    typer.Option(
+        "--model",
+        help="Calibration model (default: the best the logs allow, identified-whitened "
+        "with a robot model, friction-whitened with only a logged twin effort): affine "
+        "(the paper's a·twin + b), affine-whitened, friction (+ c·tanh(q̇/ε) + d·q̇), "
+        "identified (+ the URDF's inertial parameters re-fitted through the joint-torque "
+        "regressor; needs a robot model); *-whitened: each joint's residual over its noise "
+        "at its speed, scored by depth.",
+    ),
+]
+CalibrationOut = Annotated[Path, typer.Option("--output", "-o", help="Calibration JSON to write.")]
+Sigma = Annotated[
+    float | None,
+    typer.Option(
+        "--sigma",
+        "-k",
+        help="The paper's threshold μ + kσ, mean and standard deviation (default: a "
+        f"budget of {DEFAULT_FALSE_ALARMS_PER_HOUR:g} false alarm per hour for the whitened "
+        f"models, μ + {DEFAULT_K_SIGMA:g}σ for the others).",
+        min=0,
+    ),
+]
+FalseAlarmsPerHour = Annotated[
+    float | None,
+    typer.Option(
+        "--false-alarms-per-hour",
+        help="The false-alarm budget per hour of collision-free time that the threshold "
+        "keeps, extrapolated from the tail of the score's excursions on the validation "
+        f"logs (default {DEFAULT_FALSE_ALARMS_PER_HOUR:g} for the whitened models).",
+    ),
+]
+ThresholdOut = Annotated[
+    Path | None,
+    typer.Option("--output", "-o", help="Write here instead of rewriting -c in place."),
+]
 
 
 def fit_table(cal: Calibration) -> Table:
-    held = cal.held or ((),) * len(cal.joint_names)
+    held = cal.fit.held or ((),) * len(cal.joint_names)
+    c = cal.model.coefficients()
+    a, b, cs, ds, eps = c["a"], c["b"], c["c"], c["d"], c["epsilon"]
+    assert a is not None and b is not None
     caption = (
         "* held: not determined by these logs' motion (see the warning above)"
         if any(held)
         else None
     )
-    table = Table(title=f"{cal.kind} twin calibration ({cal.fit_samples} samples)", caption=caption)
-    friction = cal.c is not None and cal.d is not None and cal.epsilon is not None
+    title = f"{cal.model.kind} twin calibration ({cal.fit.samples} samples)"
+    table = Table(title=title, caption=caption)
+    friction = cs is not None and ds is not None and eps is not None
     extra = ("c (N·m)", "d (N·m·s)", "ε (rad/s)") if friction else ()
     for col in ("joint", "a", "b", *extra, "R²", "RMSE (N·m)"):
         table.add_column(col, justify="left" if col == "joint" else "right")
     for i, name in enumerate(cal.joint_names):
-        r2 = "n/a" if cal.r2 is None else f"{cal.r2[i]:.3f}"
-        rmse = "n/a" if cal.rmse is None else f"{cal.rmse[i]:.3g}"
+        r2 = "n/a" if cal.model.r2_ is None else f"{cal.model.r2_[i]:.3f}"
+        rmse = "n/a" if cal.model.rmse_ is None else f"{cal.model.rmse_[i]:.3g}"
 
         def mark(key: str, text: str, i: int = i) -> str:
             return f"{text}*" if key in held[i] else text
 
         more = []
-        if cal.c is not None and cal.d is not None and cal.epsilon is not None:
+        if cs is not None and ds is not None and eps is not None:
             more = [
-                mark("c", f"{cal.c[i]:+.3f}"),
-                mark("d", f"{cal.d[i]:+.3f}"),
-                f"{cal.epsilon[i]:g}",
+                mark("c", f"{cs[i]:+.3f}"),
+                mark("d", f"{ds[i]:+.3f}"),
+                f"{eps[i]:g}",
             ]
-        table.add_row(name, mark("a", f"{cal.a[i]:.3f}"), f"{cal.b[i]:+.3f}", *more, r2, rmse)
+        table.add_row(name, mark("a", f"{a[i]:.3f}"), f"{b[i]:+.3f}", *more, r2, rmse)
     return table
 
 
 @command
 def fit(
     logs: Logs,
-    output: Annotated[
-        Path, typer.Option("--output", "-o", help="Calibration JSON to write.")
-    ] = Path("calibration.json"),
+    output: CalibrationOut = Path("calibration.json"),
     report: Report = None,
     robot: Robot = None,
     topic: Topic = None,
@@ -100,18 +127,7 @@ def fit(
     filter_order: FilterOrder = None,
     filter_kind: FilterKind = None,
     causal: Causal = None,
-    model: Annotated[
-        str | None,
-        typer.Option(
-            "--model",
-            help="Calibration model (default: the best the logs allow, identified-whitened "
-            "with a robot model, friction-whitened with only a logged twin effort): affine "
-            "(the paper's a·twin + b), affine-whitened, friction (+ c·tanh(q̇/ε) + d·q̇), "
-            "identified (+ the URDF's inertial parameters re-fitted through the joint-torque "
-            "regressor; needs a robot model); *-whitened: each joint's residual over its noise "
-            "at its speed, scored by depth.",
-        ),
-    ] = None,
+    model: Model = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
     strict: Strict = False,
@@ -135,84 +151,28 @@ def fit(
 
     Example: twincd fit logs/train/*.mcap -o calibration.json
     """
-    from twincd.calibration import fit_log, merge_fits
-    from twincd.executors import Bound
-    from twincd.io.atomic import check_target
-    from twincd.io.logs import expand_logs
-    from twincd.settings import fit_setup
+    from twincd.commands import fit_calibration
 
-    paths = expand_logs(logs)
-    check_target(output, "calibration", force=force, inputs=paths)
-    check_reports(report, None, force=force, inputs=paths)
-    asked = setup_options(
-        robot=robot,
-        topic=topic,
-        label_topic=label_topic,
-        sim_topic=sim_topic,
-        joint_map=joint_map,
-        cutoff_hz=cutoff,
-        filter_order=filter_order,
-        filter_kind=filter_kind,
-        causal=causal,
-        strict=strict,
-    )
-    setup, model = fit_setup(asked, model)
-    setup = setup.for_logs(paths)  # a named option no log has: refused before any work
-    figure = report is not None and report.suffix.lower() == ".html"
-    if figure:
-        from twincd.reports.traces import fit_log_with_pairs
-
-        work = Bound(fit_log_with_pairs, setup)
-    else:
-        work = Bound(fit_log, setup)
-    done = run_per_log(
-        work, paths, "fitting", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
-    )
-    parts = [part for part, _ in done.results] if figure else done.results
-    cal = merge_fits(parts, setup, model)
-    with all_or_nothing() as written:  # the report, then the calibration: both or neither
-        if report is not None:
-            from twincd.reports import ThinnedPairs, fit_report
-
-            pairs = ThinnedPairs.merge([p for _, p in done.results]) if figure else None
-            written.append(report)
-            fit_report(report, replace(cal, source=str(output)), pairs)
-        cal.save(output)
-    stdout.print(fit_table(cal))
-    if report is not None:
-        log.info("wrote %s", report)
-    log.info("wrote %s (%d samples from %d log(s))", output, cal.fit_samples, len(cal.fit_logs))
-    exit_if_failed(done)
+    asked = settings(
+        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
+        joint_map=joint_map, cutoff_hz=cutoff, filter_order=filter_order,
+        filter_kind=filter_kind, causal=causal, strict=strict
+    )  # fmt: skip
+    run = run_options(quiet, jobs, scheduler, keep_going)
+    done = fit_calibration(
+        logs, model=model, output=output, report=report, force=force, **run, **asked
+    )  # fmt: skip
+    stdout.print(fit_table(done.calibration))
+    finish(done)
 
 
 @command
 def threshold(
     logs: Logs,
     calibration: CalibrationIn,
-    sigma: Annotated[
-        float | None,
-        typer.Option(
-            "--sigma",
-            "-k",
-            help="The paper's threshold μ + kσ, mean and standard deviation (default: a "
-            f"budget of {DEFAULT_FALSE_ALARMS_PER_HOUR:g} false alarm per hour for the whitened "
-            f"models, μ + {DEFAULT_K_SIGMA:g}σ for the others).",
-            min=0,
-        ),
-    ] = None,
-    false_alarms_per_hour: Annotated[
-        float | None,
-        typer.Option(
-            "--false-alarms-per-hour",
-            help="The false-alarm budget per hour of collision-free time that the threshold "
-            "keeps, extrapolated from the tail of the score's excursions on the validation "
-            f"logs (default {DEFAULT_FALSE_ALARMS_PER_HOUR:g} for the whitened models).",
-        ),
-    ] = None,
-    output: Annotated[
-        Path | None,
-        typer.Option("--output", "-o", help="Write here instead of rewriting -c in place."),
-    ] = None,
+    sigma: Sigma = None,
+    false_alarms_per_hour: FalseAlarmsPerHour = None,
+    output: ThresholdOut = None,
     json_: Json = False,
     robot: Robot = None,
     topic: Topic = None,
@@ -245,49 +205,24 @@ def threshold(
 
     Or: twincd threshold logs/val -c calibration.json --false-alarms-per-hour 1
     """
-    from twincd.calibration import Calibration
-    from twincd.detection.files import record_false_alarms, tally_false_alarms
-    from twincd.executors import Bound
-    from twincd.io.atomic import check_target
-    from twincd.io.logs import expand_logs
-    from twincd.threshold import check_threshold_choice, score_log, threshold_from_parts
+    from twincd.commands import threshold_calibration
 
-    check_threshold_choice(sigma, false_alarms_per_hour)
-    cal = Calibration.load(calibration)
-    target = output or calibration
-    paths = expand_logs(logs)
-    check_target(target, "calibration", force=force, inputs=paths)
-    setup = setup_options(
-        robot=robot,
-        topic=topic,
-        label_topic=label_topic,
-        sim_topic=sim_topic,
-        joint_map=joint_map,
-        strict=strict,
-        allow_urdf_change=allow_urdf_change,
-    ).resolve(cal)
-    setup = setup.for_logs(paths)
-    work = Bound(score_log, cal, setup)
-    done = run_per_log(
-        work, paths, "scoring", quiet, jobs=jobs, scheduler=scheduler, keep_going=keep_going
-    )
-    cal = threshold_from_parts(done.results, cal, sigma, false_alarms_per_hour)
-    # the false alarms the threshold gives on these logs: detect's events, counted as evaluate
-    # counts them (a second pass: the events need the threshold)
-    scored = [Path(p.source) for p in done.results]
-    tallied = run_per_log(
-        Bound(tally_false_alarms, cal, setup), scored, "counting", quiet, jobs=jobs,
-        scheduler=scheduler, keep_going=keep_going,
+    asked = settings(
+        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
+        joint_map=joint_map, strict=strict,
+        allow_urdf_change=allow_urdf_change
     )  # fmt: skip
-    cal = record_false_alarms(cal, tallied.results)
-    cal.save(target)
+    run = run_options(quiet, jobs, scheduler, keep_going)
+    done = threshold_calibration(
+        logs, calibration, k_sigma=sigma,
+        false_alarms_per_hour=false_alarms_per_hour,
+        output=output or calibration, force=force, **run, **asked
+    )  # fmt: skip
     if json_:
-        document = threshold_document(cal.require_threshold(), target, error_docs(done))
-        stdout.out(document, highlight=False)
+        json_document(done, done.to_dict())
     else:
-        stdout.print(threshold_line(cal.require_threshold()), soft_wrap=True)
-    log.info("wrote %s", target)
-    exit_if_failed(done)
+        stdout.print(threshold_line(done.calibration.require_threshold()), soft_wrap=True)
+    finish(done)
 
 
 def threshold_line(th: Threshold) -> str:
@@ -320,19 +255,3 @@ def _duration(seconds: float) -> str:
     if seconds < 7200:
         return f"{seconds / 60:.3g} min"
     return f"{seconds / 3600:.3g} h"
-
-
-def threshold_document(th: Threshold, written: Path, errors: list[dict[str, str]]) -> str:
-    """``threshold --json`` (contract: ``--json`` documents): the value, the rule, the false
-    alarms counted on the logs, and the ``threshold`` object written into the calibration."""
-    doc = {
-        "value": th.value,
-        "rule": "budget" if th.budget_per_hour is not None else "k-sigma",
-        "false_alarms": th.false_alarms,
-        "hours": None if th.judged_s is None else th.judged_s / 3600.0,
-        "calibration": str(written),
-        "threshold": th.to_dict(),
-        "errors": errors,
-        "warnings": list(WARNINGS),
-    }
-    return json.dumps(doc, allow_nan=False)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import functools
+import json
 import logging
 import os
 import signal
@@ -12,29 +13,25 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import typer
 from rich.console import Console
 
+from twincd.commands.runs import LogsFailed, RunOptions
 from twincd.errors import InternalError, OutputError, Terminated, TwincdError, raise_terminated
 
 if TYPE_CHECKING:
-    from twincd.executors import MapExecutor
-    from twincd.run import LogRun
+    from twincd.commands import CommandRun
+    from twincd.executors import Progress
+    from twincd.run import LogFailure
 
-T = TypeVar("T")
 log = logging.getLogger("twincd")
 
 stderr = Console(stderr=True, highlight=False)
 # not a terminal (a CI log, a pipe): no 80-column default that would cut tables
 stdout = Console(highlight=False, width=None if sys.stdout.isatty() else 1000)
-
-
-# every warning of this run, for --json ("warnings": [...]); printed as they come as well
-WARNINGS: list[str] = []
 
 
 class _StderrHandler(logging.Handler):
@@ -46,8 +43,6 @@ class _StderrHandler(logging.Handler):
         level = record.levelname.lower()
         prefix = "twincd: " if record.levelno < logging.WARNING else f"twincd: {level}: "
         text = " ".join(record.getMessage().splitlines())  # one line each
-        if record.levelno == logging.WARNING:
-            WARNINGS.append(text)  # for --json, --quiet or not
         if self.quiet and record.levelno < logging.ERROR:
             return
         if stderr.is_terminal:  # through rich: never glued onto a progress bar's line
@@ -57,7 +52,6 @@ class _StderrHandler(logging.Handler):
 
 
 def setup_logging(quiet: bool, debug: bool) -> None:
-    WARNINGS.clear()
     logger = logging.getLogger("twincd")
     logger.handlers[:] = [_StderrHandler(quiet)]
     logger.propagate = False
@@ -158,6 +152,8 @@ def command(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             with terminate_like_interrupt(), closed_stdout_ends_quietly():
                 return func(*args, **kwargs)
+        except LogsFailed as exc:  # each failure was reported as it came (``run_options``)
+            raise typer.Exit(exc.exit_code) from None
         except TwincdError as exc:
             fail(exc, debug)
         except Terminated:
@@ -222,7 +218,7 @@ def closed_stdout_ends_quietly() -> Iterator[None]:
         yield
         return
     guard = _QuietStdout(sys.stdout)
-    sys.stdout = guard  # type: ignore[assignment]
+    sys.stdout = guard
     try:
         yield
         guard.flush()
@@ -257,16 +253,6 @@ def terminate_like_interrupt() -> Iterator[None]:
 
 def show_progress(quiet: bool) -> bool:
     return not quiet and sys.stderr.isatty() and os.environ.get("TERM") != "dumb"
-
-
-def progress(items: Sequence[T], description: str, quiet: bool) -> Iterator[T]:
-    """Iterate with a progress bar on stderr, only when stderr is a terminal."""
-    if not show_progress(quiet) or not items:
-        yield from items
-        return
-    from rich.progress import track
-
-    yield from track(items, description=description, console=stderr, transient=True)
 
 
 @contextlib.contextmanager
@@ -348,70 +334,39 @@ def samples_progress(description: str) -> Iterator[None]:
             yield
 
 
-def run_per_log(
-    func: Callable[[T], Any],
-    items: Sequence[T],
-    description: str,
-    quiet: bool,
-    *,
-    jobs: int = 0,
-    scheduler: str | None = None,
-    executor: MapExecutor | None = None,
-    keep_going: bool = False,
-) -> LogRun[Any]:
-    """``twincd.run_logs`` with a progress bar; with ``keep_going`` each failing log is
-    reported in one error line and the others go on, and when every log failed the command
-    ends (exit 2, or 3 for a defect). On an ``executor`` the caller holds (``evaluate`` reads
-    three sets of logs on one), the caller decides what a set without results means."""
-    from twincd.run import run_logs
+def run_options(
+    quiet: bool, jobs: int = 0, scheduler: str | None = None, keep_going: bool = False
+) -> RunOptions:
+    """The run options of a library command: a progress bar on stderr (a terminal only), each
+    failing log reported in one error line as it comes (``--keep-going``)."""
 
-    with counter(len(items), description, quiet) as advance:
-        run = run_logs(
-            func,
-            items,
-            jobs=jobs,
-            scheduler=scheduler,
-            executor=executor,
-            keep_going=keep_going,
-            progress=advance,
-            on_failure=lambda failure: report_error(failure.error),
-        )
-    if executor is None:
-        exit_if_none_worked(run)
-    return run
+    def display(total: int, description: str) -> contextlib.AbstractContextManager[Progress]:
+        return counter(total, description, quiet)
+
+    def on_failure(failure: LogFailure) -> None:
+        report_error(failure.error)
+
+    return RunOptions(
+        jobs=jobs,
+        scheduler=scheduler,
+        keep_going=keep_going,
+        progress=display,
+        on_failure=on_failure,
+    )
 
 
-def exit_if_none_worked(run: LogRun[Any]) -> None:
-    """With ``--keep-going``, every log failed: nothing to go on with."""
-    if not run.results and run.failures:
-        raise typer.Exit(run.exit_code)
-
-
-def exit_if_failed(run: LogRun[Any]) -> None:
-    """``--keep-going`` ends with exit 2 when any log failed (3 when a defect did)."""
-    if run.failures:
-        raise typer.Exit(run.exit_code)
-
-
-def error_docs(run: LogRun[Any]) -> list[dict[str, str]]:
+def error_docs(run: CommandRun) -> list[dict[str, str]]:
     """``"errors": [{"path", "error"}]`` of ``--json`` (contract: Exit codes and streams)."""
     return [{"path": str(f.path), "error": error_line(f.error)} for f in run.failures]
 
 
-def check_reports(
-    report: Path | None, junit: Path | None, *, force: bool = False, inputs: Sequence[Path] = ()
-) -> None:
-    """Fail before any work when a report or JUnit file cannot be written, or would replace
-    something that is not twincd's own report of that kind (unless ``force``)."""
-    from twincd.io.atomic import check_target
-    from twincd.reports import check_report_kind
+def json_document(run: CommandRun, answer: dict[str, Any], allow_nan: bool = False) -> None:
+    """One ``--json`` document on stdout: the command's answer, its errors and warnings."""
+    doc = {**answer, "errors": error_docs(run), "warnings": list(run.warnings)}
+    stdout.out(json.dumps(doc, allow_nan=allow_nan), highlight=False)
 
-    if report is not None:
-        check_report_kind(report)
-        check_target(report, "report", force=force, inputs=inputs)
-        if report.suffix.lower() == ".html":
-            from twincd.reports.figures import pyplot
 
-            pyplot()  # a missing plot extra is an error now, not after the work
-    if junit is not None:
-        check_target(junit, "junit", force=force, inputs=inputs)
+def finish(run: CommandRun) -> None:
+    """Leave with the command's exit code when it is not 0 (contract: Exit codes)."""
+    if run.exit_code:
+        raise typer.Exit(run.exit_code)

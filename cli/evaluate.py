@@ -3,29 +3,17 @@ Methods)."""
 
 from __future__ import annotations
 
-import json
-import logging
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich import box
 from rich.table import Table
 
 from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
-from twincd.run import LogRun, all_or_nothing
 
-from .common import (
-    WARNINGS,
-    check_reports,
-    command,
-    error_docs,
-    exit_if_failed,
-    progress,
-    run_per_log,
-    stdout,
-)
+from .common import command, finish, json_document, run_options, stdout
 from .options import (
     AllowUrdfChange,
     Causal,
@@ -49,109 +37,94 @@ from .options import (
     SimTopic,
     Strict,
     Topic,
-    setup_options,
+    settings,
 )
 
 if TYPE_CHECKING:
-    from twincd.calibration import Calibration
     from twincd.evaluation.runner import Evaluation
 
-log = logging.getLogger("twincd")
-
-
-def _write_reports(
-    result: Evaluation,
-    missed: list[str],
-    cal: Calibration | None,
-    report: Path | None,
-    junit: Path | None,
-    no_summary: bool,
-    gates: tuple[float | None, float | None],
-) -> None:
-    from twincd.evaluation.markdown import evaluation_markdown
-    from twincd.reports import (
-        append_step_summary,
-        calibration_settings,
-        evaluation_junit,
-        evaluation_report,
-    )
-    from twincd.reports.documents import write_text
-
-    settings = calibration_settings(cal) if cal is not None else []
-    if report is not None:
-        evaluation_report(report, result, missed, settings, gates)
-        log.info("wrote %s", report)
-    if junit is not None:
-        write_text(junit, evaluation_junit(result, *gates))
-        log.info("wrote %s", junit)
-    if not no_summary:
-        append_step_summary(evaluation_markdown(result, missed))
+CalibrationMaybe = Annotated[
+    Path | None,
+    typer.Option(
+        "--calibration",
+        "-c",
+        help="Calibration JSON (fit + threshold); optional when --train and --val are given.",
+    ),
+]
+Methods = Annotated[
+    str | None,
+    typer.Option(
+        "--methods",
+        "-m",
+        help="Comma-separated method names, or all [default: the calibration's own model; "
+        "proposed without one]",
+    ),
+]
+Train = Annotated[
+    list[Path] | None,
+    typer.Option("--train", help="Collision-free logs methods fit on (repeatable)."),
+]
+Val = Annotated[
+    list[Path] | None,
+    typer.Option("--val", help="Collision-free logs that set μ and σ (repeatable)."),
+]
+Sigma = Annotated[
+    float | None,
+    typer.Option(
+        "--sigma",
+        "-k",
+        help=(
+            "k of μ + kσ for the at-threshold figures (default: the calibration's threshold"
+            " itself, else 4)."
+        ),
+        min=0,
+    ),
+]
+Repeats = Annotated[
+    int,
+    typer.Option(
+        "--repeats",
+        help="Runs (seeds 0..N-1) of randomised (deep) methods; mean ± std as Table II.",
+        min=1,
+    ),
+]
+MinF1 = Annotated[
+    float | None,
+    typer.Option(
+        "--min-f1",
+        help="Exit 1 if a method's F1 at the threshold it is run at is lower (the "
+        "calibration's threshold for its own model, μ + kσ of --val for the others; not the "
+        "best F1 over μ + iσ).",
+    ),
+]
+MinAuc = Annotated[
+    float | None, typer.Option("--min-auc", help="Exit 1 if a method's AUC is lower.")
+]
+LinkTopic = Annotated[
+    str | None,
+    typer.Option(
+        "--link-topic",
+        help="std_msgs/String contact link (isolation ground truth), when logs have it "
+        f"[default: {DEFAULT_LINK_TOPIC}].",
+    ),
+]
 
 
 @command
 def evaluate(
     logs: Logs,
-    calibration: Annotated[
-        Path | None,
-        typer.Option(
-            "--calibration",
-            "-c",
-            help="Calibration JSON (fit + threshold); optional when --train and --val are given.",
-        ),
-    ] = None,
-    methods: Annotated[
-        str | None,
-        typer.Option(
-            "--methods",
-            "-m",
-            help="Comma-separated method names, or all [default: the calibration's own model; "
-            "proposed without one]",
-        ),
-    ] = None,
-    train: Annotated[
-        list[Path] | None,
-        typer.Option("--train", help="Collision-free logs methods fit on (repeatable)."),
-    ] = None,
-    val: Annotated[
-        list[Path] | None,
-        typer.Option("--val", help="Collision-free logs that set μ and σ (repeatable)."),
-    ] = None,
-    sigma: Annotated[
-        float | None,
-        typer.Option(
-            "--sigma",
-            "-k",
-            help=(
-                "k of μ + kσ for the at-threshold figures (default: the calibration's threshold"
-                " itself, else 4)."
-            ),
-            min=0,
-        ),
-    ] = None,
-    repeats: Annotated[
-        int,
-        typer.Option(
-            "--repeats",
-            help="Runs (seeds 0..N-1) of randomised (deep) methods; mean ± std as Table II.",
-            min=1,
-        ),
-    ] = DEFAULT_REPEATS,
+    calibration: CalibrationMaybe = None,
+    methods: Methods = None,
+    train: Train = None,
+    val: Val = None,
+    sigma: Sigma = None,
+    repeats: Repeats = DEFAULT_REPEATS,
     json_: Json = False,
     report: Report = None,
     junit: Junit = None,
     no_summary: NoSummary = False,
-    min_f1: Annotated[
-        float | None,
-        typer.Option(
-            "--min-f1",
-            help="Exit 1 if a method's F1 at the threshold it is run at is lower (the "
-            "calibration's threshold for its own model, μ + kσ of --val for the others; not the "
-            "best F1 over μ + iσ).",
-        ),
-    ] = None,
-    min_auc: Annotated[
-        float | None, typer.Option("--min-auc", help="Exit 1 if a method's AUC is lower.")
-    ] = None,
+    min_f1: MinF1 = None,
+    min_auc: MinAuc = None,
     robot: Robot = None,
     topic: Topic = None,
     label_topic: LabelTopic = None,
@@ -163,14 +136,7 @@ def evaluate(
     causal: Causal = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
-    link_topic: Annotated[
-        str | None,
-        typer.Option(
-            "--link-topic",
-            help="std_msgs/String contact link (isolation ground truth), when logs have it "
-            f"[default: {DEFAULT_LINK_TOPIC}].",
-        ),
-    ] = None,
+    link_topic: LinkTopic = None,
     strict: Strict = False,
     keep_going: KeepGoing = False,
     allow_urdf_change: AllowUrdfChange = False,
@@ -190,116 +156,57 @@ def evaluate(
 
     Example: twincd evaluate logs/test -c calibration.json --report report.html
     """
-    from twincd.calibration import Calibration
-    from twincd.cluster import open_executor
+    from twincd.commands import evaluate_logs
+
+    asked = settings(
+        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
+        joint_map=joint_map, cutoff_hz=cutoff, filter_order=filter_order,
+        filter_kind=filter_kind, causal=causal, strict=strict,
+        allow_urdf_change=allow_urdf_change
+    )  # fmt: skip
+    run = run_options(quiet, jobs, scheduler, keep_going)
+    done = evaluate_logs(
+        logs, calibration, methods=methods, train=train or (), val=val or (), k_sigma=sigma,
+        repeats=repeats, link_topic=link_topic, min_f1=min_f1, min_auc=min_auc, report=report,
+        junit=junit, step_summary=not no_summary, force=force, **run, **asked
+    )  # fmt: skip
+    if json_:
+        json_document(done, done.to_dict(), allow_nan=True)
+    else:
+        render(done.evaluation)
+    finish(done)
+
+
+def render(result: Evaluation) -> None:
+    """The evaluation as a person reads it: Table II, the events at the threshold, notes."""
     from twincd.evaluation.markdown import (
         SHORT_COLUMNS,
         SHORT_EVENT_COLUMNS,
         evaluation_rows,
         event_rows,
     )
-    from twincd.evaluation.runner import evaluate as run_evaluation
-    from twincd.evaluation.runner import method_for, parse_methods
-    from twincd.io.logs import expand_logs
 
-    cal = Calibration.load(calibration) if calibration is not None else None
-    names = parse_methods(methods, method_for(cal.kind) if cal is not None else "proposed")
-    test_paths = expand_logs(logs)
-    train_paths = expand_logs(train) if train else []
-    val_paths = expand_logs(val) if val else []
-    inputs = [*test_paths, *train_paths, *val_paths, *([calibration] if calibration else [])]
-    check_reports(report, junit, force=force, inputs=inputs)
-    setup = setup_options(
-        robot=robot,
-        topic=topic,
-        label_topic=label_topic,
-        sim_topic=sim_topic,
-        joint_map=joint_map,
-        cutoff_hz=cutoff,
-        filter_order=filter_order,
-        filter_kind=filter_kind,
-        causal=causal,
-        strict=strict,
-        allow_urdf_change=allow_urdf_change,
-    ).resolve(cal)
-
-    def bar(items: Sequence[Any], desc: str) -> Iterable[Any]:
-        return progress(items, desc, quiet)
-
-    every_log = [*test_paths, *train_paths, *val_paths]
-    with open_executor(jobs, scheduler, every_log) as executor:
-        failed: LogRun[Any] = LogRun()
-
-        def run(func: Callable[[Path], Any], paths: Sequence[Path], desc: str) -> list[Any]:
-            if not paths:
-                return []
-            run = run_per_log(
-                func, paths, f"reading {desc}", quiet, executor=executor, keep_going=keep_going
-            )
-            for failure in run.failures:  # with --keep-going: reported, the rest goes on
-                if failure.path not in {f.path for f in failed.failures}:  # once per log
-                    failed.failures.append(failure)
-            return list(run.results)
-
-        result = run_evaluation(
-            test_paths,
-            names,
-            setup,
-            calibration=cal,
-            train_paths=train_paths,
-            val_paths=val_paths,
-            k_sigma=sigma,
-            repeats=repeats,
-            progress=bar,
-            run=run,
-            link_topic=link_topic,
-            batch=max(1, getattr(executor, "workers", 1) or 1),
-        )
-    if result.positives == 0:
-        log.warning(
-            "no test sample is labelled as a collision: F1 is 0 and AUC undefined "
-            "(evaluate wants logs with collisions and their %s labels)",
-            setup.options.label_topic,
-        )
-    missed = result.missed_gates(min_f1, min_auc)
-    with all_or_nothing() as written:  # the report and the JUnit file: both or neither
-        written.extend(p for p in (report, junit) if p is not None)
-        _write_reports(result, missed, cal, report, junit, no_summary, (min_f1, min_auc))
-    if json_:
-        doc = {**result.to_dict(), "errors": error_docs(failed), "warnings": list(WARNINGS)}
-        stdout.out(json.dumps(doc), highlight=False)
-    else:
-        table = Table(
-            title=f"{result.samples} test samples, {result.positives} labelled as collision",
-            box=box.SIMPLE_HEAD,
-            show_edge=False,
-            padding=(0, 0),
-            pad_edge=False,
-            caption="* per time window"
-            if any(m.unit != "sample" for m in result.methods)
-            else None,
-        )
-        rows = [[c.replace(" + ", "+") for c in row] for row in evaluation_rows(result)]
-        stdout.print(_fill(table, SHORT_COLUMNS, rows))
-        events = Table(
-            title="events at the threshold (FA: false alarms, count and per hour)",
-            box=box.SIMPLE_HEAD,
-            show_edge=False,
-            padding=(0, 1),
-            pad_edge=False,
-        )
-        stdout.print(_fill(events, SHORT_EVENT_COLUMNS, event_rows(result)))
-        for m in result.methods:
-            if m.note:
-                stdout.print(f"note: {m.name}: {m.note}")
+    table = Table(
+        title=f"{result.samples} test samples, {result.positives} labelled as collision",
+        box=box.SIMPLE_HEAD,
+        show_edge=False,
+        padding=(0, 0),
+        pad_edge=False,
+        caption="* per time window" if any(m.unit != "sample" for m in result.methods) else None,
+    )
+    rows = [[c.replace(" + ", "+") for c in row] for row in evaluation_rows(result)]
+    stdout.print(_fill(table, SHORT_COLUMNS, rows))
+    events = Table(
+        title="events at the threshold (FA: false alarms, count and per hour)",
+        box=box.SIMPLE_HEAD,
+        show_edge=False,
+        padding=(0, 1),
+        pad_edge=False,
+    )
+    stdout.print(_fill(events, SHORT_EVENT_COLUMNS, event_rows(result)))
     for m in result.methods:
-        if m.skipped is not None:
-            log.warning("method %s skipped: %s", m.name, m.skipped)
-    exit_if_failed(failed)  # --keep-going: a log that failed is exit 2, before any gate
-    if missed:
-        for line in missed:
-            log.warning("gate missed: %s", line)
-        raise typer.Exit(1)
+        if m.note:
+            stdout.print(f"note: {m.name}: {m.note}")
 
 
 def _fill(table: Table, columns: Sequence[str], rows: list[list[str]]) -> Table:

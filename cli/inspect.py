@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from .common import WARNINGS, command, stdout
+from .common import command, finish, stdout
 from .options import (
     Debug,
     JointMap,
@@ -21,7 +20,7 @@ from .options import (
     SimTopic,
     Strict,
     Topic,
-    setup_options,
+    settings,
 )
 
 if TYPE_CHECKING:
@@ -61,15 +60,15 @@ def render(found: Inspection) -> None:
     say("  topics: " + ", ".join(f"{t.name} ({t.type.rsplit('/', 1)[-1]})" for t in found.topics))
     if found.joint_topic:
         say(f"  joint states: {found.joint_topic}, {len(found.joint_sets)} joint set(s):")
-        for s in found.joint_sets:
-            parts = [f"{s.messages} msgs"]
-            if s.with_velocity < s.messages:
-                parts.append(f"{s.messages - s.with_velocity} without velocity")
-            if s.with_effort < s.messages:
-                parts.append(f"{s.messages - s.with_effort} without effort")
-            if s.zero_stamps:
-                parts.append(f"{s.zero_stamps} unstamped (log time used)")
-            say(f"    [{', '.join(s.joints)}]: {'; '.join(parts)}", soft_wrap=True, markup=False)
+        for js in found.joint_sets:
+            parts = [f"{js.messages} msgs"]
+            if js.with_velocity < js.messages:
+                parts.append(f"{js.messages - js.with_velocity} without velocity")
+            if js.with_effort < js.messages:
+                parts.append(f"{js.messages - js.with_effort} without effort")
+            if js.zero_stamps:
+                parts.append(f"{js.zero_stamps} unstamped (log time used)")
+            say(f"    [{', '.join(js.joints)}]: {'; '.join(parts)}", soft_wrap=True, markup=False)
     if found.robot:
         default = " (the default; pass --robot for another arm)"
         say(f"  robot model: {found.robot}{default if found.robot_is_default else ''}")
@@ -132,35 +131,24 @@ def inspect(
 
     Example: twincd inspect run.mcap --robot panda
     """
-    from twincd.calibration import Calibration
-    from twincd.inspect import inspect_log
-    from twincd.io.logs import expand_logs
+    import json
 
-    cal = Calibration.load(calibration) if calibration is not None else None
-    asked = setup_options(
-        robot=robot,
-        topic=topic,
-        label_topic=label_topic,
-        sim_topic=sim_topic,
-        joint_map=joint_map,
-        strict=strict,
-    )
-    paths = expand_logs(logs)
-    setup = asked.resolve(cal).for_logs(paths)  # as fit and detect: named options checked
-    found = [inspect_log(path, setup.options, setup.robot, cal, strict) for path in paths]
+    from twincd.commands import inspect_logs
+
+    asked = settings(
+        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
+        joint_map=joint_map, strict=strict
+    )  # fmt: skip
+    done = inspect_logs(logs, calibration, **asked)
     if json_:
-        warnings = [*WARNINGS, *(w for f in found for w in f.warnings)]
-        doc = {"logs": [f.to_dict() for f in found], "warnings": warnings}
-        stdout.out(json.dumps(doc, allow_nan=False), highlight=False)
-    else:
-        for f in found:
-            render(f)
-    bad = [f for f in found if not f.usable]
-    for f in bad:
-        if debug and f.error is not None:  # --debug: where the log's problem was raised
-            import traceback
+        stdout.out(json.dumps(done.to_dict(), allow_nan=False), highlight=False)
+    for found in [] if json_ else done.logs:
+        render(found)
+    for f in done.logs:
+        if not f.usable:
+            if debug and f.error is not None:  # --debug: where the log's problem was raised
+                import traceback
 
-            typer.echo("".join(traceback.format_exception(f.error)).rstrip(), err=True)
-        typer.echo(f"twincd: error: {f.problem}", err=True)
-    if bad:
-        raise typer.Exit(2)
+                typer.echo("".join(traceback.format_exception(f.error)).rstrip(), err=True)
+            typer.echo(f"twincd: error: {f.problem}", err=True)
+    finish(done)

@@ -18,7 +18,7 @@ from . import calibrate, detect, evaluate, inspect, simulate, synth, watch
 class _NoFlagMetavar:
     """``--help`` is a flag: no ``<bool>`` after it in the help text."""
 
-    def get_help_option(self, ctx: typer.Context) -> Any:
+    def get_help_option(self, ctx: Any) -> Any:
         option = super().get_help_option(ctx)  # type: ignore[misc]
         if option is not None:
             option.metavar = ""

@@ -4,7 +4,7 @@ aliases), and the library settings they become."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, cast
 
 import typer
 
@@ -17,7 +17,9 @@ from twincd.defaults import (
     DEFAULT_SIM_TOPIC,
     DEFAULT_TOPIC,
 )
-from twincd.settings import SetupOptions
+
+if TYPE_CHECKING:
+    from twincd.commands import Settings
 
 Logs = Annotated[
     list[Path],
@@ -151,9 +153,9 @@ Causal = Annotated[
 ]
 
 
-def setup_options(*, joint_map: str | None = None, **given: Any) -> SetupOptions:
-    """The library settings of the options given (``--joint-map`` parsed)."""
+def settings(*, joint_map: str | None = None, **given: Any) -> Settings:
+    """The library's reading settings of the options given (``--joint-map`` parsed)."""
     from twincd.io.options import parse_joint_map
 
     parsed = None if joint_map is None else parse_joint_map(joint_map)
-    return SetupOptions(joint_map=parsed, **given)
+    return cast("Settings", {"joint_map": parsed, **given})

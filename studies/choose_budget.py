@@ -138,19 +138,17 @@ REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "doosan_
 def score_log(path: Path, cal_path: Path) -> Scores:
     from twincd.calibration import Calibration, clean_rows
     from twincd.pipeline import Setup
+    from twincd.signal.features import ModelInputs
 
     cal = Calibration.load(cal_path)
     joints = len(cal.joint_names)
     setup = Setup.from_calibration(cal)
     parts: list[tuple[FloatArray, BoolArray, NDArray[np.int64]]] = []
-    with setup.open(path) as stream:
+    with setup.open(path, model=cal.model) as stream:
         for frame in stream:
+            theta = stream.features.theta
             s = cal.model.scores(
-                {
-                    **frame,
-                    "coulomb_eps": stream.coulomb_eps,
-                    "regressor_mask": stream.regressor_mask,
-                }
+                ModelInputs.of(frame, stream.coulomb_eps, stream.regressor_mask, theta)
             )
             judged = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             lab = frame.get("labels")

@@ -83,7 +83,7 @@ def scored(test: list[Path], cal_path: Path) -> Iterator[Scored]:
     th = cal.require_threshold()
     setup = Setup.from_calibration(cal)
     for path in test:
-        lg = setup.prepare(path)
+        lg = setup.prepare(path, cal.model.features)
         det = detect_log(lg, cal, RUNS)
         judged = np.ones(len(lg), dtype=bool) if lg.edge is None else ~lg.edge.astype(bool)
         yield Scored(lg, det.scores, det.flags, det.residual, judged, th.value, th.mu)

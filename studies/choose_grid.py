@@ -27,11 +27,11 @@ from typing import Any
 import numpy as np
 
 import twincd.grid
-from twincd.calibration import Calibration, fit_calibration
-from twincd.detection import detect_file
+from twincd.calibration import Calibration
+from twincd.commands import filter_settings, fit_calibration, threshold_calibration
+from twincd.detection import detect_streamed
 from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass
-from twincd.threshold import threshold_calibration
 
 FILTERS = {
     "zero-phase 1.5 Hz": LowPass(1.5, 2, False, "critical"),
@@ -56,7 +56,7 @@ def scored(log: Path, cal: Calibration) -> dict[str, np.ndarray]:
             if frame.n:
                 rows.append({k: frame[k] for k in ("stamp_ns", "score", "residual", "velocity")})
 
-    detect_file(log, cal, Setup.from_calibration(cal), [Keep()])
+    detect_streamed(log, cal, Setup.from_calibration(cal), [Keep()])
     return {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
 
 
@@ -93,8 +93,8 @@ def main() -> None:
     tests = sorted((args.dev / "test").glob("*.mcap"))
     for name, lowpass in FILTERS.items():
         per_sample(True)
-        cal = fit_calibration(train, Setup(lowpass=lowpass))
-        cal = threshold_calibration(val, cal, Setup.from_calibration(cal))
+        cal = fit_calibration(train, jobs=1, **filter_settings(lowpass)).calibration
+        cal = threshold_calibration(val, cal, jobs=1).calibration
         start = time.process_time()
         reference = [scored(log, cal) for log in tests]
         print(f"{name}: per sample, detect {time.process_time() - start:.1f} CPU s")

@@ -140,8 +140,8 @@ def real_arm(work: Path) -> tuple[list[Press], Calibration]:
     out = []
     for i, s in enumerate(rotations(work, [])):
         cal = Calibration.load(work / f"real{i}.json")
-        assert cal.joint_scale is not None
-        e = evidence(s, cal) / cal.joint_scale  # in noise units: each rotation has its own
+        assert cal.model.joint_scale is not None
+        e = evidence(s, cal) / cal.model.joint_scale  # in noise units: each rotation has its own
         stamps = s.log.states.stamp_ns
         out += [("", e[rows], s.scores[rows], stamps[rows]) for _, _, rows in found_events(s, cal)]
     return out, cal
@@ -225,14 +225,17 @@ def main() -> int:
     from twincd.twin.robot import load_robot
 
     links, depths = child_links(load_robot(cal.robot or "xarm7"), cal.joint_names)
-    scale = cal.joint_scale
+    scale = cal.model.joint_scale
     assert scale is not None
     cutoff = cal.lowpass.cutoff_hz
     kappa, margin = DEFAULT_KAPPA, DEFAULT_MARGIN
     rule = LinkIsolator(links, depths, np.ones(len(links)), kappa, margin)  # on significance
     found = significance(pressed, args.statistic, scale, cutoff)
     print(f"{len(found)} found presses with a known link; held-out seeds {HELD_OUT_SEEDS} unused")
-    print(f"{cal.kind}: κ {kappa:g}, ρ {margin:g} (the model's); {args.statistic}; κ × ρ scanned")
+    print(
+        f"{cal.model.kind}: κ {kappa:g}, ρ {margin:g} (the model's); {args.statistic}; "
+        "κ × ρ scanned"
+    )
     print(f"{'κ':>5}{'ρ':>5}{'named':>8}{'right|named':>13}{'by run set':>22}  misses")
     table = scan(found, seeds, rule)
     for (k, m), (accuracy, share, misses, by_set) in table.items():

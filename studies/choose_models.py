@@ -40,6 +40,7 @@ from twincd.evaluation.own import ModelMethod
 from twincd.evaluation.proposed import ProposedMethod
 from twincd.io.logs import expand_logs
 from twincd.pipeline import PreparedLog, Setup
+from twincd.signal.features import ModelFeatures
 from twincd.signal.filters import FILTER_KINDS, LowPass
 from twincd.synth.plant import contact_torque
 from twincd.threshold import ScoreStats
@@ -274,9 +275,10 @@ def main() -> None:
     parser.add_argument("--filter-kind", default="butterworth", choices=FILTER_KINDS)
     args = parser.parse_args()
     lowpass = LowPass(kind=args.filter_kind)
-    setup = Setup(robot="xarm7", lowpass=lowpass, coulomb_eps=EPSILON_GRID, regressor=True)
-    train = list(setup.prepare_all(expand_logs([args.train])))
-    val = list(setup.prepare_all(expand_logs([args.val])))
+    setup = Setup(robot="xarm7", lowpass=lowpass)
+    features = ModelFeatures(coulomb_eps=EPSILON_GRID, regressor=True)
+    train = list(setup.prepare_all(expand_logs([args.train]), features))
+    val = list(setup.prepare_all(expand_logs([args.val]), features))
     print(epsilon_table(train))
     for name in args.models.split(","):
         print(study(name, train, val, args.rounds))

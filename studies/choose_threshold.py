@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from twincd.calibration import Calibration, clean_rows
 from twincd.detection.events import runs
 from twincd.pipeline import Setup
+from twincd.signal.features import ModelInputs
 from twincd.tail import ExcursionCounter
 from twincd.threshold import ScoreStats, budget_threshold
 
@@ -74,9 +75,12 @@ class Scored:
 def score(path: Path, cal: Calibration) -> Scored:
     setup = Setup.from_calibration(cal)
     parts: list[tuple[FloatArray, BoolArray, BoolArray]] = []
-    with setup.open(path) as stream:
+    with setup.open(path, model=cal.model) as stream:
         for frame in stream:
-            s = cal.model.scores({**frame, "coulomb_eps": stream.coulomb_eps})
+            theta = stream.features.theta
+            s = cal.model.scores(
+                ModelInputs.of(frame, stream.coulomb_eps, stream.regressor_mask, theta)
+            )
             judged = clean_rows(None, frame.n, frame.get("edge"))
             labels = frame.get("labels")
             lab = np.zeros(frame.n, bool) if labels is None else np.asarray(labels, bool)
@@ -180,7 +184,9 @@ def synth(seeds: list[int], model: str | None, budgets: list[float], stretch_s: 
                 n = round(stretch_s / val.period_s)
                 for start in range(0, len(val.scores) - n + 1, n):
                     tally.add(_threshold_on(val, start, n, budgets), logs[:i] + logs[i + 1 :])
-            print(f"synth seed {seed}, model {cal.kind}, {stretch_s:g} s of clean validation:")
+            print(
+                f"synth seed {seed}, model {cal.model.kind}, {stretch_s:g} s of clean validation:"
+            )
             tally.report(budgets)
 
 
@@ -205,7 +211,7 @@ def real(model: str | None, budgets: list[float], no_urdf: bool) -> None:
             train = [p for p in logs if p not in (test, val)]
             cal = fit([*train, *twin], Path(tmp), model)
             tally.add(thresholds(score(val, cal), budgets), [score(test, cal)])
-    print(f"real arm, six rotations, model {cal.kind}:")
+    print(f"real arm, six rotations, model {cal.model.kind}:")
     tally.report(budgets)
 
 

@@ -91,7 +91,7 @@ def flagged_presses(dev: Path, seed: int) -> tuple[list[FlaggedPress], LinkIsola
     if not paths:
         raise SystemExit(f"{dev / 'test'} holds no test_*.mcap paths")
     for path in paths:
-        log = setup.prepare(path)
+        log = setup.prepare(path, calibration.model.features)
         truth = simulate_path(SynthConfig(), seed, "test", int(path.stem.split("_")[1]))
         if len(truth.effort) != len(log) or not np.allclose(
             truth.effort, log.effort, atol=1e-4, rtol=1e-5
@@ -146,7 +146,7 @@ def noise_autocorrelation(dev: Path, lags: int = 400, logs: int = 20) -> np.ndar
     method = make_method(calibration.model.kind).from_calibration(calibration)
     total = np.zeros(lags)
     for path in sorted((dev / "val").glob("*.mcap"))[:logs]:
-        log = setup.prepare(path)
+        log = setup.prepare(path, calibration.model.features)
         r = method.residual(log)
         r = r[~log.edge] if log.edge is not None else r
         r = r - r.mean(axis=0)

@@ -101,19 +101,21 @@ def rotations(
     cutoff: float = 1.0,
 ) -> list[Rotation]:
     """Fit once per (test, val) pair of ``plan`` on the other logs, through the library."""
-    from twincd.calibration.fitting import fit_log, merge_fits, setup_for_model
+    from twincd.calibration.fitting import fit_log, merge_fits
+    from twincd.calibration.models import fit_features
     from twincd.pipeline import Setup
     from twincd.signal.filters import LowPass
 
     base = Setup(robot=robot, lowpass=LowPass(cutoff_hz=cutoff, kind=kind))
-    setup = setup_for_model(base, model)
-    fits = [fit_log(p, setup) for p in logs]
-    prepared = [setup.prepare(p) for p in logs]
+    setup = base
+    features = fit_features(model)
+    fits = [fit_log(p, setup, (), features) for p in logs]
+    prepared = [setup.prepare(p, features) for p in logs]
     out = []
     for test, val in plan:
         train = [i for i in range(len(logs)) if i not in (test, val)]
         cal = merge_fits([fits[i] for i in train], setup, model)
-        rms = cal.rmse if cal.rmse is not None else np.ones(len(cal.a))
+        rms = cal.model.rmse_ if cal.model.rmse_ is not None else np.ones(len(cal.model.a_))
         out.append(Rotation(scored(prepared[test], cal, rms), scored(prepared[val], cal, rms)))
     return out
 

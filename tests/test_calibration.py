@@ -14,14 +14,15 @@ from twincd.calibration import (
     AffineCalibration,
     AffineStats,
     Calibration,
+    FitInfo,
     Threshold,
-    fit_calibration,
+    make_model,
     solve,
 )
+from twincd.commands import fit_calibration
 from twincd.errors import CalibrationError, DataError, NotFittedError
 from twincd.io.logs import expand_logs
 from twincd.io.options import LogOptions
-from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass, edge_span
 
 A = np.array([1.39, 1.17, 21.7])
@@ -129,18 +130,16 @@ def test_errors_before_fit_and_without_data():
 
 
 def make_calibration(**kw) -> Calibration:
+    coefficients = {"a": np.array([1.2, 0.9]), "b": np.array([0.1, -0.3])}
+    r2, rmse = np.array([0.9, 0.8]), np.array([0.1, 0.2])
     base = dict(
         joint_names=("j1", "j2"),
-        a=np.array([1.2, 0.9]),
-        b=np.array([0.1, -0.3]),
+        model=make_model("affine").with_coefficients(coefficients, r2, rmse),
         lowpass=LowPass(2.0, 3),
         options=LogOptions(topic="/js", joint_map={"a": "j1"}),
         robot="xarm7",
         urdf_sha256="abc",
-        fit_logs=("x.mcap",),
-        fit_samples=100,
-        r2=np.array([0.9, 0.8]),
-        rmse=np.array([0.1, 0.2]),
+        fit=FitInfo(logs=("x.mcap",), samples=100),
     )
     base.update(kw)
     return Calibration(**base)
@@ -154,6 +153,7 @@ def test_file_round_trip_and_layout(tmp_path):
     assert doc["schema"] == SCHEMA
     assert doc["model"] == {
         "kind": "affine",
+        "statistic": "sum",
         "joints": {"j1": {"a": 1.2, "b": 0.1}, "j2": {"a": 0.9, "b": -0.3}},
     }
     assert doc["filter"]["cutoff_hz"] == 2.0 and doc["filter"]["zero_phase"] is True
@@ -163,7 +163,7 @@ def test_file_round_trip_and_layout(tmp_path):
     back = Calibration.load(path)
     assert back.joint_names == cal.joint_names and back.lowpass == cal.lowpass
     assert back.options == cal.options and back.robot == "xarm7"
-    np.testing.assert_array_equal(back.a, cal.a)
+    np.testing.assert_array_equal(back.model.a_, cal.model.a_)
     assert back.threshold == cal.threshold
     assert list(tmp_path.iterdir()) == [path]  # no temporary file left
 
@@ -171,10 +171,10 @@ def test_file_round_trip_and_layout(tmp_path):
 def test_other_schema_and_broken_files_are_calibration_errors(tmp_path):
     cal = make_calibration()
     doc = cal.to_dict()
-    doc["schema"] = "twincd.calibration/2"
-    (tmp_path / "v2.json").write_text(json.dumps(doc))
+    doc["schema"] = "twincd.calibration/3"
+    (tmp_path / "v3.json").write_text(json.dumps(doc))
     with pytest.raises(CalibrationError, match="schema"):
-        Calibration.load(tmp_path / "v2.json")
+        Calibration.load(tmp_path / "v3.json")
     (tmp_path / "bad.json").write_text("{not json")
     with pytest.raises(CalibrationError, match="not JSON"):
         Calibration.load(tmp_path / "bad.json")
@@ -200,22 +200,22 @@ def test_threshold_is_required_for_detection():
 
 def test_fit_calibration_over_logs_recovers_the_gains(twin_dataset):
     paths = expand_logs([twin_dataset / "train"])
-    cal = fit_calibration(paths, Setup(lowpass=LowPass(5.0)))
+    cal = fit_calibration(paths, cutoff_hz=5.0, filter_kind="butterworth").calibration
     assert cal.joint_names == TWIN_JOINTS
-    np.testing.assert_allclose(cal.a, GAINS, rtol=0.02)
-    np.testing.assert_allclose(cal.b, OFFSET, atol=0.05)
+    np.testing.assert_allclose(cal.model.a_, GAINS, rtol=0.02)
+    np.testing.assert_allclose(cal.model.b_, OFFSET, atol=0.05)
     assert cal.robot is None and not cal.simulated  # the logs carry their own twin effort
     # the filter's settling time at each end (0.33 s at 5 Hz) is its edge: not fitted
     span = edge_span(LowPass(5.0), 0.01)
-    assert span == 33 and len(cal.fit_logs) == 3 and cal.fit_samples == 3 * (1600 - 2 * span)
-    assert np.all(cal.r2 > 0.9)
+    assert span == 33 and len(cal.fit.logs) == 3 and cal.fit.samples == 3 * (1600 - 2 * span)
+    assert np.all(cal.model.r2_ > 0.9)
 
 
 def test_labelled_collisions_are_excluded_from_the_fit(twin_dataset):
     paths = expand_logs([twin_dataset / "test"])
-    cal = fit_calibration(paths, Setup(lowpass=LowPass(5.0)))
-    np.testing.assert_allclose(cal.a, GAINS, rtol=0.03)
-    assert cal.fit_samples < 2 * 1600
+    cal = fit_calibration(paths, cutoff_hz=5.0, filter_kind="butterworth").calibration
+    np.testing.assert_allclose(cal.model.a_, GAINS, rtol=0.03)
+    assert cal.fit.samples < 2 * 1600
 
 
 def test_large_offsets_do_not_cancel_the_signal():

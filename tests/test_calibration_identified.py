@@ -1,4 +1,4 @@
-"""The identified calibration models (twincd/calibration/models.py): the joint-torque regressor
+"""The identified calibration models (twincd/calibration/models/): the joint-torque regressor
 against RNEA, mergeable statistics, the recovery of a plant whose inertial parameters differ from
 the URDF's, the calibration file, and fit → threshold → detect, batch and live, end to end."""
 
@@ -17,7 +17,7 @@ from support.builders import trajectory
 from support.clitools import assert_one_line_error, run
 from test_pipeline import jittered_xarm_log
 
-from twincd.calibration import Calibration, fit_calibration
+from twincd.calibration import Calibration
 from twincd.calibration.affine import AffineStats
 from twincd.calibration.models import (
     EPSILON_GRID,
@@ -27,12 +27,12 @@ from twincd.calibration.models import (
     fit_model,
     solve_identified,
 )
-from twincd.detection import OnlineDetector, detect_file, detect_log
+from twincd.commands import fit_calibration, threshold_calibration
+from twincd.detection import OnlineDetector, detect_log, detect_streamed
 from twincd.errors import CalibrationError, DataError
 from twincd.pipeline import Setup
 from twincd.signal.derivatives import differentiate
-from twincd.signal.filters import LowPass
-from twincd.threshold import threshold_calibration
+from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.twin.dynamics import (
     inertial_parameters,
     inverse_dynamics,
@@ -109,18 +109,10 @@ def test_identified_model_recovers_a_plant_the_affine_map_cannot(xarm) -> None: 
     np.testing.assert_allclose(sol.friction.d, 0.3, atol=0.02)
     affine = AffineStats.from_arrays(twin, effort)
     friction = FrictionStats.from_arrays(twin, qd, coulomb, effort)
-    inputs = {
-        "effort_f": effort,
-        "sim_effort_f": twin,
-        "velocity_f": qd,
-        "coulomb_f": coulomb,
-        "coulomb_eps": EPSILON_GRID,
-        "regressor_f": y,
-    }
     # on motion it was not fitted on, the residual is near the noise (0.01) on every joint
     twin2, y2, qd2, coulomb2, effort2 = _heavier_plant(xarm, 2000, 7)
-    unseen = {**inputs, "effort_f": effort2, "sim_effort_f": twin2, "velocity_f": qd2}
-    unseen.update(coulomb_f=coulomb2, regressor_f=y2)
+    columns = {"effort_f": effort2, "sim_effort_f": twin2, "velocity_f": qd2}
+    unseen = ModelInputs.of({**columns, "coulomb_f": coulomb2, "regressor_f": y2}, EPSILON_GRID)
     rms = {}
     for kind in ("friction", "identified", "identified-whitened"):
         model = fit_model(kind, affine, friction, stats)
@@ -157,9 +149,10 @@ def test_identified_statistics_merge_exactly_in_any_split(cuts: list[int], seed:
 
 def test_chunked_regressor_equals_the_whole_log(tmp_path: Path) -> None:
     log = jittered_xarm_log(tmp_path / "run.mcap")
-    setup = Setup(robot="xarm7", coulomb_eps=EPSILON_GRID, regressor=True, block_size=1 << 20)
-    whole = setup.prepare(log)
-    parts = replace(setup, block_size=7).prepare(log)
+    setup = Setup(robot="xarm7", block_size=1 << 20)
+    features = ModelFeatures(coulomb_eps=EPSILON_GRID, regressor=True)
+    whole = setup.prepare(log, features)
+    parts = replace(setup, block_size=7).prepare(log, features)
     assert whole.regressor_f is not None and parts.regressor_f is not None
     assert whole.regressor_f.shape == (len(whole), 7, 70)
     scale = np.ptp(whole.regressor_f, axis=0) + 1e-12
@@ -192,10 +185,15 @@ def test_fit_threshold_detect_end_to_end(identified_cal: Path, xarm_dataset: Pat
     for coeff in doc["model"]["joints"].values():
         assert len(coeff["theta"]) == 70 and {"a", "b", "c", "d", "epsilon", "scale"} <= set(coeff)
     cal = Calibration.load(identified_cal)
-    assert cal.regressor and cal.theta is not None and cal.theta.shape == (7, 70)
-    assert Calibration.from_dict(cal.to_dict()).theta is not None  # the round trip keeps θ
+    assert (
+        cal.model.features.regressor
+        and cal.model.coefficients()["theta"] is not None
+        and cal.model.coefficients()["theta"].shape == (7, 70)
+    )
+    back = Calibration.from_dict(cal.to_dict()).model
+    assert back.coefficients()["theta"] is not None  # the round trip keeps θ
     # the synthetic plant's links are not the URDF's: the identified residual is far smaller
-    friction_rmse = Calibration.load(identified_cal).rmse
+    friction_rmse = Calibration.load(identified_cal).model.rmse_
     assert friction_rmse is not None and np.all(friction_rmse < 0.1)
     hit = run("detect", xarm_dataset / "test" / "test_000.mcap", "-c", identified_cal, "--json")
     assert hit.exit_code == 1, hit.output
@@ -255,10 +253,17 @@ def test_broken_theta_is_refused(identified_cal: Path) -> None:
 def test_online_detector_equals_batch_with_an_identified_model(
     xarm_dataset: Path, chunk: int
 ) -> None:
-    setup = Setup(robot="xarm7", lowpass=LowPass(cutoff_hz=3.0, causal=True))
-    cal = fit_calibration(sorted((xarm_dataset / "train").glob("*.mcap")), setup, "identified")
+    train = sorted((xarm_dataset / "train").glob("*.mcap"))
+    cal = fit_calibration(
+        train,
+        model="identified",
+        robot="xarm7",
+        cutoff_hz=3.0,
+        causal=True,
+        filter_kind="butterworth",
+    ).calibration
     val = sorted((xarm_dataset / "val").glob("*.mcap"))
-    cal = threshold_calibration(val, cal, Setup.from_calibration(cal), 6.0)
+    cal = threshold_calibration(val, cal, k_sigma=6.0).calibration
     log = xarm_dataset / "test" / "test_000.mcap"
     scores: list[np.ndarray] = []
 
@@ -267,7 +272,7 @@ def test_online_detector_equals_batch_with_an_identified_model(
             if frame.n:
                 scores.append(frame["score"])
 
-    batch = detect_file(log, cal, Setup.from_calibration(cal), [Keep()])
+    batch = detect_streamed(log, cal, Setup.from_calibration(cal), [Keep()])
     assert batch.events
     states = Setup.from_calibration(cal).prepare(log).states
     det = OnlineDetector(cal)
@@ -300,8 +305,8 @@ def test_detect_log_on_a_whole_log_equals_the_stream(
             if frame.n:
                 scores.append(frame["score"])
 
-    streamed = detect_file(log, cal, setup, [Keep()])
-    whole = detect_log(setup.prepare(log), cal)
+    streamed = detect_streamed(log, cal, setup, [Keep()])
+    whole = detect_log(setup.prepare(log, cal.model.features), cal)
     np.testing.assert_allclose(whole.scores, np.concatenate(scores), rtol=1e-9, atol=1e-12)
     assert whole.events == streamed.events and whole.events
 
@@ -324,13 +329,14 @@ def test_filter_kind_is_a_choice_and_the_calibration_keeps_it(
 
 
 def test_identified_fit_in_blocks_equals_one_block(tmp_path: Path) -> None:
-    from twincd.calibration.fitting import fit_log, merge_fits, setup_for_model
-    from twincd.calibration.models import model_inputs
+    from twincd.calibration.fitting import fit_log, merge_fits
+    from twincd.calibration.models import fit_features, model_inputs
 
     log = jittered_xarm_log(tmp_path / "run.mcap")
-    one = setup_for_model(Setup(robot="xarm7", block_size=1 << 20), "identified")
+    one = Setup(robot="xarm7", block_size=1 << 20)
     blocks = replace(one, block_size=97)
-    fits = [fit_log(log, s) for s in (one, blocks)]
+    features = fit_features("identified")
+    fits = [fit_log(log, s, (), features) for s in (one, blocks)]
     whole, parts = (f.stats.identified for f in fits)
     # 12 s in two segments, 1.63 s of filter edge at each of their four ends: 1 297 samples
     assert whole is not None and parts is not None and whole.n == parts.n > 1000
@@ -339,9 +345,10 @@ def test_identified_fit_in_blocks_equals_one_block(tmp_path: Path) -> None:
     assert np.all(np.abs(parts.cross - whole.cross) <= 1e-9 * scale[:, :, None] * scale[:, None])
     cals = [merge_fits([f], one, "identified") for f in fits]
     for name in ("a", "b", "c", "d", "epsilon", "rmse", "r2"):
-        np.testing.assert_allclose(getattr(cals[1], name), getattr(cals[0], name), rtol=1e-9)
+        got, want = (getattr(c.model, f"{name}_") for c in (cals[1], cals[0]))
+        np.testing.assert_allclose(got, want, rtol=1e-9)
     # and the fitted map scores a log alike
-    prepared = one.prepare(log)
+    prepared = one.prepare(log, features)
     residuals = [c.model.residual(model_inputs(prepared)) for c in cals]
     np.testing.assert_allclose(residuals[1], residuals[0], atol=1e-9 * np.ptp(prepared.effort_f))
 
@@ -359,10 +366,10 @@ def test_masked_regressor_statistics_and_prediction_equal_the_whole_ones(xarm) -
     model = fit_model("identified", affine, friction, whole)
     # θ lives on the mask
     assert isinstance(model, IdentifiedModel) and not np.any(model.theta_[~mask])
-    inputs = {"effort_f": effort, "sim_effort_f": twin, "velocity_f": qd, "coulomb_f": coulomb}
-    inputs["coulomb_eps"] = EPSILON_GRID
-    full = model.predict({**inputs, "regressor_f": y})
-    compact = model.predict({**inputs, "regressor_f": y[:, mask], "regressor_mask": mask})
+    columns = {"effort_f": effort, "sim_effort_f": twin, "velocity_f": qd, "coulomb_f": coulomb}
+    inputs = ModelInputs.of(columns, EPSILON_GRID)
+    full = model.predict(replace(inputs, regressor_f=y))
+    compact = model.predict(replace(inputs, regressor_f=y[:, mask], regressor_mask=mask))
     np.testing.assert_allclose(compact, full, rtol=1e-12, atol=1e-12 * np.ptp(full))
     with pytest.raises(DataError, match="mask"):  # a compact regressor needs its mask
         IdentifiedStats.from_arrays(twin, y[:, mask], qd, coulomb, effort)
@@ -370,8 +377,9 @@ def test_masked_regressor_statistics_and_prediction_equal_the_whole_ones(xarm) -
 
 def test_streamed_frames_carry_only_the_masked_regressor(tmp_path: Path) -> None:
     log = jittered_xarm_log(tmp_path / "run.mcap")
-    setup = Setup(robot="xarm7", coulomb_eps=EPSILON_GRID, regressor=True, block_size=500)
-    with setup.open(log) as stream:
+    setup = Setup(robot="xarm7", block_size=500)
+    features = ModelFeatures(coulomb_eps=EPSILON_GRID, regressor=True)
+    with setup.open(log, features=features) as stream:
         frames = list(stream)
         mask = stream.regressor_mask
     assert mask is not None and mask.shape == (7, 70)
@@ -382,7 +390,7 @@ def test_streamed_frames_carry_only_the_masked_regressor(tmp_path: Path) -> None
     assert setup.block_size_for(True) == 500 and setup.block_size_for(False) == 500
     big = replace(setup, block_size=1 << 20)
     assert big.block_size_for(True) == REGRESSOR_BLOCK and big.block_size_for(False) == 1 << 20
-    whole = setup.prepare(log).regressor_f
+    whole = setup.prepare(log, features).regressor_f
     assert whole is not None and not np.any(whole[:, ~mask])
     np.testing.assert_array_equal(
         whole[:, mask], np.concatenate([f["regressor_f"] for f in frames])

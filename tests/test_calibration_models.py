@@ -1,4 +1,4 @@
-"""Calibration models beyond the paper's affine map (twincd/calibration/models.py): mergeable
+"""Calibration models beyond the paper's affine map (twincd/calibration/models/): mergeable
 friction statistics, the fit, whitened scores, the calibration JSON and the CLI end to end."""
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from twincd.calibration.models import (
     solve_friction,
 )
 from twincd.errors import CalibrationError, DataError
+from twincd.signal.features import ModelInputs
 
 
 def _features(v: np.ndarray) -> np.ndarray:
@@ -94,13 +95,9 @@ def test_fit_model_kinds_and_the_coulomb_columns_they_read():
     feats = _features(v)
     affine = AffineStats.from_arrays(x, y)
     friction = FrictionStats.from_arrays(x, v, feats, y)
-    inputs = {
-        "effort_f": y,
-        "sim_effort_f": x,
-        "velocity_f": v,
-        "coulomb_f": feats,
-        "coulomb_eps": EPSILON_GRID,
-    }
+    inputs = ModelInputs(
+        effort_f=y, sim_effort_f=x, velocity_f=v, coulomb_f=feats, coulomb_eps=EPSILON_GRID
+    )
     rms = {}
     for kind in ("affine", "affine-whitened", "friction", "friction-whitened"):
         fitted = fit_model(kind, affine, friction)
@@ -136,8 +133,10 @@ def test_fit_model_threshold_detect_end_to_end(friction_cal, twin_dataset, tmp_p
         assert set(coeff) == {"a", "b", "c", "d", "epsilon"} and coeff["epsilon"] in EPSILON_GRID
     # the fixture's logs carry 0.3·tanh(q̇/0.05) of friction the twin lacks: the model finds it
     cal = Calibration.load(friction_cal)
-    assert cal.r2 is not None and np.all(cal.r2 > 0.99)
-    assert cal.c is not None and np.allclose(cal.c, 0.3, atol=0.05)
+    assert cal.model.r2_ is not None and np.all(cal.model.r2_ > 0.99)
+    assert cal.model.coefficients()["c"] is not None and np.allclose(
+        cal.model.coefficients()["c"], 0.3, atol=0.05
+    )
     assert run("detect", twin_dataset / "test" / "test_0.mcap", "-c", friction_cal).exit_code == 1
     clean = run("detect", twin_dataset / "val" / "val_0.mcap", "-c", friction_cal, "--json")
     (log,) = json.loads(clean.stdout)["logs"]
@@ -178,16 +177,18 @@ def test_friction_beats_affine_on_logs_with_friction(twin_dataset):
 
 def test_old_and_broken_calibration_files(friction_cal, tmp_path):
     doc = json.loads(friction_cal.read_text())
-    # an affine file written before models existed: no links, no extra coefficients
+    # an affine /1 file written before models existed: no links, no extra coefficients
     old = json.loads(json.dumps(doc))
+    old["schema"] = "twincd.calibration/1"
     old["model"] = {
         "kind": "affine",
         "joints": {n: {"a": 1.0, "b": 0.0} for n in old["robot"]["joint_names"]},
     }
     old["robot"].pop("links", None), old["robot"].pop("depths", None)
     cal = Calibration.from_dict(old)
-    assert cal.kind == "affine" and cal.c is None and cal.links is None
-    assert cal.coulomb_eps == ()
+    assert cal.model.kind == "affine" and cal.model.coefficients()["c"] is None
+    assert cal.links is None
+    assert cal.model.features.coulomb_eps == ()
     # a friction model without its Coulomb coefficient is refused
     broken = json.loads(json.dumps(doc))
     for coeff in broken["model"]["joints"].values():
@@ -204,7 +205,7 @@ def test_old_and_broken_calibration_files(friction_cal, tmp_path):
         Calibration.from_dict(bad_eps)
     # the round trip keeps every coefficient
     again = Calibration.from_dict(Calibration.load(friction_cal).to_dict())
-    assert again.kind == "friction" and again.epsilon is not None
+    assert again.model.kind == "friction" and again.model.coefficients()["epsilon"] is not None
 
 
 def test_fit_rejects_an_unknown_model(twin_dataset, tmp_path):

@@ -1,5 +1,5 @@
 """The whitened models' noise scale by speed and their depth statistic
-(twincd/calibration/models.py): the scale comes exactly out of the fit's one pass, merges in any
+(twincd/calibration/models/): the scale comes exactly out of the fit's one pass, merges in any
 split, the statistic is a z on every depth, and the calibration file keeps both (old files keep
 their one scale per joint and their sum)."""
 
@@ -29,6 +29,7 @@ from twincd.calibration.models import (
     wilson_hilferty,
 )
 from twincd.errors import CalibrationError
+from twincd.signal.features import ModelInputs
 
 
 def _samples(n: int, seed: int, joints: int = 3) -> dict[str, np.ndarray]:
@@ -42,14 +43,14 @@ def _samples(n: int, seed: int, joints: int = 3) -> dict[str, np.ndarray]:
     noise = rng.standard_normal((n, joints)) * np.where(v == 0.0, 0.5, 0.05)
     y = 1.2 * x + 0.3 + 0.6 * np.tanh(v / 0.02) + 0.2 * v + noise
     coulomb = np.stack([np.tanh(v / e) for e in EPSILON_GRID], axis=1)
-    return {
-        "sim_effort_f": x,
-        "effort_f": y,
-        "velocity": v,
-        "velocity_f": v,
-        "coulomb_f": coulomb,
-        "coulomb_eps": EPSILON_GRID,
-    }
+    return ModelInputs(
+        sim_effort_f=x,
+        effort_f=y,
+        velocity=v,
+        velocity_f=v,
+        coulomb_f=coulomb,
+        coulomb_eps=EPSILON_GRID,
+    )
 
 
 def test_the_speed_scale_is_the_fitted_residual_rms_in_each_bin():
@@ -58,7 +59,7 @@ def test_the_speed_scale_is_the_fitted_residual_rms_in_each_bin():
     model = make_model("friction-whitened").solve(FitStats.from_inputs(inputs, clean))
     assert model.scale_ is not None and model.scale_.shape == (3, len(SPEED_BINS) + 1)
     r = model.residual(inputs)[clean]
-    bins = speed_bin(inputs["velocity"][clean])
+    bins = speed_bin(inputs.velocity[clean])
     for j, b in itertools.product(range(3), range(len(SPEED_BINS) + 1)):
         at = bins[:, j] == b
         want = np.sqrt(np.mean(r[at, j] ** 2)) if at.sum() >= MIN_BIN_SAMPLES else model.rmse_[j]
@@ -76,7 +77,8 @@ def test_speed_statistics_merge_exactly_in_any_split_and_order(cuts: list[int], 
     bounds = [0, *sorted(set(cuts)), 800]
     parts = [
         FitStats.from_inputs(
-            {k: v[a:b] if k != "coulomb_eps" else v for k, v in inputs.items()}, clean[a:b]
+            ModelInputs.of({k: v[a:b] for k, v in inputs.columns().items()}, EPSILON_GRID),
+            clean[a:b],
         ).speed
         for a, b in itertools.pairwise(bounds)
     ]
@@ -94,21 +96,21 @@ def test_pooled_speed_bins_are_the_identified_statistics():
     regressor = rng.standard_normal((3000, 2, 10))
     clean = rng.uniform(size=3000) < 0.9
     speed = SpeedStats.from_arrays(
-        inputs["velocity"],
-        inputs["sim_effort_f"],
-        inputs["effort_f"],
-        inputs["velocity_f"],
-        inputs["coulomb_f"],
+        inputs.velocity,
+        inputs.sim_effort_f,
+        inputs.effort_f,
+        inputs.velocity_f,
+        inputs.coulomb_f,
         regressor,
         None,
         clean,
     )
     direct = IdentifiedStats.from_arrays(
-        inputs["sim_effort_f"],
+        inputs.sim_effort_f,
         regressor,
-        inputs["velocity_f"],
-        inputs["coulomb_f"],
-        inputs["effort_f"],
+        inputs.velocity_f,
+        inputs.coulomb_f,
+        inputs.effort_f,
         clean,
     )
     n, mean, cross = speed.pooled()
@@ -166,16 +168,10 @@ def test_a_binned_model_scores_by_the_sample_speed_and_needs_it():
 def _calibration(scale: np.ndarray) -> Calibration:
     from twincd.signal.filters import LowPass
 
-    return Calibration(
-        joint_names=("j1", "j2"),
-        a=np.ones(2),
-        b=np.zeros(2),
-        lowpass=LowPass(),
-        kind="affine-whitened",
-        scale=scale,
-        rmse=np.array([0.3, 0.4]),
-        depths=(1, 2),
+    model = make_model("affine-whitened", (0, 1)).with_coefficients(
+        {"a": np.ones(2), "b": np.zeros(2), "scale": scale}, rmse=np.array([0.3, 0.4])
     )
+    return Calibration(("j1", "j2"), model, LowPass(), depths=(1, 2))
 
 
 def test_the_calibration_file_keeps_the_binned_scale_and_old_files_keep_their_sum(tmp_path):
@@ -184,14 +180,16 @@ def test_the_calibration_file_keeps_the_binned_scale_and_old_files_keep_their_su
     assert doc["model"]["statistic"] == "depth"
     assert doc["model"]["speed_bins"] == list(SPEED_BINS)
     back = Calibration.from_dict(doc)
-    assert back.scale is not None and np.array_equal(back.scale, binned.scale)
+    scale = back.model.scale_
+    assert scale is not None and np.array_equal(scale, binned.model.scale_)
     r, v = np.array([[0.2, -0.3]]), np.array([[0.05, 0.0]])
     assert back.model.score(r, v) == binned.model.score(r, v)
     # isolation weighs the whitened residual itself: no second scale
-    assert back.joint_scale is not None and np.array_equal(back.joint_scale, [1.0, 1.0])
+    joint_scale = back.model.joint_scale
+    assert joint_scale is not None and np.array_equal(joint_scale, [1.0, 1.0])
     # a file written before the bins: one scale per joint, scored by the sum
     old = json.loads(json.dumps(_calibration(np.array([0.5, 2.0])).to_dict()))
-    assert "statistic" not in old["model"]
+    assert old["model"]["statistic"] == "sum"
     loaded = Calibration.from_dict(old)
     assert loaded.model.statistic == "sum"
     np.testing.assert_allclose(loaded.model.score(r), [(0.2 / 0.5) ** 2 + (0.3 / 2.0) ** 2])

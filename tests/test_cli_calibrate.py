@@ -22,7 +22,7 @@ def fitted(twin_dataset, tmp_path_factory):
 def test_fit_writes_the_calibration_and_prints_the_table(fitted):
     cal, result = fitted
     doc = json.loads(cal.read_text())
-    assert doc["schema"] == "twincd.calibration/1"
+    assert doc["schema"] == "twincd.calibration/2"
     assert doc["filter"] == {
         "cutoff_hz": 2.0,
         "order": 3,

@@ -12,8 +12,9 @@ from conftest import DEFAULT_BUMPS, GAINS, TWIN_JOINTS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twincd.calibration import Calibration, Threshold, fit_calibration
-from twincd.detection import affine_score, detect_file, detect_log, find_events, residual, runs
+from twincd.calibration import Calibration, Threshold
+from twincd.commands import detect_file, fit_calibration
+from twincd.detection import affine_score, detect_log, find_events, residual, runs
 from twincd.errors import DataError, NotFittedError, OutputError
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.proposed import ProposedMethod
@@ -70,7 +71,7 @@ def test_runs_and_events_from_a_flag_vector():
 @pytest.fixture(scope="module")
 def calibrated(twin_dataset):
     setup = Setup(lowpass=LowPass(2.0))
-    cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup, "affine")
+    cal = fit_calibration([twin_dataset / "train"], model="affine", cutoff_hz=2.0).calibration
     val = setup.prepare_all(expand_logs([twin_dataset / "val"]))
     return threshold_prepared_logs(val, cal, 4.0)
 
@@ -86,7 +87,7 @@ def test_threshold_streams_val_logs(calibrated, twin_dataset):
     assert th.k_sigma == 4.0 and th.samples == sum(k.sum() for k in kept) and len(th.logs) == 2
     scores = np.concatenate(
         [
-            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.a, calibrated.b)[k]
+            affine_score(lg.effort_f, lg.sim_effort_f, calibrated.model.a_, calibrated.model.b_)[k]
             for lg, k in zip(logs, kept, strict=True)
         ]
     )
@@ -204,16 +205,14 @@ def test_filter_edges_never_flag_but_the_middle_does(tmp_path, twin_dataset):
     flags nothing; the same bump in the middle is found."""
     from conftest import build_twin_log
 
-    from twincd.calibration import fit_calibration
-    from twincd.threshold import threshold_calibration
+    from twincd.commands import threshold_calibration
 
-    setup = Setup(lowpass=LowPass(1.0))
-    cal = fit_calibration(expand_logs([twin_dataset / "train"]), setup, "affine")
-    cal = threshold_calibration(expand_logs([twin_dataset / "val"]), cal, setup)
+    cal = fit_calibration([twin_dataset / "train"], model="affine", cutoff_hz=1.0).calibration
+    cal = threshold_calibration([twin_dataset / "val"], cal).calibration
     at_end = build_twin_log(tmp_path / "end.mcap", seed=7, bumps=[(15.8, 0.2, 8.0)], labels=False)
     middle = build_twin_log(tmp_path / "mid.mcap", seed=7, bumps=[(8.0, 0.2, 8.0)], labels=False)
-    assert detect_file(middle, cal, Setup.from_calibration(cal)).events
-    assert not detect_file(at_end, cal, Setup.from_calibration(cal)).events
+    assert detect_file(middle, cal).events
+    assert not detect_file(at_end, cal).events
 
 
 def test_the_detect_module_is_not_shadowed_by_a_function():

@@ -10,7 +10,8 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
-from twincd.calibration import Threshold, fit_calibration
+from twincd.calibration import Threshold
+from twincd.commands import fit_calibration
 from twincd.detection import detect_log
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, register
@@ -88,7 +89,7 @@ def split(twin_dataset):
 @pytest.fixture(scope="module")
 def calibration(split):
     setup = Setup(lowpass=LowPass(2.0))
-    cal = fit_calibration(split["train"], setup, "affine")
+    cal = fit_calibration(split["train"], model="affine", cutoff_hz=2.0).calibration
     return threshold_prepared_logs(setup.prepare_all(split["val"]), cal, 4.0)
 
 
@@ -111,7 +112,7 @@ def test_proposed_from_the_calibration(calibration, split):
     assert row["name"] == "proposed" and "unit" not in row
     assert row["auc"] > 0.9 and row["f1_best"] > 0.7
     assert row["threshold"] == pytest.approx(calibration.threshold.value)
-    assert row["train_s"] == calibration.fit_s
+    assert row["train_s"] == calibration.fit.seconds
     assert row["best_k"] in [s["k"] for s in row["sweep"]]
 
 

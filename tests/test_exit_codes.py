@@ -237,14 +237,14 @@ def test_keep_going_reports_a_defect_per_log_and_exits_3(world, tmp_path, monkey
     jobs = "1"
     good = shutil.copy(world["data"] / "test" / "test_0.mcap", tmp_path / "a_good.mcap")
     bad = build_twin_log(tmp_path / "b_bad.mcap", seed=5, seconds=4.0)
-    original = __import__("twincd.detection.files", fromlist=["detect_file"]).detect_file
+    original = __import__("twincd.detection.files", fromlist=["detect_streamed"]).detect_streamed
 
-    def detect_file(path: Path, *args: Any, **kwargs: Any) -> Any:
+    def detect_streamed(path: Path, *args: Any, **kwargs: Any) -> Any:
         if Path(path).name == "b_bad.mcap":
             raise ZeroDivisionError("injected")
         return original(path, *args, **kwargs)
 
-    monkeypatch.setattr("twincd.outputs.detect_file", detect_file)
+    monkeypatch.setattr("twincd.outputs.detect_streamed", detect_streamed)
     result = run("detect", good, bad, "-c", world["cal"], "--json", "--keep-going", "-j", jobs)
     assert result.exit_code == 3, result.output
     assert result.stderr.splitlines() == [

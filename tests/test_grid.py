@@ -23,14 +23,15 @@ from hypothesis import strategies as st
 from support.builders import XARM, Message, joint_state, write
 
 import twincd.grid
-from twincd.calibration import Calibration, fit_calibration
+from twincd.calibration import Calibration
 from twincd.calibration.models import EPSILON_GRID, SPEED_BINS, FitStats, speed_bin
 from twincd.chain import JointLayout, build_chain
-from twincd.detection import OnlineDetector, detect_file
+from twincd.commands import filter_settings, fit_calibration, threshold_calibration
+from twincd.detection import OnlineDetector, detect_streamed
 from twincd.grid import GRID_MIN_PERIODS, grid_period_ns
 from twincd.pipeline import Setup
+from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.signal.filters import LowPass
-from twincd.threshold import threshold_calibration
 
 ZERO_PHASE = LowPass(1.5, 2, False, "critical")  # the identified models' default
 CAUSAL = LowPass(3.0, 2, True, "critical")
@@ -86,9 +87,9 @@ def xarm_1khz(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _calibration(root: Path, lowpass: LowPass) -> Calibration:
     """The best model (identified, whitened) fitted on ``root``/train, thresholded on val."""
-    cal = fit_calibration(sorted((root / "train").glob("*.mcap")), Setup(lowpass=lowpass))
+    cal = fit_calibration(sorted((root / "train").glob("*.mcap")), **filter_settings(lowpass))
     val = sorted((root / "val").glob("*.mcap"))
-    return threshold_calibration(val, cal, Setup.from_calibration(cal))
+    return threshold_calibration(val, cal.calibration).calibration
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +112,7 @@ def _detected(log: Path, cal: Calibration) -> dict[str, Any]:
                 rows.append({k: frame[k] for k in ("stamp_ns", "score", "flag", "residual")})
                 rows[-1]["velocity"] = frame["velocity"]
 
-    summary = detect_file(log, cal, Setup.from_calibration(cal), [Keep()])
+    summary = detect_streamed(log, cal, Setup.from_calibration(cal), [Keep()])
     out: dict[str, Any] = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
     out["events"] = summary.events
     return out
@@ -166,7 +167,8 @@ def test_the_grid_is_used_only_far_above_the_cutoff(
 @pytest.mark.parametrize("lowpass", [ZERO_PHASE, CAUSAL, LowPass()], ids=str)
 def test_a_100hz_log_keeps_the_per_sample_chain(lowpass: LowPass) -> None:
     names = XARM
-    built = build_chain(Setup(lowpass=lowpass), JointLayout(names, names, names), 0.01, None, False)
+    layout = JointLayout(names, names, names)
+    built = build_chain(lowpass, ModelFeatures(), layout, 0.01, None, False)
     assert built.grid is None
     assert not any(isinstance(s, twincd.grid.GridStage) for s in built.chain.stages)
 
@@ -193,9 +195,10 @@ def test_block_size_does_not_change_the_answer_at_1khz(
     """Jitter, a dropout and a gap, any block size: the grid's cells and nodes, and every
     filtered column, are those of one whole block (causal: identical; zero-phase: within 1e-9
     of each signal's range, as per sample)."""
-    setup = Setup(robot="xarm7", lowpass=lowpass, coulomb_eps=EPSILON_GRID, regressor=True)
-    whole = replace(setup, block_size=1 << 20).prepare(jittered)
-    parts = replace(setup, block_size=block).prepare(jittered)
+    setup = Setup(robot="xarm7", lowpass=lowpass)
+    features = ModelFeatures(coulomb_eps=EPSILON_GRID, regressor=True)
+    whole = replace(setup, block_size=1 << 20).prepare(jittered, features)
+    parts = replace(setup, block_size=block).prepare(jittered, features)
     np.testing.assert_array_equal(parts.states.stamp_ns, whole.states.stamp_ns)
     np.testing.assert_array_equal(parts.sim_effort, whole.sim_effort)  # τ̂ on the grid
     for name in ("effort_f", "sim_effort_f", "velocity_f", "coulomb_f", "regressor_f"):
@@ -334,12 +337,12 @@ def test_fit_on_the_grid_is_the_per_sample_fit_within_the_noise(
     """The same samples counted (each at its cell's node), the same ε, and a fit as good."""
     monkeypatch.setattr(twincd.grid, "GRID_MIN_PERIODS", 10**9)
     train = sorted((xarm_1khz / "train").glob("*.mcap"))
-    per_sample = fit_calibration(train, Setup(lowpass=ZERO_PHASE))
-    assert zero_phase_cal.fit_samples == per_sample.fit_samples
-    assert zero_phase_cal.epsilon is not None and per_sample.epsilon is not None
-    np.testing.assert_array_equal(zero_phase_cal.epsilon, per_sample.epsilon)
-    assert zero_phase_cal.rmse is not None and per_sample.rmse is not None
-    assert np.all(zero_phase_cal.rmse <= 1.05 * per_sample.rmse)
+    per_sample = fit_calibration(train, jobs=1, **filter_settings(ZERO_PHASE)).calibration
+    assert zero_phase_cal.fit.samples == per_sample.fit.samples
+    grid_model, sample_model = zero_phase_cal.model, per_sample.model
+    np.testing.assert_array_equal(grid_model.epsilon_, sample_model.epsilon_)  # type: ignore[attr-defined]
+    assert grid_model.rmse_ is not None and sample_model.rmse_ is not None
+    assert np.all(grid_model.rmse_ <= 1.05 * sample_model.rmse_)
 
 
 def test_sums_over_nodes_that_stand_for_one_sample_each_are_the_samples_sums() -> None:
@@ -349,18 +352,18 @@ def test_sums_over_nodes_that_stand_for_one_sample_each_are_the_samples_sums() -
     n, d, e = 400, 3, len(EPSILON_GRID)
     mask = np.ones((d, 5), dtype=bool)
     mask[0, 3:] = False
-    inputs = {
-        "sim_effort_f": rng.normal(size=(n, d)),
-        "effort_f": rng.normal(size=(n, d)),
-        "velocity_f": rng.normal(size=(n, d)),
-        "coulomb_f": rng.normal(size=(n, e, d)),
-        "coulomb_eps": EPSILON_GRID,
-        "regressor_f": rng.normal(size=(n, int(mask.sum()))),
-        "regressor_mask": mask,
-        "velocity": rng.normal(size=(n, d)) * 0.1,
-    }
+    inputs = ModelInputs(
+        sim_effort_f=rng.normal(size=(n, d)),
+        effort_f=rng.normal(size=(n, d)),
+        velocity_f=rng.normal(size=(n, d)),
+        coulomb_f=rng.normal(size=(n, e, d)),
+        coulomb_eps=EPSILON_GRID,
+        regressor_f=rng.normal(size=(n, int(mask.sum()))),
+        regressor_mask=mask,
+        velocity=rng.normal(size=(n, d)) * 0.1,
+    )
     clean = rng.uniform(size=n) > 0.2
-    bins = speed_bin(inputs["velocity"])
+    bins = speed_bin(inputs.velocity)
     by_speed = np.zeros((n, d, len(SPEED_BINS) + 1), dtype=np.int64)
     by_speed[np.arange(n)[:, None], np.arange(d)[None], bins] = clean[:, None]
     cells = FitStats.from_cells(inputs, clean.astype(np.int64), by_speed)
@@ -419,10 +422,11 @@ def test_the_grid_stage_gives_the_same_bits_in_any_chunking(
     }
     names = ("a", "b", "c")
     lowpass = CAUSAL if causal else ZERO_PHASE
-    setup = replace(Setup(lowpass=lowpass), coulomb_eps=(0.01, 0.1))
+    features = ModelFeatures(coulomb_eps=(0.01, 0.1))
 
     def run(edges: list[int]) -> Frame:
-        built = build_chain(setup, JointLayout(names, names, names), 0.001, None, False)
+        layout = JointLayout(names, names, names)
+        built = build_chain(lowpass, features, layout, 0.001, None, False)
         assert built.grid is not None
         parts = [built.chain.push(Frame({k: v[a:b] for k, v in columns.items()}))
                  for a, b in zip([0, *edges], [*edges, n], strict=True)]  # fmt: skip

@@ -166,7 +166,7 @@ def test_the_library_refuses_a_named_option_alike(tmp_path):
 
     log = arm_log(tmp_path / "a.mcap", "twincd", twin_topic="/controller/model_effort")
     with pytest.raises(TopicError, match="simulated effort topic /controller/model_efort"):
-        fit_calibration([log], SetupOptions(sim_topic="/controller/model_efort").resolve())
+        fit_calibration([log], sim_topic="/controller/model_efort")
     # one log read alone (the block stream): refused by the reader itself
     setup = SetupOptions(label_topic="/nope").resolve()
     with (
@@ -175,7 +175,7 @@ def test_the_library_refuses_a_named_option_alike(tmp_path):
     ):
         list(s)
     with pytest.raises(UsageError, match="joint map entry j9=joint1"):
-        fit_calibration([log], SetupOptions(joint_map={"j9": "joint1"}).resolve())
+        fit_calibration([log], joint_map={"j9": "joint1"})
 
 
 # ---------------------------------------------------------------- the default robot

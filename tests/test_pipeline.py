@@ -15,11 +15,10 @@ import numpy as np
 import pytest
 from support.builders import XARM, Message, joint_state, write
 
-from twincd.calibration import fit_calibration
-from twincd.detection import OnlineDetector, detect_file
+from twincd.commands import fit_calibration, threshold_calibration
+from twincd.detection import OnlineDetector, detect_streamed
 from twincd.pipeline import Setup
 from twincd.signal.filters import LowPass
-from twincd.threshold import threshold_calibration
 
 CAUSAL = LowPass(cutoff_hz=3.0, causal=True)
 
@@ -72,11 +71,16 @@ def test_block_size_does_not_change_the_answer(
 @pytest.fixture(scope="module", params=["affine", "friction-whitened"])
 def causal_calibration(twin_dataset: Path, request):  # type: ignore[no-untyped-def]
     # every calibration model runs live: the friction model's Coulomb features stream too
-    setup = Setup(lowpass=CAUSAL)
     train = sorted((twin_dataset / "train").glob("*.mcap"))
-    cal = fit_calibration(train, setup, request.param)
+    cal = fit_calibration(
+        train,
+        model=request.param,
+        cutoff_hz=CAUSAL.cutoff_hz,
+        causal=True,
+        filter_kind=CAUSAL.kind,
+    ).calibration
     val = sorted((twin_dataset / "val").glob("*.mcap"))
-    return threshold_calibration(val, cal, Setup.from_calibration(cal), 3.0)
+    return threshold_calibration(val, cal, k_sigma=3.0).calibration
 
 
 @pytest.mark.parametrize("chunk", [1, 7, 1000, None])
@@ -95,7 +99,7 @@ def test_online_detector_equals_batch_causal_detection(
             if frame.n:
                 rows.append({k: frame[k] for k in ("score", "flag")})
 
-    batch = detect_file(log, cal, setup, [Keep()])
+    batch = detect_streamed(log, cal, setup, [Keep()])
     assert batch.events, "the test log has labelled bumps: the detector should find them"
     prepared = replace(setup, lowpass=cal.lowpass).prepare(log)
     states = prepared.states
@@ -197,8 +201,8 @@ def test_joint_order_comes_from_names_not_from_the_first_log(twin_log, tmp_path:
     parts = [fit_log(p, setup) for p in (a, b)]
     one, other = merge_fits(parts, setup, "affine"), merge_fits(parts[::-1], setup, "affine")
     assert one.joint_names == other.joint_names == ("j1", "j2", "j3")
-    np.testing.assert_array_equal(one.a, other.a)
-    np.testing.assert_array_equal(one.b, other.b)
+    np.testing.assert_array_equal(one.model.a_, other.model.a_)
+    np.testing.assert_array_equal(one.model.b_, other.model.b_)
 
 
 def test_joint_order_puts_the_model_first_then_names_naturally() -> None:
@@ -235,21 +239,21 @@ def test_logs_with_other_joints_are_refused_together(tmp_path: Path) -> None:
 def test_the_chain_follows_joint_names_whatever_the_columns(lowpass: LowPass) -> None:
     """``build_chain`` on frames whose columns are shuffled and carry a joint the twin does not
     use gives, joint by joint, what it gives on frames in the twin's order."""
-    from types import SimpleNamespace
-
     from twincd.chain import JointLayout, build_chain
     from twincd.frames import Frame
+    from twincd.signal.features import ModelFeatures
 
     rng = np.random.default_rng(3)
     n, joints = 400, ("a", "b", "c")
     stamps = 1_000_000_000 + np.arange(n, dtype=np.int64) * 10_000_000
     arrays = {k: rng.normal(size=(n, 3)) for k in ("position", "velocity", "effort", "sim_effort")}
-    settings: Any = SimpleNamespace(lowpass=lowpass, coulomb_eps=(0.01,))
+    features = ModelFeatures(coulomb_eps=(0.01,))
 
     def run(columns: tuple[str, ...], output: tuple[str, ...]) -> Frame:
         picked = [joints.index(c) if c in joints else 0 for c in columns]
         frame = Frame({"stamp_ns": stamps, **{k: v[:, picked] for k, v in arrays.items()}})
-        built = build_chain(settings, JointLayout(columns, joints, output), 0.01, None, False)
+        layout = JointLayout(columns, joints, output)
+        built = build_chain(lowpass, features, layout, 0.01, None, False)
         assert built.joint_names == output
         return Frame.concat([built.chain.push(frame), built.chain.finish()])
 

@@ -9,7 +9,7 @@ from rich.console import Console
 from support.clitools import run
 
 from twincd.calibration import Calibration
-from twincd.detection import detect_file
+from twincd.detection import detect_streamed
 from twincd.pipeline import Setup
 from twincd.progress import listening
 
@@ -27,11 +27,11 @@ def test_the_library_tells_of_each_block(twin_calibration, twin_dataset):
     cal = Calibration.load(twin_calibration)
     told: list[int] = []
     with listening(told.append):
-        summary = detect_file(
+        summary = detect_streamed(
             twin_dataset / "test" / "test_0.mcap", cal, Setup.from_calibration(cal)
         )
     assert told and sum(told) == summary.samples
-    detect_file(twin_dataset / "test" / "test_0.mcap", cal, Setup.from_calibration(cal))
+    detect_streamed(twin_dataset / "test" / "test_0.mcap", cal, Setup.from_calibration(cal))
     assert sum(told) == summary.samples  # no listener: nothing told
 
 

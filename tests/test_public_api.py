@@ -39,7 +39,7 @@ def test_type_checkers_see_the_real_types(tmp_path: Path) -> None:
     assert [n for n, kind in revealed.items() if kind == "Any"] == []
     assert revealed["Calibration"].endswith(".Calibration")  # the class itself
     assert revealed["OnlineDetector"].endswith(".OnlineDetector")
-    assert revealed["detect_file"].startswith("def (path: ")
+    assert revealed["detect_file"].startswith("def (log: ")
     assert revealed["detect_file"].endswith(".DetectionSummary")
 
 

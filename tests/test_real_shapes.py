@@ -322,11 +322,13 @@ def test_a_panda_with_its_fingers_through_every_command(tmp_path):
 def test_joint_order_and_extra_joints_never_change_scores(plain, order, extras, at):
     calibration = Calibration.load(plain["cal"])
     setup = Setup.from_calibration(calibration)
-    reference = detect_log(setup.prepare(plain["logs"]["test"]), calibration).scores
+    reference = detect_log(
+        setup.prepare(plain["logs"]["test"], calibration.model.features), calibration
+    ).scores
     names = [*order[:at], *extras, *order[at:]]
     with tempfile.TemporaryDirectory() as tmp:
         path = build_twin_log(
             Path(tmp) / "t.mcap", seed=200, bumps=DEFAULT_BUMPS, state_joints=names
         )
-        scores = detect_log(setup.prepare(path), calibration).scores
+        scores = detect_log(setup.prepare(path, calibration.model.features), calibration).scores
     np.testing.assert_array_equal(scores, reference)

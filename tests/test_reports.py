@@ -76,7 +76,7 @@ def test_detection_figure_has_the_size_asked_and_is_not_blank(sample_detection, 
 
 def test_fit_figure_is_drawn(twin_dataset, tmp_path):
     from twincd.calibration import merge_fits
-    from twincd.calibration.fitting import setup_for_model
+    from twincd.calibration.models import fit_features
     from twincd.reports.figures import fit_figure
     from twincd.reports.traces import ThinnedPairs, fit_log_with_pairs
 
@@ -84,15 +84,16 @@ def test_fit_figure_is_drawn(twin_dataset, tmp_path):
     both = [fit_log_with_pairs(p, setup) for p in sorted((twin_dataset / "train").iterdir())]
     cal = merge_fits([part for part, _ in both], setup, "affine")
     pairs = ThinnedPairs.merge([p for _, p in both])
-    assert pairs.seen == cal.fit_samples
+    assert pairs.seen == cal.fit.samples
     figure = fit_figure(cal, pairs)
     # the affine model's prediction is the line a·τ̂̃ + b: drawn on every joint's axes
     lines = [ax.lines for ax in figure.axes if ax.get_visible()]
     assert len(lines) == len(cal.joint_names) and all(len(drawn) == 1 for drawn in lines)
     assert_drawn(figure, tmp_path / "fit")
     # a friction model predicts from more than τ̂̃: no line of τ̂̃ alone claims to be it
-    setup = setup_for_model(Setup(), "friction")
-    both = [fit_log_with_pairs(p, setup) for p in sorted((twin_dataset / "train").iterdir())]
+    features = fit_features("friction")
+    paths = sorted((twin_dataset / "train").iterdir())
+    both = [fit_log_with_pairs(p, setup, features) for p in paths]
     friction = merge_fits([part for part, _ in both], setup, "friction")
     figure = fit_figure(friction, ThinnedPairs.merge([p for _, p in both]))
     assert not any(ax.lines for ax in figure.axes)
@@ -385,13 +386,15 @@ def test_the_drawn_twin_is_what_the_model_predicts(sample_detection):
 
     cal, summary = sample_detection
     trace = summary.trace
-    assert cal.kind == "identified-whitened" and trace is not None
-    log = Setup.from_calibration(cal).prepare(SAMPLE_LOGS / "test" / "test_000.mcap")
+    assert cal.model.kind == "identified-whitened" and trace is not None
+    log = Setup.from_calibration(cal).prepare(
+        SAMPLE_LOGS / "test" / "test_000.mcap", cal.model.features
+    )
     d = len(cal.joint_names)
     lines = {}
     for name, values in (
         ("predicted", cal.model.predict(model_inputs(log))),
-        ("affine", cal.a * log.sim_effort_f + cal.b),
+        ("affine", cal.model.a_ * log.sim_effort_f + cal.model.b_),
     ):
         envelope = Envelope(d, trace.envelope.columns)
         envelope.push(log.states.stamp_ns, values)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from twincd import Calibration, SetupOptions
+from twincd.calibration.models import fit_features
 from twincd.defaults import (
     DEFAULT_CAUSAL_CUTOFF_HZ,
     DEFAULT_CRITICAL_CUTOFF_HZ,
@@ -19,10 +20,12 @@ from twincd.signal.filters import LowPass
 
 
 def _calibration(**kwargs: object) -> Calibration:
+    from twincd.calibration.models import make_model
+
+    model = make_model("affine").with_coefficients({"a": np.ones(2), "b": np.zeros(2)})
     return Calibration(
         ("j1", "j2"),
-        np.ones(2),
-        np.zeros(2),
+        model,
         LowPass(cutoff_hz=2.0, order=3, causal=True),
         options=LogOptions(topic="/arm/joint_states", joint_map={"a": "j1"}),
         source="cal.json",
@@ -76,16 +79,19 @@ def test_a_robot_against_the_calibration_s_is_refused() -> None:
 def test_fit_without_a_model_prepares_for_the_best_one() -> None:
     setup, model = fit_setup(SetupOptions(), None)
     assert model is None  # chosen from the logs by merge_fits
-    assert setup.regressor and setup.regressor_optional and setup.coulomb_eps
+    features = fit_features(model)
+    assert features.regressor and features.regressor_optional and features.coulomb_eps
     assert setup.lowpass.kind == "critical"
     assert setup.lowpass.cutoff_hz == DEFAULT_CRITICAL_CUTOFF_HZ
     setup, model = fit_setup(SetupOptions(), "affine")
-    assert model == "affine" and not setup.regressor and not setup.coulomb_eps
+    features = fit_features(model)
+    assert model == "affine" and not features.regressor and not features.coulomb_eps
     assert setup.lowpass.kind == "butterworth" and setup.lowpass.cutoff_hz == DEFAULT_CUTOFF_HZ
 
 
 def test_fit_filters_identified_models_without_overshoot_unless_told() -> None:
     setup, model = fit_setup(SetupOptions(), "identified")
-    assert model == "identified" and setup.regressor and setup.lowpass.kind == "critical"
+    assert model == "identified" and fit_features(model).regressor
+    assert setup.lowpass.kind == "critical"
     setup, _ = fit_setup(SetupOptions(filter_kind="butterworth"), "identified")
     assert setup.lowpass.kind == "butterworth"

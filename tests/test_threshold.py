@@ -123,9 +123,11 @@ def test_any_order_and_split_of_the_logs_give_the_same_threshold(
 
 
 def _calibration() -> Calibration:
+    from twincd.calibration.models import make_model
     from twincd.signal.filters import LowPass
 
-    return Calibration(("j1",), np.ones(1), np.zeros(1), LowPass(2, 1.0))
+    model = make_model("affine").with_coefficients({"a": np.ones(1), "b": np.zeros(1)})
+    return Calibration(("j1",), model, LowPass(2, 1.0))
 
 
 def _spikes(seed: int, shape: float, hours: float = 1.0) -> tuple[np.ndarray, float]:

@@ -16,13 +16,13 @@ from support import synthlogs
 from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration, Threshold
+from twincd.commands import threshold_calibration
 from twincd.detection.files import AlarmTally, record_false_alarms
 from twincd.errors import DataError
 from twincd.pipeline import Setup
 from twincd.threshold import (
     MISFIT_REFUSED,
     score_log,
-    threshold_calibration,
     threshold_prepared_logs,
 )
 
@@ -125,11 +125,10 @@ def test_every_rule_refuses(calibrations, validation, tmp_path):
 
 def test_the_library_refuses_as_the_cli(calibrations, validation):
     calibration = Calibration.load(calibrations["default"])
-    setup = Setup.from_calibration(calibration)
     with pytest.raises(DataError, match="not collision-free data the calibration fits"):
-        threshold_calibration(validation["still"]["mcap"], calibration, setup)
-    done = threshold_calibration(validation["clean"]["mcap"], calibration, setup)
-    th = done.require_threshold()
+        threshold_calibration(validation["still"]["mcap"], calibration)
+    done = threshold_calibration(validation["clean"]["mcap"], calibration)
+    th = done.calibration.require_threshold()
     assert th.false_alarms is not None and th.judged_s  # counted, as `twincd threshold` does
 
 
@@ -138,7 +137,7 @@ def test_evaluate_says_it_and_judges(calibrations, validation, caplog):
     fit are said in a warning, and the run still judges (its figures show the misfit)."""
     calibration = Calibration.load(calibrations["default"])
     setup = Setup.from_calibration(calibration)
-    logs = [setup.prepare(p) for p in validation["x3"]["mcap"]]
+    logs = [setup.prepare(p, calibration.model.features) for p in validation["x3"]["mcap"]]
     with caplog.at_level(logging.WARNING, logger="twincd"):
         done = threshold_prepared_logs(logs, calibration, 4.0)
     assert "not collision-free data the calibration fits" in caplog.text

@@ -6,14 +6,18 @@ type checkers see the real types):
 - read: ``LogOptions``, ``read_log``, ``expand_logs``
 - prepare (read → twin → filter): ``Setup`` (``.open(path)`` streams, ``.prepare(path)`` whole),
   resolved from ``SetupOptions`` (settings by name, checked against a calibration's)
-- calibrate: ``Calibration``, ``fit_calibration``, ``threshold_calibration``
-- detect: ``detect`` (a prepared log: ``twincd.detection.detect_log``), ``detect_file`` (a log
-  streamed), ``OnlineDetector`` (live)
-- live: ``watch`` (a running robot's joint states through a Foxglove bridge or ROS 2)
+- the commands, one function each with the CLI's defaults (``twincd.commands``):
+  ``fit_calibration`` (``twincd fit``), ``threshold_calibration``, ``detect_file`` (one log)
+  and ``detect_files``, ``evaluate_logs``, ``simulate_logs``, ``inspect_logs``; each returns
+  its answer with its warnings as data
+- calibrate: ``Calibration``
+- detect: ``detect`` (a prepared log: ``twincd.detection.detect_log``), ``OnlineDetector``
+  (live)
+- live: ``watch`` (a running robot's joint states through a Foxglove bridge, ROS 2 or rmw_zenoh)
 - many logs: ``run_logs`` (a per-log function over paths: local processes or Dask, keep-going)
 
-Arguments come in one order: inputs, calibration, settings
-(``detect_file(path, calibration, setup)``).
+Arguments come in one order: inputs, calibration, then settings by keyword
+(``detect_file(log, calibration, causal=True)``).
 """
 
 from __future__ import annotations
@@ -22,8 +26,17 @@ from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from twincd.calibration import Calibration, fit_calibration
-    from twincd.detection import OnlineDetector, detect_file
+    from twincd.calibration import Calibration
+    from twincd.commands import (
+        detect_file,
+        detect_files,
+        evaluate_logs,
+        fit_calibration,
+        inspect_logs,
+        simulate_logs,
+        threshold_calibration,
+    )
+    from twincd.detection import OnlineDetector
     from twincd.detection.detect import detect_log as detect
     from twincd.errors import TwincdError
     from twincd.io.logs import expand_logs
@@ -32,7 +45,6 @@ if TYPE_CHECKING:
     from twincd.pipeline import Setup, read_log
     from twincd.run import LogFailure, LogRun, run_logs
     from twincd.settings import SetupOptions
-    from twincd.threshold import threshold_calibration
 
 from twincd.version import __version__
 
@@ -44,10 +56,14 @@ _EXPORTS = {
     "Setup": "twincd.pipeline",
     "SetupOptions": "twincd.settings",
     "Calibration": "twincd.calibration",
-    "fit_calibration": "twincd.calibration",
-    "threshold_calibration": "twincd.threshold",
+    "fit_calibration": "twincd.commands",
+    "threshold_calibration": "twincd.commands",
+    "detect_file": "twincd.commands",
+    "detect_files": "twincd.commands",
+    "evaluate_logs": "twincd.commands",
+    "simulate_logs": "twincd.commands",
+    "inspect_logs": "twincd.commands",
     "detect": "twincd.detection:detect_log",
-    "detect_file": "twincd.detection",
     "OnlineDetector": "twincd.detection",
     "run_logs": "twincd.run",
     "LogRun": "twincd.run",
@@ -68,10 +84,14 @@ __all__ = [
     "__version__",
     "detect",
     "detect_file",
+    "detect_files",
+    "evaluate_logs",
     "expand_logs",
     "fit_calibration",
+    "inspect_logs",
     "read_log",
     "run_logs",
+    "simulate_logs",
     "threshold_calibration",
     "watch",
 ]

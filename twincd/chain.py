@@ -13,15 +13,16 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from twincd.errors import CalibrationError, UsageError
 from twincd.frames import Chain, Derived, Frame, Mapped, Stage
 from twincd.grid import GridStage, grid_period_ns
+from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
 
@@ -82,8 +83,8 @@ def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) ->
 def check_urdf(robot: RobotModel, expected: str | None, allow: bool, source: str) -> None:
     """The URDF a calibration was fitted with (its sha256, ``expected``) must be the one its
     twin runs on: a changed file is refused, or with ``allow`` said once for the log.
-    Calibrations that record no sha256 (older files, or fitted on a log's own twin effort
-    without a model) are not checked."""
+    Calibrations that record no sha256 (fitted on a log's own twin effort without a model, or
+    files that did not record it) are not checked."""
     if not expected or robot.urdf_sha256 == expected:
         return
     what = (
@@ -276,17 +277,6 @@ def edge_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
 # ------------------------------------------------------------------ one chain
 
 
-class ChainSettings(Protocol):
-    """What the chain takes from a calibration or a ``twincd.pipeline.Setup``."""
-
-    @property
-    def lowpass(self) -> LowPass: ...
-    @property
-    def coulomb_eps(self) -> tuple[float, ...]: ...
-    @property
-    def regressor_weights(self) -> FloatArray | None: ...
-
-
 @dataclass(frozen=True)
 class JointLayout:
     """The joints of a chain: ``columns`` those of the frames pushed in, ``twin`` those the twin
@@ -310,7 +300,7 @@ class JointLayout:
 
 
 @dataclass(frozen=True)
-class TwinChain:
+class BuiltChain:
     """A built chain and what scoring its frames needs besides them."""
 
     chain: Chain
@@ -372,7 +362,8 @@ def warn_unwrapped(source: str, unwrap: StreamingUnwrap | None, joints: Sequence
 
 
 def build_chain(
-    settings: ChainSettings,
+    lowpass: LowPass,
+    features: ModelFeatures,
     layout: JointLayout,
     period_s: float,
     twin: RobotModel | None,
@@ -382,9 +373,10 @@ def build_chain(
     filtered: bool = True,
     nodes: bool = False,
     model: ResidualModel | None = None,
-) -> TwinChain:
-    """The one chain for ``settings`` (its filter: zero-phase or causal; the friction models'
-    ε) on frames whose joints are laid out as ``layout``: pick the twin's columns, twin
+) -> BuiltChain:
+    """The one chain for ``lowpass`` (zero-phase or causal) and a model's ``features`` (the
+    friction models' ε, the identified models' θ: ``ResidualModel.features`` of a fitted
+    ``model``) on frames whose joints are laid out as ``layout``: pick the twin's columns, twin
     (``twin`` None: the frames carry ``sim_effort``; ``regressor``: the robot model whose
     joint-torque regressor the identified models need, ``layout.twin`` in its order), put the
     joints in the output order, and with ``filtered`` low-pass filter (``filtered=False`` stops
@@ -395,41 +387,42 @@ def build_chain(
     the samples by interpolation (``twincd.grid.GridStage``). What comes back on the samples:
     every filtered column by default (what a ``PreparedLog`` holds); with ``nodes``, all but
     the regressor's hundreds of entries, the grid keeping its filtered nodes for ``fit``
-    (``TwinChain.grid.take_nodes``); with a fitted ``model`` (scoring), its prediction
+    (``BuiltChain.grid.take_nodes``); with a fitted ``model`` (scoring), its prediction
     ``predicted``, computed on the nodes (every model is linear in its filtered inputs, so it
     commutes with the interpolation), with ``effort_f`` and ``sim_effort_f`` only."""
-    causal = settings.lowpass.causal
+    causal = lowpass.causal
     mask = None
     if filtered and regressor is not None:
         from twincd.twin.dynamics import regressor_mask
 
         assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
         mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
-    theta = None if mask is None else settings.regressor_weights
-    grid = grid_period_ns(settings.lowpass.cutoff_hz, period_s) if filtered else None
+    theta = None if mask is None else features.theta
+    grid = grid_period_ns(lowpass.cutoff_hz, period_s) if filtered else None
     if grid is not None:
         models = (twin, regressor, None if nodes else model)
-        stage = _grid_stage(settings, layout, grid, period_s, models, threads, nodes)
+        stage = _grid_stage(lowpass, features, layout, grid, period_s, models, threads, nodes)
         stages: list[Stage] = [
             pick_columns(layout.to_twin),
             *twin_stages(None, period_s, causal, fill_velocity),  # the velocity, if missing
             pick_columns(layout.to_output),
-            *edge_stages(settings.lowpass, period_s),
+            *edge_stages(lowpass, period_s),
             stage,
         ]
-        return TwinChain(Chain(stages), layout, period_s, mask, stage)
+        return BuiltChain(Chain(stages), layout, period_s, mask, stage)
     stages = [
         pick_columns(layout.to_twin),
         *twin_stages(twin, period_s, causal, fill_velocity, threads, regressor),
         pick_columns(layout.to_output),
     ]
     if filtered:
-        stages += filter_stages(settings.lowpass, period_s, settings.coulomb_eps, mask, theta)
-    return TwinChain(Chain(stages), layout, period_s, mask)
+        stages += filter_stages(lowpass, period_s, features.coulomb_eps, mask, theta)
+    return BuiltChain(Chain(stages), layout, period_s, mask)
 
 
 def _grid_stage(
-    settings: ChainSettings,
+    lowpass: LowPass,
+    features: ModelFeatures,
     layout: JointLayout,
     grid_ns: int,
     period_s: float,
@@ -444,10 +437,10 @@ def _grid_stage(
     from twincd.twin.dynamics import regressor_mask
 
     twin, regressor, model = models
-    lowpass, eps = settings.lowpass, settings.coulomb_eps
+    eps = features.coulomb_eps
     step = grid_ns * 1e-9
     mask = None if regressor is None else regressor_mask(regressor)[layout.to_output]
-    theta = None if mask is None else settings.regressor_weights
+    theta = None if mask is None else features.theta
     # a fitted model reads one Coulomb feature per joint, at the joint's own ε: only those are
     # averaged and filtered, and set among the others (zeros) before the model reads them
     own = None if model is None else joint_epsilon(model, eps, len(layout.output))
@@ -460,7 +453,7 @@ def _grid_stage(
     ]
     interpolate = ["effort_f", "sim_effort_f"]
     if model is not None:
-        node_stages.append(_predicting(model, eps, mask, own))
+        node_stages.append(_predicting(model, eps, mask, theta, own))
         interpolate.append("predicted")
     else:
         if eps:
@@ -488,18 +481,20 @@ def _predicting(
     model: ResidualModel,
     eps: tuple[float, ...],
     mask: BoolArray | None,
+    theta: FloatArray | None,
     own: FloatArray | None,
 ) -> Mapped:
-    """The fitted model's prediction (``predicted``) of filtered frames; ``own``: the frames
-    carry one Coulomb feature per joint, at its ε, set into ``eps``' features for the model."""
+    """The fitted model's prediction (``predicted``) of filtered frames (``theta``: the θ of
+    their Ỹθ); ``own``: the frames carry one Coulomb feature per joint, at its ε, set into
+    ``eps``' features for the model."""
     at = None if own is None else [eps.index(float(e)) for e in own]
 
     def predict(frame: Frame) -> Frame:
-        inputs = {**frame, "coulomb_eps": eps, "regressor_mask": mask}
+        inputs = ModelInputs.of(frame, eps, mask, theta)
         if at is not None:
-            features = np.zeros((frame.n, len(eps), len(at)))
-            features[:, at, np.arange(len(at))] = frame["coulomb_f"][:, 0, :]
-            inputs["coulomb_f"] = features
+            coulomb = np.zeros((frame.n, len(eps), len(at)))
+            coulomb[:, at, np.arange(len(at))] = frame["coulomb_f"][:, 0, :]
+            inputs = replace(inputs, coulomb_f=coulomb)
         return frame.with_columns(predicted=model.predict(inputs))
 
     return Mapped(predict)

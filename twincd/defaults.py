@@ -25,7 +25,6 @@ DEFAULT_K_SIGMA = 4.0  # the paper's μ + 4σ
 # (twincd.threshold.threshold_from_parts; studies/real_arm_statistics.py)
 DEFAULT_FALSE_ALARMS_PER_HOUR = 1.0
 DEFAULT_REPEATS = 5  # the paper's Table II: deep methods as mean ± std over five runs
-DEFAULT_LINK_TOPIC = "/collision_link"
 
 # `twincd synth`: a path longer than this is joined from segments of at most this length, each
 # home → teaching points → home at rest at both ends (a path over a few minutes never stays

@@ -241,36 +241,46 @@ def defect(exc: BaseException, item: object) -> InternalError:
     return InternalError.from_exception(exc, "" if path is None else str(path))
 
 
-class _Gather(logging.Handler):
-    """Keeps twincd's warnings; passes anything less on to the handlers it stands in for."""
+class _Keep(logging.Filter):
+    """Keeps the message of each of twincd's warnings (one line each); ``passes``: the warning
+    goes on to the logger's handlers as well, else it stops here."""
 
-    def __init__(self, others: list[logging.Handler], into: list[str]) -> None:
+    def __init__(self, into: list[str], passes: bool) -> None:
         super().__init__()
-        self.others = others
         self.into = into
+        self.passes = passes
 
-    def emit(self, record: logging.LogRecord) -> None:
-        if record.levelno >= logging.WARNING:
-            self.into.append(record.getMessage())
-            return
-        for handler in self.others:
-            if record.levelno >= handler.level:
-                handler.handle(record)
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        self.into.append(" ".join(record.getMessage().splitlines()))
+        return self.passes
 
 
 @contextlib.contextmanager
-def captured_warnings() -> Iterator[list[str]]:
-    """The messages of twincd's warnings logged inside the block (not printed)."""
+def _kept(passes: bool) -> Iterator[list[str]]:
+    # a filter on the ``twincd`` logger, first in line (the innermost block decides): the
+    # logger's handlers, the user's logging set-up, stay as they are
     logger = logging.getLogger("twincd")
     found: list[str] = []
-    saved, saved_propagate = logger.handlers[:], logger.propagate
-    logger.handlers[:] = [_Gather(saved, found)]
-    logger.propagate = False
+    keep = _Keep(found, passes)
+    logger.filters.insert(0, keep)
     try:
         yield found
     finally:
-        logger.handlers[:] = saved
-        logger.propagate = saved_propagate
+        logger.removeFilter(keep)
+
+
+def captured_warnings() -> contextlib.AbstractContextManager[list[str]]:
+    """The messages of twincd's warnings logged inside the block, held back (not printed):
+    a log's work gives them to whoever runs it, who logs them once the log is done."""
+    return _kept(passes=False)
+
+
+def gathered_warnings() -> contextlib.AbstractContextManager[list[str]]:
+    """The messages of twincd's warnings logged inside the block (one line each), which go on
+    to the logger's handlers as usual: a command's warnings as data."""
+    return _kept(passes=True)
 
 
 class Bound(Generic[T, R]):

@@ -123,24 +123,18 @@ def _finite(value: Any) -> Any:
 
 @contextmanager
 def _captured_warnings() -> Iterator[list[str]]:
-    """Collect the ``twincd`` logger's warnings instead of emitting them: an inspection returns
-    its warnings as data (the caller shows them with the log they belong to)."""
-    lines: list[str] = []
+    """The ``twincd`` logger's warnings held back (``twincd.executors.captured_warnings``) and
+    nothing less said, whatever level the logger is set to: an inspection returns its warnings
+    as data (the caller shows them with the log they belong to)."""
+    from twincd.executors import captured_warnings
 
-    class _Keep(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            if record.levelno >= logging.WARNING:
-                lines.append(" ".join(record.getMessage().splitlines()))
-
-    saved, propagate, level = log.handlers[:], log.propagate, log.level
-    log.handlers[:] = [_Keep()]
-    log.propagate = False
+    level = log.level
     log.setLevel(logging.WARNING)
     try:
-        yield lines
+        with captured_warnings() as lines:
+            yield lines
     finally:
-        log.handlers[:] = saved
-        log.propagate, log.level = propagate, level
+        log.setLevel(level)
 
 
 def inspect_log(

@@ -18,7 +18,7 @@ import numpy as np
 
 from twincd.detection.detect import DetectionSummary, LogDetection
 from twincd.detection.events import Event
-from twincd.detection.files import detect_file
+from twincd.detection.files import detect_streamed
 from twincd.errors import OutputError, UsageError
 from twincd.frames import Frame, FrameSink
 
@@ -269,7 +269,7 @@ def detect_and_write(
             threshold = calibration.require_threshold().value
             figure_data = DetectionTrace(calibration.joint_names, threshold)
             sinks.append(figure_data)
-        summary = detect_file(path, calibration, setup, sinks)
+        summary = detect_streamed(path, calibration, setup, sinks)
         summary.trace = figure_data
         return summary
 

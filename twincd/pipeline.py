@@ -27,8 +27,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from twincd.chain import (
+    BuiltChain,
     JointLayout,
-    TwinChain,
     build_chain,
     check_urdf,
     model_joints,
@@ -37,7 +37,7 @@ from twincd.chain import (
     warn_unwrapped,
 )
 from twincd.defaults import DEFAULT_ROBOT
-from twincd.errors import DataError, JointMismatchError
+from twincd.errors import DataError, JointMismatchError, UsageError
 from twincd.frames import Frame, prefetched
 from twincd.io.logs import JointStates
 from twincd.io.options import LogOptions
@@ -45,6 +45,7 @@ from twincd.io.stream import iter_blocks, warn_ignored_joints
 from twincd.progress import samples_done
 from twincd.signal.checks import SignalChecks
 from twincd.signal.derivatives import differentiate
+from twincd.signal.features import ModelFeatures
 from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 
@@ -89,11 +90,13 @@ class PreparedLog:
     period_s: float | None = None
     velocity_f: FloatArray | None = None  # q̇̃, the velocity through the same filter (friction)
     coulomb_f: FloatArray | None = None  # filtered tanh(q̇/ε), (N, E, joints), ε in coulomb_eps
-    coulomb_eps: tuple[float, ...] = ()
+    # what the chain computed for a model: the ε of ``coulomb_f``, the θ of
+    # ``regressor_effort_f``
+    features: ModelFeatures = field(default_factory=ModelFeatures)
     # Y(q, q̇, q̈) through the same filter, (N, joints, parameters) (identified models)
     regressor_f: FloatArray | None = None
     # Ỹθ per joint, (N, D), instead of ``regressor_f`` when prepared to score a fitted
-    # identified model (``Setup.regressor_weights``)
+    # identified model (its ``ModelFeatures.theta``)
     regressor_effort_f: FloatArray | None = None
     # True within the filter's edge span of a segment's ends (``edge_span``; None: unfiltered)
     edge: BoolArray | None = None
@@ -101,6 +104,10 @@ class PreparedLog:
     @property
     def source(self) -> str:
         return self.states.source
+
+    @property
+    def coulomb_eps(self) -> tuple[float, ...]:
+        return self.features.coulomb_eps
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -146,7 +153,9 @@ class PreparedStream:
     them), joints in ``joint_names`` order.
 
     ``filtered=False`` stops after the twin (what ``simulate`` writes); ``need_effort=False``
-    accepts logs without measured effort.
+    accepts logs without measured effort. ``features``: what the chain computes for a model
+    (``twincd.signal.features.ModelFeatures``: a fit's); with a fitted ``model``, its own
+    (``ResidualModel.features``), never another's.
 
     On logs sampled far faster than the filter keeps, the twin and the filter run on a coarse
     grid (``twincd.grid``; ``grid`` is then its stage): ``nodes=True`` keeps its filtered nodes
@@ -165,7 +174,14 @@ class PreparedStream:
         force_simulate: bool = False,
         nodes: bool = False,
         model: ResidualModel | None = None,
+        features: ModelFeatures | None = None,
     ) -> None:
+        if model is not None and features is not None:
+            raise UsageError(
+                "a fitted model's stream takes the model's own features",
+                str(path),
+                "pass the model, or features without a model",
+            )
         self.path = Path(path)
         self.setup = setup
         self.filtered = filtered
@@ -178,8 +194,11 @@ class PreparedStream:
         self.samples = 0
         self.dropped_bad = 0
         self.velocity_from_position = False
-        self.coulomb_eps = setup.coulomb_eps if filtered else ()
-        self.regressor = setup.regressor and filtered  # identified models: Y(q, q̇, q̈) filtered
+        if features is None:
+            features = ModelFeatures() if model is None else model.features
+        self.features = features if filtered else ModelFeatures()
+        self.coulomb_eps = self.features.coulomb_eps
+        self.regressor = self.features.regressor  # identified models: Y(q, q̇, q̈) filtered
         # (D, P): the regressor's entries the frames' ``regressor_f`` (N, kept) holds
         self.regressor_mask: BoolArray | None = None
         self.checks: SignalChecks | None = None
@@ -239,7 +258,7 @@ class PreparedStream:
                 break
         return head
 
-    def _set_up(self, first: Frame) -> TwinChain:
+    def _set_up(self, first: Frame) -> BuiltChain:
         """Decide, from the first samples, the twin source, the joints and the period, and
         build the chain."""
         assert self._log is not None
@@ -260,7 +279,8 @@ class PreparedStream:
         self.checks = SignalChecks(twin_names, robot.position_limits if robot else {})
         setup = self.setup
         built = build_chain(
-            setup,
+            setup.lowpass,
+            self.features,
             layout,
             self.period_s,
             model,
@@ -274,7 +294,7 @@ class PreparedStream:
         self.regressor_mask = built.regressor_mask
         self.grid = built.grid
         if built.grid is not None and self.regressor:
-            # the samples no longer carry the regressor's entries, only the grid's nodes do
+            # the regressor's entries are on the grid's nodes only, never on the samples
             # (fit's nodes all of them: fewer samples a block keep its sums' memory small)
             self._log.block_size = min(setup.block_size, GRID_BLOCK if self.nodes else 1 << 30)
         return built
@@ -318,7 +338,7 @@ class PreparedStream:
         none is asked for, or ``regressor_optional`` and no model of every joint is known)."""
         robot = self.robot
         usable = robot is not None and robot.joint_names == twin_names
-        if self.regressor and not usable and self.setup.regressor_optional:
+        if self.regressor and not usable and self.features.regressor_optional:
             self.regressor = False  # evaluate: the identified methods are then skipped
         if not self.regressor:
             return None
@@ -450,7 +470,7 @@ class PreparedStream:
             sim_effort_f=whole["sim_effort_f"],
             velocity_f=whole.get("velocity_f"),
             coulomb_f=whole.get("coulomb_f"),
-            coulomb_eps=self.coulomb_eps,
+            features=self.features,
             regressor_f=_whole_regressor(whole.get("regressor_f"), self.regressor_mask),
             regressor_effort_f=whole.get("regressor_effort_f"),
             robot=self.robot,
@@ -560,19 +580,17 @@ class CalibrationSettings(Protocol):
     @property
     def urdf_sha256(self) -> str | None: ...
     @property
-    def coulomb_eps(self) -> tuple[float, ...]: ...
-    @property
-    def regressor(self) -> bool: ...
-    @property
-    def regressor_weights(self) -> FloatArray | None: ...
-    @property
     def period_s(self) -> float | None: ...
+    @property
+    def source(self) -> str: ...
 
 
 @dataclass(frozen=True)
 class Setup:
     """How logs become prepared samples: log options, robot, filter and (optionally) joint
-    order and sampling period, all taken from a calibration when there is one.
+    order and sampling period, all taken from a calibration when there is one. What a model
+    needs besides (its features, its learned values) comes from the model
+    (``PreparedStream``'s ``model`` or ``features``), never from here.
 
     ``robot`` None means: use a log's own simulated effort, else simulate with the default
     robot model.
@@ -589,16 +607,6 @@ class Setup:
     # False: a truncated log is read up to the damage, with one warning (contract: Inputs)
     strict: bool = False
     twin_threads: int | None = None  # None: every core this process may use
-    coulomb_eps: tuple[float, ...] = ()  # ε of the filtered Coulomb features (friction models)
-    regressor: bool = False  # the filtered joint-torque regressor too (identified models)
-    # with ``regressor``: leave it out, rather than refuse a log, where no robot model is known
-    regressor_optional: bool = False
-    # with ``regressor``, to score a fitted identified model: its (D, P) weights θ, so that only
-    # Ỹθ is filtered (``regressor_effort_f``, D channels) instead of Ỹ's entries
-    regressor_weights: FloatArray | None = field(default=None, compare=False)
-    # fit: gather each joint's residual statistics per bin of its speed (the whitened models'
-    # noise scale); False for an unwhitened model, whose fit then costs what the paper's did
-    speed_stats: bool = True
 
     def block_size_for(self, regressor: bool) -> int:
         """Samples per block read: fewer when the regressor is filtered (``REGRESSOR_BLOCK``)."""
@@ -613,10 +621,34 @@ class Setup:
             joint_names=calibration.joint_names,
             urdf_sha256=calibration.urdf_sha256,
             period_s=calibration.period_s,
-            coulomb_eps=calibration.coulomb_eps,
-            regressor=calibration.regressor,
-            regressor_weights=calibration.regressor_weights,
         )
+
+    def check_against(self, calibration: CalibrationSettings) -> None:
+        """A ``UsageError`` when this setup reads logs otherwise than ``calibration`` was
+        fitted on (filter, joints, period, robot, URDF, topics): a calibration judges only logs
+        read its way, and a contradiction is never silently resolved either way. A robot the
+        calibration does not name may be given (its logs carried their own twin effort)."""
+        recorded = Setup.from_calibration(calibration)
+        differ = [
+            name
+            for name, given, was in (
+                ("filter", self.lowpass, recorded.lowpass),
+                ("joint_names", self.joint_names, recorded.joint_names),
+                ("period_s", self.period_s, recorded.period_s),
+                ("urdf_sha256", self.urdf_sha256, recorded.urdf_sha256),
+                ("log options", self.options, recorded.options),  # named or not alike
+            )
+            if given != was
+        ]
+        if recorded.robot is not None and self.robot != recorded.robot:
+            differ.append("robot")
+        if differ:
+            raise UsageError(
+                f"the setup's {', '.join(differ)} contradict(s) the calibration's",
+                calibration.source or "calibration",
+                "read logs with the calibration's settings (Setup.from_calibration, or "
+                "SetupOptions.resolve(calibration))",
+            )
 
     def for_logs(self, paths: Sequence[str | Path]) -> Setup:
         """This setup for one run over ``paths``: a named log option that none of them has is
@@ -632,21 +664,27 @@ class Setup:
         """Stream one log (a context manager; iterate it for Frames)."""
         return PreparedStream(path, self, **kwargs)
 
-    def prepare(self, path: str | Path) -> PreparedLog:
-        """One whole log in memory (for the baselines, evaluate's fitted methods, studies)."""
-        with self.open(path) as stream:
+    def prepare(self, path: str | Path, features: ModelFeatures | None = None) -> PreparedLog:
+        """One whole log in memory (for the baselines, evaluate's fitted methods, studies),
+        with ``features`` (a model's: ``ResidualModel.features``, or a fit's)."""
+        with self.open(path, features=features) as stream:
             return stream.read_whole()
 
-    def prepare_all(self, paths: Iterable[str | Path]) -> Iterator[PreparedLog]:
+    def prepare_all(
+        self, paths: Iterable[str | Path], features: ModelFeatures | None = None
+    ) -> Iterator[PreparedLog]:
         """Prepare logs lazily, each on its own (see ``joint_order``; ``agreed_joints`` checks
         that they agree)."""
         for path in paths:
-            yield self.prepare(path)
+            yield self.prepare(path, features)
 
 
-def prepare_log(path: str | Path, setup: Setup) -> PreparedLog:
-    """``setup.prepare(path)``: the per-log step of ``evaluate``, for any executor."""
-    return setup.prepare(path)
+def prepare_log(
+    path: str | Path, setup: Setup, features: ModelFeatures | None = None
+) -> PreparedLog:
+    """``setup.prepare(path, features)``: the per-log step of ``evaluate``, for any
+    executor."""
+    return setup.prepare(path, features)
 
 
 def read_log(path: str | Path, options: LogOptions | None = None) -> JointStates:

@@ -23,6 +23,8 @@ from twincd.calibration.models import depth_noise_median, model_inputs
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.pipeline import PreparedLog, Setup
+from twincd.signal.features import ModelInputs
+from twincd.signal.moments import Moments
 from twincd.tail import (
     MIN_PEAKS,
     MISFIT_STUDIED,
@@ -71,17 +73,12 @@ class ScoreStats:
             return self
         if self.n == 0:
             return other
-        n = self.n + other.n
-        delta = other.mean - self.mean
         histogram = None
         if self.histogram is not None and other.histogram is not None:
             histogram = self.histogram + other.histogram
-        return ScoreStats(
-            n,
-            self.mean + delta * other.n / n,
-            self.m2 + other.m2 + delta * delta * self.n * other.n / n,
-            histogram,
-        )
+        mine, theirs = (Moments(s.n, np.float64(s.mean), np.float64(s.m2)) for s in (self, other))
+        merged = mine + theirs
+        return ScoreStats(int(merged.n), float(merged.mean), float(merged.m2), histogram)
 
     @property
     def mu(self) -> float:
@@ -280,7 +277,9 @@ class LogScores:
 
 def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogScores:
     """Stream one log into statistics of its calibrated score on collision-free samples, its
-    excursions and each joint's residual over the noise the fit left it."""
+    excursions and each joint's residual over the noise the fit left it (``setup``: the
+    calibration's way of reading logs, ``Setup.check_against``)."""
+    setup.check_against(calibration)
     stats = ScoreStats()
     noise = NoiseRatio()
     model = calibration.model
@@ -288,14 +287,12 @@ def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogSc
         peaks: ExcursionCounter | None = None
         for frame in stream:
             peaks = peaks or ExcursionCounter(stream.period_s)
-            inputs = {
-                **frame,
-                "coulomb_eps": stream.coulomb_eps,
-                "regressor_mask": stream.regressor_mask,
-            }
+            inputs = ModelInputs.of(
+                frame, stream.coulomb_eps, stream.regressor_mask, stream.features.theta
+            )
             # a grid's frames carry the prediction, made on its nodes (twincd.chain)
             residual = model.residual(inputs, frame.get("predicted"))
-            velocity = frame.get("velocity")
+            velocity = inputs.velocity
             speed = None if velocity is None else np.asarray(velocity, dtype=np.float64)
             scores = model.score(residual, speed)
             usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
@@ -415,7 +412,7 @@ def threshold_from_parts(
         if p.excursions is not None:
             excursions = excursions + p.excursions
     seen = [p.source for p in parts]
-    reused = sorted(set(seen) & set(calibration.fit_logs))
+    reused = sorted(set(seen) & set(calibration.fit.logs))
     if reused:
         log.warning(
             "%d threshold log(s) were also used by fit (%s): the threshold will be optimistic; "
@@ -437,28 +434,6 @@ def threshold_from_parts(
     clean = depth_noise_median(len(calibration.joint_names)) if depth else 0.0
     threshold = budget_threshold(excursions, total, budget, seen, depth, clean)
     return replace(calibration, threshold=threshold)
-
-
-def threshold_calibration(
-    paths: Iterable[str | Path],
-    calibration: Calibration,
-    setup: Setup,
-    k_sigma: float | None = None,
-    false_alarms_per_hour: float | None = None,
-) -> Calibration:
-    """The threshold from collision-free logs (files, bags, folders of logs; each log once),
-    each streamed (see ``threshold_from_parts``), then, as ``twincd threshold`` does, the false
-    alarms it gives on them counted and a threshold that flags most of them refused
-    (``record_false_alarms``: ``detect``'s events, a second pass, since they need the
-    threshold)."""
-    from twincd.detection.files import record_false_alarms, tally_false_alarms
-    from twincd.io.logs import expand_logs
-
-    logs = expand_logs(paths)
-    setup = setup.for_logs(logs)
-    parts = [score_log(p, calibration, setup) for p in logs]
-    cal = threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour)
-    return record_false_alarms(cal, [tally_false_alarms(p, cal, setup) for p in logs])
 
 
 def threshold_prepared_logs(

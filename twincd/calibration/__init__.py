@@ -8,8 +8,15 @@ from twincd.calibration.affine import (
     clean_rows,
     solve,
 )
-from twincd.calibration.file import SCHEMA, Calibration, Threshold, calibration_from_fit
-from twincd.calibration.fitting import LogFit, fit_calibration, fit_log, merge_fits
+from twincd.calibration.file import (
+    SCHEMA,
+    Calibration,
+    FitInfo,
+    Threshold,
+    calibration_from_fit,
+    upgrade_v1,
+)
+from twincd.calibration.fitting import LogFit, fit_log, merge_fits
 from twincd.calibration.models import (
     AffineCalibration,
     AffineModel,
@@ -27,6 +34,7 @@ __all__ = [
     "AffineSolution",
     "AffineStats",
     "Calibration",
+    "FitInfo",
     "FitStats",
     "FrictionModel",
     "IdentifiedModel",
@@ -36,9 +44,9 @@ __all__ = [
     "calibration_from_fit",
     "clean_mask",
     "clean_rows",
-    "fit_calibration",
     "fit_log",
     "make_model",
     "merge_fits",
     "solve",
+    "upgrade_v1",
 ]

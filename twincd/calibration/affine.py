@@ -17,6 +17,7 @@ import numpy as np
 
 from twincd.calibration.excitation import PRIOR, conditioning, gain_held
 from twincd.errors import DataError
+from twincd.signal.moments import Moments
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
@@ -117,29 +118,27 @@ class AffineStats:
             cxy=(w * dx * dy).sum(axis=0),
         )
 
-    @classmethod
-    def from_log(cls, log_: PreparedLog) -> AffineStats:
-        """One log's statistics over its collision-free samples (the pure per-log step)."""
-        return cls.from_arrays(log_.sim_effort_f, log_.effort_f, clean_mask(log_))
-
     def __add__(self, other: AffineStats) -> AffineStats:
         if self.n == 0:
             return other
         if other.n == 0:
             return self
         same_joints(self.mean_x.shape[0], other.mean_x.shape[0])
-        n = self.n + other.n
-        dx = other.mean_x - self.mean_x
-        dy = other.mean_y - self.mean_y
-        w = self.n * other.n / n
+        merged = self.moments + other.moments
+        mean, m2 = merged.mean, merged.m2
         return AffineStats(
-            n,
-            self.mean_x + dx * (other.n / n),
-            self.mean_y + dy * (other.n / n),
-            self.cxx + other.cxx + dx * dx * w,
-            self.cyy + other.cyy + dy * dy * w,
-            self.cxy + other.cxy + dx * dy * w,
+            int(merged.n), mean[:, 0], mean[:, 1], m2[:, 0, 0], m2[:, 1, 1], m2[:, 0, 1]
         )
+
+    @property
+    def moments(self) -> Moments:
+        """The columns [τ̂̃, τ̃] of each joint as ``Moments``: means (D, 2), cross-products
+        (D, 2, 2)."""
+        cross = np.stack(
+            [np.stack([self.cxx, self.cxy], axis=-1), np.stack([self.cxy, self.cyy], axis=-1)],
+            axis=-2,
+        )
+        return Moments(self.n, np.stack([self.mean_x, self.mean_y], axis=-1), cross)
 
     @property
     def var_x(self) -> FloatArray:

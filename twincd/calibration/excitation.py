@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twincd.errors import DataError
+from twincd.signal.moments import Moments
 from twincd.types import BoolArray, FloatArray
 
 # a joint whose position varies less than this (std over the clean samples, rad or m) does not
@@ -71,17 +72,8 @@ class MotionStats:
         return cls(len(q), mean, ((q - mean) ** 2).sum(axis=0))
 
     def __add__(self, other: MotionStats) -> MotionStats:
-        if other.n == 0:
-            return self
-        if self.n == 0:
-            return other
-        n = self.n + other.n
-        delta = other.mean - self.mean
-        return MotionStats(
-            n,
-            self.mean + delta * (other.n / n),
-            self.m2 + other.m2 + delta * delta * (self.n * other.n / n),
-        )
+        merged = Moments(self.n, self.mean, self.m2) + Moments(other.n, other.mean, other.m2)
+        return MotionStats(int(merged.n), merged.mean, merged.m2)
 
     @property
     def spread(self) -> FloatArray:

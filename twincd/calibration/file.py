@@ -7,23 +7,11 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from twincd.calibration.models import (
-    AFFINE,
-    COEFFICIENTS,
-    MODEL_KINDS,
-    SPEED_BINS,
-    STATISTICS,
-    ResidualModel,
-    depth_order,
-    make_model,
-    model_class,
-)
+from twincd.calibration.models import ResidualModel, depth_order, read_model
+from twincd.calibration.values import finite_array, finite_number
 from twincd.errors import CalibrationError, NotFittedError
 from twincd.io.options import LogOptions
 from twincd.signal.filters import LowPass
@@ -31,49 +19,10 @@ from twincd.tail import TAIL_METHODS, TailFit
 from twincd.types import FloatArray
 from twincd.version import __version__
 
-SCHEMA = "twincd.calibration/1"
+SCHEMA = "twincd.calibration/2"
+SCHEMA_V1 = "twincd.calibration/1"  # still read, through ``upgrade_v1``
 # what a threshold's μ and σ are (``Threshold.estimator``)
 ESTIMATORS = ("mean-sd", "median-mad")
-
-
-def finite_number(value: Any, name: str, where: str, *, positive: bool = False) -> float:
-    """``value`` as a float, or a ``CalibrationError``: JSON numbers only (no strings, no
-    booleans), finite, and above 0 when ``positive`` (every number of the calibration file is
-    validated: docs/contract.md)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise CalibrationError(
-            f"calibration field {name} is {type(value).__name__} {value!r}, not a number",
-            where,
-            "re-run `twincd fit` to write a new one",
-        )
-    number = float(value)
-    if not math.isfinite(number) or (positive and number <= 0):
-        need = "a positive finite number" if positive else "a finite number"
-        raise CalibrationError(
-            f"calibration field {name} is {value!r}, not {need}",
-            where,
-            "re-run `twincd fit` to write a new one",
-        )
-    return number
-
-
-def finite_array(values: Sequence[Any], names: Sequence[str], field: str, where: str) -> FloatArray:
-    """One finite float per joint of ``names`` (a per-joint coefficient of any model kind), or a
-    ``CalibrationError`` naming the joint and the field at fault."""
-    if isinstance(values, (str, bytes)) or not isinstance(values, Sequence):
-        raise CalibrationError(
-            f"calibration field {field} is not a list of numbers", where, "re-run `twincd fit`"
-        )
-    if len(values) != len(names):
-        raise CalibrationError(
-            f"calibration field {field} has {len(values)} value(s) for {len(names)} joint(s)",
-            where,
-            "re-run `twincd fit` to write a new one",
-        )
-    return np.array(
-        [finite_number(v, f"{field}[{n}]", where) for v, n in zip(values, names, strict=True)],
-        dtype=np.float64,
-    )
 
 
 @dataclass(frozen=True)
@@ -134,75 +83,43 @@ class Threshold:
 
 
 @dataclass(frozen=True)
+class FitInfo:
+    """Where a calibration's model came from (the file's ``fit``; its per-joint R² and RMSE are
+    the model's own, ``ResidualModel.r2_`` and ``rmse_``)."""
+
+    logs: tuple[str, ...] = ()
+    samples: int = 0
+    seconds: float = 0.0
+    # per joint, the coefficients the fit logs' motion did not determine, held at their prior
+    # (``twincd.calibration.excitation``); None when no joint has any, or not recorded
+    held: tuple[tuple[str, ...], ...] | None = None
+
+
+@dataclass(frozen=True)
 class Calibration:
-    """Everything detection needs, as stored in calibration JSON (docs/contract.md)."""
+    """Everything detection needs, as stored in calibration JSON (docs/contract.md): how logs
+    were read (log options, robot, filter, joints, sampling period), the fitted ``model``
+    (which alone says what scores: its coefficients and the features it needs), the
+    ``threshold``, and where they came from (``fit``, ``created``, ``twincd_version``)."""
 
     joint_names: tuple[str, ...]
-    a: FloatArray
-    b: FloatArray
-    lowpass: LowPass
+    model: ResidualModel = field(compare=False)  # fitted, one of MODEL_KINDS
+    lowpass: LowPass = field(default_factory=LowPass)
     options: LogOptions = field(default_factory=LogOptions)
     robot: str | None = None
     urdf_sha256: str | None = None
     simulated: bool = True
-    fit_logs: tuple[str, ...] = ()
-    fit_samples: int = 0
-    r2: FloatArray | None = None
-    rmse: FloatArray | None = None
-    fit_s: float = 0.0
+    # nominal sampling period of the fitted logs: later logs are filtered at this rate, so that
+    # batch and live detection agree (None: not recorded)
+    period_s: float | None = None
+    # the body each joint moves (its child link), for naming the link an event touched
+    links: tuple[str, ...] | None = None
+    depths: tuple[int, ...] | None = None  # each joint's depth in the kinematic tree
+    fit: FitInfo = field(default_factory=FitInfo)
     threshold: Threshold | None = None
     created: str = ""
     twincd_version: str = __version__
     source: str = ""  # the file it was loaded from, for messages
-    # nominal sampling period of the fitted logs: later logs are filtered at this rate, so that
-    # batch and live detection agree (None in files written before it was recorded)
-    period_s: float | None = None
-    # the calibration model (``model``): the seed's affine map, or one of MODEL_KINDS
-    kind: str = AFFINE
-    c: FloatArray | None = None  # friction models: Coulomb coefficient of tanh(q̇̃/ε)
-    d: FloatArray | None = None  # friction models: viscous coefficient of q̇̃
-    epsilon: FloatArray | None = None  # friction models: ε (rad/s) chosen on the training logs
-    # whitened models: each joint's residual RMS on the clean training samples, (D, B) in bins
-    # of the joint's speed (edges ``speed_bins``), or (D,) in files written before the bins
-    scale: FloatArray | None = None
-    speed_bins: tuple[float, ...] = SPEED_BINS
-    # identified models: per joint the weights (D, P) of the filtered joint-torque regressor
-    theta: FloatArray | None = None
-    # the body each joint moves (its child link), for naming the link an event touched
-    links: tuple[str, ...] | None = None
-    depths: tuple[int, ...] | None = None  # each joint's depth in the kinematic tree
-    # per joint, the coefficients the fit logs' motion did not determine, held at their prior
-    # (``twincd.calibration.excitation``); None in files written before it was recorded
-    held: tuple[tuple[str, ...], ...] | None = None
-
-    @property
-    def coulomb_eps(self) -> tuple[float, ...]:
-        """The ε whose filtered Coulomb features scoring needs (none for non-friction models)."""
-        return () if self.epsilon is None else tuple(sorted({float(e) for e in self.epsilon}))
-
-    @property
-    def regressor(self) -> bool:
-        """Scoring needs the filtered joint-torque regressor (identified models)."""
-        return self.theta is not None
-
-    @property
-    def regressor_weights(self) -> FloatArray | None:
-        """θ, with which the chain filters Ỹθ per joint rather than Ỹ (``twincd.chain``)."""
-        return self.theta
-
-    @property
-    def model(self) -> ResidualModel:
-        """The fitted model that detection applies (one of ``MODEL_KINDS``)."""
-        model = make_model(
-            self.kind, depth_order(self.depths, len(self.joint_names)), self.speed_bins
-        )
-        coefficients = {key: getattr(self, key) for key in COEFFICIENTS}
-        return model.with_coefficients(coefficients, self.r2, self.rmse)
-
-    @property
-    def joint_scale(self) -> FloatArray | None:
-        """One noise scale per joint, what isolation compares joints by (``ResidualModel``)."""
-        return self.model.joint_scale
 
     def require_threshold(self) -> Threshold:
         if self.threshold is None:
@@ -217,15 +134,16 @@ class Calibration:
 
     def to_dict(self) -> dict[str, Any]:
         names = list(self.joint_names)
+        r2, rmse, held = self.model.r2_, self.model.rmse_, self.fit.held
         fit: dict[str, Any] = {
-            "logs": list(self.fit_logs),
-            "samples": self.fit_samples,
-            "seconds": self.fit_s,
+            "logs": list(self.fit.logs),
+            "samples": self.fit.samples,
+            "seconds": self.fit.seconds,
             "joints": {
                 n: {
-                    "r2": None if self.r2 is None else float(self.r2[i]),
-                    "rmse": None if self.rmse is None else float(self.rmse[i]),
-                    **({"held": list(self.held[i])} if self.held and self.held[i] else {}),
+                    "r2": None if r2 is None else float(r2[i]),
+                    "rmse": None if rmse is None else float(rmse[i]),
+                    **({"held": list(held[i])} if held and held[i] else {}),
                 }
                 for i, n in enumerate(names)
             },
@@ -252,33 +170,15 @@ class Calibration:
                 **self.lowpass.to_dict(),
                 "sample_rate_hz": None if self.period_s is None else 1.0 / self.period_s,
             },
-            "model": {
-                "kind": self.kind,
-                **self._statistic(),
-                "joints": {n: self._coefficients(i) for i, n in enumerate(names)},
-            },
+            "model": self.model.to_dict(names),
             "fit": fit,
             "threshold": None if self.threshold is None else self.threshold.to_dict(),
         }
 
-    def _statistic(self) -> dict[str, Any]:
-        """How the model scores: written for the depth statistic (its speed bins' edges)."""
-        if self.scale is None or self.scale.ndim == 1:
-            return {}
-        return {"statistic": "depth", "speed_bins": list(self.speed_bins)}
-
-    def _coefficients(self, i: int) -> dict[str, Any]:
-        out: dict[str, Any] = {"a": float(self.a[i]), "b": float(self.b[i])}
-        for key in ("c", "d", "epsilon", "scale"):
-            values = getattr(self, key)
-            if values is not None:
-                out[key] = values[i].tolist() if values.ndim == 2 else float(values[i])
-        if self.theta is not None:
-            out["theta"] = [float(x) for x in self.theta[i]]
-        return out
-
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str = "") -> Calibration:
+        """A calibration of schema ``SCHEMA``, or of ``twincd.calibration/1`` through
+        ``upgrade_v1``; every number validated (a ``CalibrationError`` naming the field)."""
         where = source or "calibration"
         if not isinstance(d, Mapping):
             raise CalibrationError(
@@ -287,97 +187,17 @@ class Calibration:
                 "pass the JSON file written by `twincd fit`",
             )
         schema = d.get("schema")
-        if schema != SCHEMA:
+        if schema == SCHEMA_V1:
+            d = upgrade_v1(d, where)
+        elif schema != SCHEMA:
             raise CalibrationError(
-                f"unsupported calibration schema {schema!r} (this twincd reads {SCHEMA})",
+                f"unsupported calibration schema {schema!r} (this twincd reads {SCHEMA} and "
+                f"{SCHEMA_V1})",
                 where,
                 "re-run `twincd fit` with this version",
             )
         try:
-            robot = d["robot"]
-            names = _joint_names(robot["joint_names"], where)
-            model = d["model"]
-            kind = model.get("kind")
-            if kind not in MODEL_KINDS:
-                raise CalibrationError(
-                    f"unknown model kind {kind!r} (this twincd knows {', '.join(MODEL_KINDS)})",
-                    where,
-                    "re-run `twincd fit`",
-                )
-            coeff = model["joints"]
-            a = finite_array([coeff[n]["a"] for n in names], names, "a", where)
-            b = finite_array([coeff[n]["b"] for n in names], names, "b", where)
-            extra = {key: _optional_column(coeff, names, key) for key in ("c", "d", "epsilon")}
-            speed_bins = _speed_bins(model, where)
-            extra["scale"] = _scale(coeff, names, speed_bins, where)
-            theta = _theta(coeff, names, where)
-            _require_coefficients(str(kind), {**extra, "theta": theta}, where)
-            links, depths = robot.get("links"), robot.get("depths")
-            for key, values in (("links", links), ("depths", depths)):
-                if values is not None and len(values) != len(names):
-                    raise ValueError(
-                        f"robot.{key} has {len(values)} entries for {len(names)} joints"
-                    )
-            fit = d.get("fit") or {}
-            per_joint = fit.get("joints") or {}
-
-            def column(key: str) -> FloatArray | None:
-                vals = [per_joint.get(n, {}).get(key) for n in names]
-                return None if any(v is None for v in vals) else np.array(vals, dtype=float)
-
-            opts = d.get("log_options") or {}
-            defaults = LogOptions()
-            options = LogOptions(
-                topic=str(opts.get("topic", defaults.topic)),
-                label_topic=str(opts.get("label_topic", defaults.label_topic)),
-                sim_topic=str(opts.get("sim_topic", defaults.sim_topic)),
-                joint_map=dict(opts.get("joint_map") or {}) or None,
-            )
-            th = d.get("threshold")
-            threshold = None
-            if th is not None:
-                threshold = Threshold(
-                    k_sigma=finite_number(th["k_sigma"], "threshold.k_sigma", where),
-                    mu=finite_number(th["mu"], "threshold.mu", where),
-                    sigma=finite_number(th["sigma"], "threshold.sigma", where),
-                    logs=tuple(th.get("logs", ())),
-                    samples=int(th.get("samples", 0)),
-                    **_budget(th.get("false_alarm_budget"), where),
-                    estimator=_estimator(th.get("estimator", "mean-sd"), where),
-                    mean=None
-                    if "mean" not in th
-                    else finite_number(th["mean"], "threshold.mean", where),
-                    sd=None if "sd" not in th else finite_number(th["sd"], "threshold.sd", where),
-                )
-            if th is not None and threshold is not None:
-                _check_threshold(threshold, th, where)
-            return cls(
-                joint_names=names,
-                a=a,
-                b=b,
-                lowpass=_lowpass(d["filter"], where),
-                period_s=_period(d["filter"].get("sample_rate_hz"), where),
-                options=options,
-                robot=robot.get("name"),
-                urdf_sha256=robot.get("urdf_sha256"),
-                simulated=bool(robot.get("simulated", True)),
-                fit_logs=tuple(fit.get("logs", ())),
-                fit_samples=int(fit.get("samples", 0)),
-                r2=column("r2"),
-                rmse=column("rmse"),
-                held=_held(per_joint, names),
-                fit_s=float(fit.get("seconds", 0.0)),
-                threshold=threshold,
-                created=str(d.get("created", "")),
-                twincd_version=str(d.get("twincd_version", "")),
-                source=source,
-                kind=str(kind),
-                links=None if links is None else tuple(str(x) for x in links),
-                depths=None if depths is None else tuple(int(x) for x in depths),
-                theta=theta,
-                speed_bins=SPEED_BINS if speed_bins is None else speed_bins,
-                **extra,
-            )
+            return _read(d, source, where)
         except CalibrationError:
             raise
         except KeyError as exc:
@@ -431,6 +251,119 @@ class Calibration:
             stream.write(text.encode("utf-8"))
 
 
+def _read(d: Mapping[str, Any], source: str, where: str) -> Calibration:
+    """A calibration of schema ``SCHEMA``: every section it names present."""
+    robot = d["robot"]
+    names = _joint_names(robot["joint_names"], where)
+    links, depths = robot.get("links"), robot.get("depths")
+    for key, values in (("links", links), ("depths", depths)):
+        if values is not None and len(values) != len(names):
+            raise ValueError(f"robot.{key} has {len(values)} entries for {len(names)} joints")
+    depths = None if depths is None else tuple(int(x) for x in depths)
+    fit = d["fit"]
+    per_joint = fit["joints"]
+
+    def column(key: str) -> FloatArray | None:
+        values = [per_joint.get(n, {}).get(key) for n in names]
+        if any(v is None for v in values):
+            return None
+        return finite_array(values, names, f"fit.joints.{key}", where)
+
+    order = depth_order(depths, len(names))
+    model = read_model(d["model"], names, order, where, column("r2"), column("rmse"))
+    opts = d["log_options"]
+    options = LogOptions(
+        topic=str(opts["topic"]),
+        label_topic=str(opts["label_topic"]),
+        sim_topic=str(opts["sim_topic"]),
+        joint_map=dict(opts["joint_map"] or {}) or None,
+    )
+    return Calibration(
+        joint_names=names,
+        model=model,
+        lowpass=_lowpass(d["filter"], where),
+        period_s=_period(d["filter"]["sample_rate_hz"], where),
+        options=options,
+        robot=robot["name"],
+        urdf_sha256=robot["urdf_sha256"],
+        simulated=bool(robot["simulated"]),
+        links=None if links is None else tuple(str(x) for x in links),
+        depths=depths,
+        fit=FitInfo(
+            logs=tuple(fit["logs"]),
+            samples=_count(fit["samples"], "fit.samples", where),
+            seconds=finite_number(fit["seconds"], "fit.seconds", where),
+            held=_held(per_joint, names),
+        ),
+        threshold=_threshold(d["threshold"], where),
+        created=str(d["created"]),
+        twincd_version=str(d["twincd_version"]),
+        source=source,
+    )
+
+
+def _threshold(th: Mapping[str, Any] | None, where: str) -> Threshold | None:
+    """The ``threshold`` section (None: not set yet), μ + kσ checked against its ``value``."""
+    if th is None:
+        return None
+    threshold = Threshold(
+        k_sigma=finite_number(th["k_sigma"], "threshold.k_sigma", where),
+        mu=finite_number(th["mu"], "threshold.mu", where),
+        sigma=finite_number(th["sigma"], "threshold.sigma", where),
+        logs=tuple(th["logs"]),
+        samples=_count(th["samples"], "threshold.samples", where),
+        **_budget(th.get("false_alarm_budget"), where),
+        estimator=_estimator(th["estimator"], where),
+        mean=None if "mean" not in th else finite_number(th["mean"], "threshold.mean", where),
+        sd=None if "sd" not in th else finite_number(th["sd"], "threshold.sd", where),
+    )
+    _check_threshold(threshold, th, where)
+    return threshold
+
+
+def upgrade_v1(d: Mapping[str, Any], where: str = "calibration") -> dict[str, Any]:
+    """A ``twincd.calibration/1`` file's content as ``SCHEMA``'s: the same key paths, with what
+    /1 files could leave out written as /1 read it (a model scored by the sum has its
+    ``statistic``; no ``log_options``: the default topics; no ``fit``: none recorded; a
+    threshold without its ``estimator``: the mean and standard deviation; no sampling rate:
+    none recorded). Nothing is validated here: ``Calibration.from_dict`` validates the result."""
+    out = {key: value for key, value in d.items() if key != "schema"}
+    out = {"schema": SCHEMA, **out}
+    defaults = LogOptions()
+    sections: dict[str, Any] = {}
+    for key in ("robot", "filter", "model", "fit", "log_options", "threshold"):
+        value = d.get(key)
+        sections[key] = dict(value) if isinstance(value, Mapping) else value
+    if not isinstance(sections["robot"], dict) or not isinstance(sections["model"], dict):
+        return out  # not a calibration: from_dict names what is missing
+    sections["robot"].setdefault("name", None)
+    sections["robot"].setdefault("urdf_sha256", None)
+    sections["robot"].setdefault("simulated", True)
+    sections["model"].setdefault("statistic", "sum")
+    if isinstance(sections["filter"], dict):
+        sections["filter"].setdefault("sample_rate_hz", None)
+    fit = dict(sections["fit"] or {})
+    fit.setdefault("logs", [])
+    fit.setdefault("samples", 0)
+    fit.setdefault("seconds", 0.0)
+    fit.setdefault("joints", {})
+    sections["fit"] = fit
+    opts = dict(sections["log_options"] or {})
+    opts.setdefault("topic", defaults.topic)
+    opts.setdefault("label_topic", defaults.label_topic)
+    opts.setdefault("sim_topic", defaults.sim_topic)
+    opts.setdefault("joint_map", {})
+    sections["log_options"] = opts
+    if isinstance(sections["threshold"], dict):
+        sections["threshold"].setdefault("estimator", "mean-sd")
+        sections["threshold"].setdefault("logs", [])
+        sections["threshold"].setdefault("samples", 0)
+    out.update(sections)
+    out.setdefault("created", "")
+    out.setdefault("twincd_version", "")
+    return out
+
+
 def _period(rate_hz: Any, where: str) -> float | None:
     if rate_hz is None:
         return None
@@ -467,11 +400,6 @@ def _joint_names(raw: Any, where: str) -> tuple[str, ...]:
     return tuple(raw)
 
 
-def _optional_number(section: Mapping[str, Any], key: str, where: str) -> float | None:
-    """``threshold.<key>`` when the file has it (a finite number), else None."""
-    return None if key not in section else finite_number(section[key], f"threshold.{key}", where)
-
-
 def _estimator(value: Any, where: str) -> str:
     if value not in ESTIMATORS:
         raise CalibrationError(
@@ -491,7 +419,9 @@ def _budget(raw: Any, where: str) -> dict[str, Any]:
     alarms = raw.get("false_alarms")
     return {
         "budget_per_hour": finite_number(raw["per_hour"], "false_alarm_budget.per_hour", where),
-        "false_alarms": None if alarms is None else _count(alarms, "false_alarms", where),
+        "false_alarms": None
+        if alarms is None
+        else _count(alarms, "false_alarm_budget.false_alarms", where),
         "judged_s": None
         if hours is None
         else 3600.0 * finite_number(hours, "false_alarm_budget.hours", where),
@@ -553,7 +483,7 @@ def _tail(raw: Mapping[str, Any], where: str) -> TailFit:
         method=str(method),
         per_hour=number("per_hour", positive=True),
         level=number("level_u"),
-        peaks=_count(raw["peaks"], "peaks", where),
+        peaks=_count(raw["peaks"], "false_alarm_budget.peaks", where),
         rate_per_hour=number("rate_per_hour", positive=True),
         shape=number("shape"),
         scale=number("scale", positive=True),
@@ -569,10 +499,10 @@ def _tail(raw: Mapping[str, Any], where: str) -> TailFit:
 
 
 def _count(value: Any, name: str, where: str) -> int:
-    """A count ≥ 0 of the budget's fields (a JSON integer, not a float or a string)."""
+    """A count ≥ 0 (a JSON integer, not a float or a string)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise CalibrationError(
-            f"calibration field false_alarm_budget.{name} is {value!r}, not a count",
+            f"calibration field {name} is {value!r}, not a count",
             where,
             "re-run `twincd threshold`",
         )
@@ -596,126 +526,6 @@ def _check_threshold(threshold: Threshold, raw: Mapping[str, Any], where: str) -
                 where,
                 "re-run `twincd threshold`, or edit mu, sigma or k_sigma instead",
             )
-
-
-def _optional_column(coeff: Mapping[str, Any], names: Sequence[str], key: str) -> FloatArray | None:
-    """A per-joint coefficient that only some models have: all joints or none."""
-    values = [coeff[n].get(key) for n in names]
-    if all(v is None for v in values):
-        return None
-    if any(v is None for v in values):
-        raise ValueError(f"coefficient {key!r} is missing for some joints")
-    return np.array([float(v) for v in values])
-
-
-def _speed_bins(model: Mapping[str, Any], where: str) -> tuple[float, ...] | None:
-    """The depth statistic's speed bins (None: a model scored by the sum, as files written
-    before the bins): rising, positive, finite edges."""
-    statistic = model.get("statistic", "sum")
-    if statistic not in STATISTICS:
-        raise CalibrationError(
-            f"calibration field model.statistic is {statistic!r}, not one of "
-            f"{', '.join(STATISTICS)}",
-            where,
-            "re-run `twincd fit`",
-        )
-    if statistic == "sum":
-        return None
-    edges = model["speed_bins"]
-    if not isinstance(edges, list) or not edges:
-        raise CalibrationError(
-            "calibration field model.speed_bins is not a list of speeds",
-            where,
-            "re-run `twincd fit`",
-        )
-    out = tuple(finite_number(e, "model.speed_bins", where, positive=True) for e in edges)
-    if any(b <= a for a, b in pairwise(out)):
-        raise CalibrationError(
-            "calibration field model.speed_bins does not rise", where, "re-run `twincd fit`"
-        )
-    return out
-
-
-def _scale(
-    coeff: Mapping[str, Any],
-    names: Sequence[str],
-    speed_bins: tuple[float, ...] | None,
-    where: str,
-) -> FloatArray | None:
-    """The whitening scale: one number per joint (the sum), or one per speed bin (the depth
-    statistic), all joints or none."""
-    if speed_bins is None:
-        return _optional_column(coeff, names, "scale")
-    rows = [coeff[n].get("scale") for n in names]
-    bins = len(speed_bins) + 1
-    if any(not isinstance(r, list) or len(r) != bins for r in rows):
-        raise CalibrationError(
-            f"calibration field scale is not a list of {bins} numbers (one per speed bin) for "
-            "every joint",
-            where,
-            "re-run `twincd fit`",
-        )
-    return np.array(
-        [
-            [finite_number(v, f"scale[{n}]", where) for v in r]
-            for r, n in zip(rows, names, strict=True)
-        ]
-    )
-
-
-def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatArray | None:
-    """The identified models' per-joint regressor weights: all joints, of one length, or none."""
-    rows = [coeff[n].get("theta") for n in names]
-    if all(r is None for r in rows):
-        return None
-    if any(r is None for r in rows):
-        raise ValueError("coefficient 'theta' is missing for some joints")
-    lengths = {len(r) if isinstance(r, list) else -1 for r in rows}
-    if len(lengths) != 1 or -1 in lengths:
-        raise CalibrationError(
-            "calibration field theta is not a list of numbers of one length per joint",
-            where,
-            "re-run `twincd fit`",
-        )
-    length = lengths.pop()
-    if length == 0 or length % 10:
-        raise CalibrationError(
-            f"calibration field theta has {length} numbers per joint, not 10 per link",
-            where,
-            "re-run `twincd fit`",
-        )
-    return np.array(
-        [
-            [finite_number(v, f"theta[{n}]", where) for v in r]
-            for r, n in zip(rows, names, strict=True)
-        ],
-        dtype=np.float64,
-    )
-
-
-def _require_coefficients(kind: str, extra: Mapping[str, FloatArray | None], where: str) -> None:
-    cls, whitened = model_class(kind)
-    needed = (
-        (["c", "d", "epsilon"] if cls.needs_coulomb else [])
-        + (["scale"] if whitened else [])
-        + (["theta"] if cls.needs_regressor else [])
-    )
-    if extra.get("theta") is not None and not cls.needs_regressor:
-        raise CalibrationError(
-            f"the {kind} model has regressor weights (theta), which only identified models use",
-            where,
-            "re-run `twincd fit`",
-        )
-    missing = [k for k in needed if extra.get(k) is None]
-    if missing:
-        raise CalibrationError(
-            f"the {kind} model lacks its coefficient(s) {', '.join(missing)}",
-            where,
-            "re-run `twincd fit`",
-        )
-    eps, scale = extra.get("epsilon"), extra.get("scale")
-    if (eps is not None and not np.all(eps > 0)) or (scale is not None and not np.all(scale > 0)):
-        raise CalibrationError("epsilon and scale must be positive", where, "re-run `twincd fit`")
 
 
 def _now() -> str:
@@ -748,29 +558,22 @@ def calibration_from_fit(
     period_s: float | None = None,
 ) -> Calibration:
     """The calibration file's content from a fitted model (``fit_s_``: its training time)."""
-    coefficients = model.coefficients()
     held = getattr(model, "held_", None)
+    joints = range(len(joint_names))
     return Calibration(
         joint_names=tuple(joint_names),
-        a=model.a_,
-        b=model.b_,
+        model=model,
         lowpass=lowpass,
         options=options.unnamed(*options.named),  # what the logs were read with, not how asked
         robot=robot,
         urdf_sha256=urdf_sha256,
         simulated=simulated,
-        fit_logs=tuple(logs),
-        fit_samples=model.n_samples_,
-        held=None if held is None else tuple(held.per_joint(i) for i in range(len(joint_names))),
-        r2=model.r2_,
-        rmse=model.rmse_,
-        fit_s=model.fit_s_,
+        fit=FitInfo(
+            logs=tuple(logs),
+            samples=model.n_samples_,
+            seconds=model.fit_s_,
+            held=None if held is None else tuple(held.per_joint(i) for i in joints),
+        ),
         created=_now(),
         period_s=period_s,
-        kind=model.kind,
-        c=coefficients["c"],
-        d=coefficients["d"],
-        epsilon=coefficients["epsilon"],
-        scale=coefficients["scale"],
-        theta=coefficients["theta"],
     )

@@ -9,7 +9,7 @@ import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from twincd.calibration.models import (
     FitStats,
     ResidualModel,
     depth_order,
+    fit_features,
     make_model,
     model_class,
     speed_bin,
@@ -31,6 +32,7 @@ from twincd.calibration.models import (
 from twincd.errors import DataError
 from twincd.frames import Frame
 from twincd.pipeline import PreparedStream, Setup, agreed_joints
+from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
@@ -55,27 +57,35 @@ class LogFit:
     labelled: bool = True  # the log has collision labels (else every sample is taken as clean)
 
 
-def fit_log(path: str | Path, setup: Setup, sinks: Sequence[FrameSink] = ()) -> LogFit:
-    """Stream one log through read → twin → filter into the statistics of every model kind;
+def fit_log(
+    path: str | Path,
+    setup: Setup,
+    sinks: Sequence[FrameSink] = (),
+    features: ModelFeatures | None = None,
+) -> LogFit:
+    """Stream one log through read → twin → filter into the statistics of the model kinds
+    ``features`` prepares for (``fit_features``; None: the best model's, every kind's);
     every frame also goes to ``sinks`` (e.g. what a report's figure draws). On a coarse grid
     (``twincd.grid``: a 1 kHz log) the sums run over the grid's nodes, each standing for the
     samples of its cell (``FitStats.from_cells``)."""
     stats: FitStats | None = None
     seconds = 0.0
     labelled = False
-    with setup.open(path, nodes=True) as stream:
+    features = fit_features(None) if features is None else features
+    speed = features.speed_stats
+    with setup.open(path, nodes=True, features=features) as stream:
         cells = _Cells()
         for frame in stream:
             labelled |= "labels" in frame
             start = time.perf_counter()
             clean = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
             # the stream knows its regressor's entries once its first block is read
-            prepared = {"coulomb_eps": stream.coulomb_eps, "regressor_mask": stream.regressor_mask}
+            eps, mask = stream.coulomb_eps, stream.regressor_mask
             if "node" in frame:
                 nodes = stream.take_nodes()
-                part = cells.stats(frame, clean, nodes, prepared, setup.speed_stats)
+                part = cells.stats(frame, clean, nodes, eps, mask, speed)
             else:
-                part = FitStats.from_inputs({**frame, **prepared}, clean, setup.speed_stats)
+                part = FitStats.from_inputs(ModelInputs.of(frame, eps, mask), clean, speed)
             stats = part if stats is None else stats + part
             seconds += time.perf_counter() - start
             for sink in sinks:
@@ -105,10 +115,13 @@ class _Cells:
         frame: Frame,
         clean: BoolArray,
         nodes: Frame,
-        prepared: dict[str, Any],
+        coulomb_eps: tuple[float, ...],
+        regressor_mask: BoolArray | None,
         speed: bool,
     ) -> FitStats:
-        """The statistics of ``frame``'s clean samples, each counted at its cell's node."""
+        """The statistics of ``frame``'s clean samples, each counted at its cell's node
+        (``nodes``: the grid's filtered nodes since the last call, ``ModelInputs.of``'s
+        columns)."""
         table = self.table = Frame.concat([self.table, nodes])
         first = int(table["node"][0])
         at = np.asarray(frame["node"], dtype=np.int64)[clean] - first
@@ -117,9 +130,8 @@ class _Cells:
         joints, width = bins.shape[1], len(SPEED_BINS) + 1
         cell = (at[:, None] * joints + np.arange(joints)) * width + bins
         by_speed = np.bincount(cell.ravel(), minlength=table.n * joints * width)
-        part = FitStats.from_cells(
-            {**table, **prepared}, count, by_speed.reshape(table.n, joints, width), speed
-        )
+        inputs = ModelInputs.of(table, coulomb_eps, regressor_mask)
+        part = FitStats.from_cells(inputs, count, by_speed.reshape(table.n, joints, width), speed)
         # the last sample's cell may go on in the next frame
         self.table = table.tail(int(frame["node"][-1]) - first)
         return part
@@ -134,21 +146,6 @@ def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:
 def check_model(model: str | None) -> None:
     if model is not None:
         model_class(model)
-
-
-def setup_for_model(setup: Setup, model: str | None) -> Setup:
-    """The setup that prepares what fitting ``model`` needs (friction: every ε candidate;
-    identified: the joint-torque regressor too; None, the best model the logs allow: both,
-    the regressor where a robot model is known)."""
-    best = model is None
-    cls, whitened = (None, True) if model is None else model_class(model)
-    return replace(
-        setup,
-        coulomb_eps=EPSILON_GRID if cls is None or cls.needs_coulomb else (),
-        regressor=cls is None or cls.needs_regressor,
-        regressor_optional=best or setup.regressor_optional,
-        speed_stats=whitened,
-    )
 
 
 def filter_kind_for(model: str | None) -> str:
@@ -181,7 +178,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         log.info("fit: model %s, the best these logs allow (--model affine is the paper's)", model)
     robots = sorted({p.robot for p in parts if p.robot is not None})
     name, sha = robots[0] if robots else (setup.robot, None)
-    links, depths = _chain(name, names)
+    links, depths = _links_and_depths(name, names)
     start = time.perf_counter()
     fitted = make_model(model, depth_order(depths, len(names)))
     fitted.joint_names_ = names
@@ -212,7 +209,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
     return replace(cal, links=links, depths=depths)
 
 
-def _chain(
+def _links_and_depths(
     robot: str | None, names: tuple[str, ...]
 ) -> tuple[tuple[str, ...] | None, tuple[int, ...] | None]:
     """Each joint's child link and depth, when the robot model can be loaded (else None: logs
@@ -317,16 +314,3 @@ def _warn_about_fit(
             len(unlabelled),
             unlabelled[0] + (", ..." if len(unlabelled) > 1 else ""),
         )
-
-
-def fit_calibration(
-    paths: Iterable[str | Path], setup: Setup, model: str | None = None
-) -> Calibration:
-    """Fit ``model`` (None: the best the logs allow, ``best_model``) over ``paths`` (files, bags,
-    folders of logs; each log once) log by log (memory flat in the number of logs and
-    samples)."""
-    from twincd.io.logs import expand_logs
-
-    logs = expand_logs(paths)
-    setup = setup_for_model(setup, model).for_logs(logs)
-    return merge_fits([fit_log(path, setup) for path in logs], setup, model)

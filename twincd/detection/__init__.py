@@ -8,7 +8,7 @@ from twincd.detection.detect import (
     detect_log,
 )
 from twincd.detection.events import Event, EventRules, EventTracker, find_events, runs
-from twincd.detection.files import detect_file
+from twincd.detection.files import detect_streamed
 from twincd.detection.online import OnlineDetector, OnlineResult
 from twincd.detection.score import affine_score, residual
 from twincd.frames import FrameSink
@@ -24,8 +24,8 @@ __all__ = [
     "OnlineResult",
     "ScoringStage",
     "affine_score",
-    "detect_file",
     "detect_log",
+    "detect_streamed",
     "find_events",
     "residual",
     "runs",

@@ -15,6 +15,7 @@ from twincd.calibration.models import model_inputs
 from twincd.detection.events import Event, EventRules, EventTracker, LabelSpans, false_alarms
 from twincd.detection.isolation import isolator_for
 from twincd.frames import Frame, FrameSink
+from twincd.signal.features import ModelInputs
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
@@ -73,30 +74,34 @@ class ScoringStage:
         coulomb_eps: Sequence[float] | None = None,
         rules: EventRules | None = None,
     ):
-        """``coulomb_eps``: the ε of the frames' ``coulomb_f`` (default: the calibration's);
-        ``rules``: how flags become events (default: ``EventRules()``)."""
+        """``coulomb_eps``: the ε of the frames' ``coulomb_f`` (default: those the
+        calibration's model needs, ``ResidualModel.features``); ``rules``: how flags become
+        events (default: ``EventRules()``)."""
         threshold = calibration.require_threshold()
         self.threshold = threshold.value
         self.rules = EventRules() if rules is None else rules
         self.release = self.rules.release_level(threshold.value, threshold.mu)
         self.model = calibration.model
-        self.coulomb_eps = tuple(calibration.coulomb_eps if coulomb_eps is None else coulomb_eps)
+        eps = self.model.features.coulomb_eps if coulomb_eps is None else coulomb_eps
+        self.coulomb_eps = tuple(float(e) for e in eps)
         isolator = isolator_for(calibration.links, calibration.depths, self.model.joint_scale)
         self.events = EventTracker(joint_names or calibration.joint_names, isolator, self.rules)
         self.counts = FlagCount()
-        # (D, P) entries of the frames' (N, kept) regressor, set by whoever builds the stages
+        # what the frames were prepared with, set by whoever builds the stages: (D, P) entries
+        # of their (N, kept) regressor, the θ of their Ỹθ (the model's own, by construction)
         self.regressor_mask: BoolArray | None = None
+        self.regressor_theta: FloatArray | None = None
 
     def push(self, frame: Frame) -> tuple[Frame, list[Event]]:
         """``frame`` (with ``effort_f``, ``sim_effort_f``, ``stamp_ns``, and ``velocity_f`` and
         ``coulomb_f`` for friction models) plus ``predicted`` (the model's effort), ``residual``,
         ``score`` and ``flag`` columns, and the events that closed in it."""
-        inputs = {**frame, "coulomb_eps": self.coulomb_eps, "regressor_mask": self.regressor_mask}
+        inputs = ModelInputs.of(frame, self.coulomb_eps, self.regressor_mask, self.regressor_theta)
         # a grid's frames carry the prediction, made on its nodes (twincd.chain.build_chain)
         predicted = frame["predicted"] if "predicted" in frame else self.model.predict(inputs)
         r = self.model.residual(inputs, predicted)
         # the events weigh joints as the score does: by their noise at their speed, if known
-        scores, evidence = self.model.weigh(r, frame.get("velocity"))
+        scores, evidence = self.model.weigh(r, inputs.velocity)
         flags = scores >= self.threshold
         hold = scores >= self.release
         judged = np.ones(len(flags), dtype=bool)
@@ -145,10 +150,10 @@ def detect_log(
 ) -> LogDetection:
     """Score and flag every sample of ``log`` with a calibration that has a threshold."""
     stage = ScoringStage(calibration, log.joint_names, log.coulomb_eps, rules)
-    inputs = {k: v for k, v in model_inputs(log).items() if k != "coulomb_eps"}
+    stage.regressor_theta = log.features.theta
     frame = Frame(
         {
-            **inputs,
+            **model_inputs(log).columns(),
             "stamp_ns": log.states.stamp_ns,
             "edge": None if log.edge is None else log.edge.astype(np.float64),
             "labels": log.labels,
@@ -175,7 +180,7 @@ class DetectionSummary:
     events: list[Event] = field(default_factory=list)
     joint_names: tuple[str, ...] = ()
     first_stamp_ns: int = 0
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # the run's, when detect_file made it
     # what a report's figure draws (a sink of bounded envelopes), when a report was asked for
     trace: FrameSink | None = None
     clean_samples: int = 0  # judged samples not labelled as collisions

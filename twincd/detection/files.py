@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("twincd")
 
 
-def detect_file(
+def detect_streamed(
     path: str | Path,
     calibration: Calibration,
     setup: Setup,
@@ -34,11 +34,13 @@ def detect_file(
     to ``sinks``. The chain and the scoring are those of ``OnlineDetector``: with a causal
     calibration, a log pushed live in any chunking gives the same scores, flags and events."""
     summary = DetectionSummary(str(path), calibration.require_threshold().value)
-    # the stream's columns follow the calibration's joints (Setup.from_calibration)
+    # the stream reads the log the calibration's way, its columns in the calibration's joints
+    setup.check_against(calibration)
     stage = ScoringStage(calibration)
     with setup.open(path, model=stage.model) as stream:
         for frame in stream:
             stage.regressor_mask = stream.regressor_mask
+            stage.regressor_theta = stream.features.theta
             out, closed = stage.push(frame)
             _deliver(summary, sinks, out, closed)
         _deliver(summary, sinks, Frame(), stage.finish())
@@ -75,7 +77,7 @@ def tally_false_alarms(path: str | Path, calibration: Calibration, setup: Setup)
     no labelled push ± 200 ms), and the log's judged collision-free time: how ``threshold``
     counts what its own logs give at the threshold it chose."""
     with _said_already():
-        summary = detect_file(path, calibration, setup)
+        summary = detect_streamed(path, calibration, setup)
     return AlarmTally(
         str(path),
         summary.false_alarms,

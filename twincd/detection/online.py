@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.chain import JointLayout, TwinChain, build_chain, check_urdf, robot_for
+from twincd.chain import BuiltChain, JointLayout, build_chain, check_urdf, robot_for
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
 from twincd.detection.events import Event, EventRules
@@ -113,7 +113,7 @@ class OnlineDetector:
         self.use_sim = (not calibration.simulated) if sim_effort is None else sim_effort
         # the twin's effort, or (identified models) the regressor, needs the robot model
         self.robot: RobotModel | None = None
-        if not self.use_sim or calibration.regressor:
+        if not self.use_sim or calibration.model.features.regressor:
             self.robot = robot_for(calibration.robot or DEFAULT_ROBOT, tuple(self.joint_names))
             check_urdf(self.robot, calibration.urdf_sha256, allow_urdf_change, source or where)
             undriven = [n for n in self.joint_names if n not in self.robot.joint_names]
@@ -125,7 +125,7 @@ class OnlineDetector:
                     "detect with the log's own twin effort",
                 )
         self._threads = threads
-        self._chain: TwinChain | None = None
+        self._chain: BuiltChain | None = None
         # pushed rows not released yet: their stamps and whether they went down the chain
         self._held: deque[tuple[IntArray, BoolArray]] = deque()
         self._fill = False
@@ -158,24 +158,27 @@ class OnlineDetector:
         """Pushed samples not in any result yet (held by a coarse grid)."""
         return sum(len(stamps) for stamps, _ in self._held)
 
-    def _build(self, fill: bool) -> TwinChain:
+    def _build(self, fill: bool) -> BuiltChain:
         """The calibration's chain on pushed columns (the calibration's joints, in its order)."""
         names = self.joint_names
         robot = self.robot
         layout = JointLayout(names, names if robot is None else robot.joint_names, names)
         twin = None if self.use_sim else robot
-        regressor = robot if self.calibration.regressor else None
+        model = self._scoring.model
+        regressor = robot if model.features.regressor else None
         built = build_chain(
-            self.calibration,
+            self.calibration.lowpass,
+            model.features,
             layout,
             self.period_s,
             twin,
             fill,
             regressor,
             self._threads,
-            model=self._scoring.model,
+            model=model,
         )
         self._scoring.regressor_mask = built.regressor_mask
+        self._scoring.regressor_theta = model.features.theta
         return built
 
     def _columns(self, values: object, n: int, what: str) -> FloatArray:

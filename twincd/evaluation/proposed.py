@@ -32,7 +32,7 @@ class ProposedMethod(ScoringMethod):
             self.model_: ResidualModel = AffineModel().with_coefficients(coefficients)
 
     def from_calibration(self, calibration: Calibration) -> ProposedMethod:
-        return type(self)(list(calibration.a), list(calibration.b))
+        return type(self)(list(calibration.model.a_), list(calibration.model.b_))
 
     def fit(self, train: Sequence[PreparedLog]) -> ProposedMethod:
         self.model_ = AffineCalibration().fit(train)

@@ -43,6 +43,7 @@ from twincd.io.logs import expand_logs
 from twincd.io.named import settle_named
 from twincd.io.options import LogOptions
 from twincd.pipeline import PreparedLog, Setup, agreed_joints, prepare_log
+from twincd.signal.features import ModelFeatures
 from twincd.threshold import LogScores, ScoreStats, same_rule, score_log, threshold_from_parts
 from twincd.types import BoolArray, FloatArray
 
@@ -388,9 +389,9 @@ def _plan(
         raise MethodSkipped("needs a calibration, or training and validation logs")
     if own:
         assert calibration is not None
-        if calibration.kind != probe.model_kind:
+        if calibration.model.kind != probe.model_kind:
             raise MethodSkipped(
-                f"the calibration holds the {calibration.kind} model, not "
+                f"the calibration holds the {calibration.model.kind} model, not "
                 f"{probe.model_kind}; give training and validation logs to fit it"
             )
         return probe.from_calibration(calibration), True
@@ -457,14 +458,8 @@ def _evaluate_own(
     """The calibration's own model, every log streamed (``judge_log``): judged at the
     calibration's threshold (``own_rule``; with validation logs, at what its rule sets on them),
     else at μ + ``k_sigma``·σ."""
-    # what the model scores from is the calibration's (detect's chain), whatever other methods
+    # what the model scores from is its own features (detect's chain), whatever other methods
     # of this evaluation fit on
-    setup = replace(
-        setup,
-        coulomb_eps=calibration.coulomb_eps,
-        regressor=calibration.regressor,
-        regressor_weights=calibration.regressor_weights,
-    )
     th = calibration.require_threshold()
     sources = _Sources()
     if val_paths:
@@ -501,7 +496,7 @@ def _evaluate_own(
     for lg in tests:
         events = events + lg.events
     units = ScoredUnits.concat([lg.units for lg in tests])
-    times = (calibration.fit_s, sum(lg.score_s for lg in tests))
+    times = (calibration.fit.seconds, sum(lg.score_s for lg in tests))
     threshold = judge.require_threshold().value
     figures = _figures(units, mu, sigma, threshold, times, events, val_events, None)
     result = _combine(name, method.unit, k_sigma, [figures])
@@ -607,12 +602,14 @@ def _evaluate_whole(
     μ, σ from the validation logs; then the test logs, ``batch`` at a time, are scored by every
     run and let go."""
     models = [model_class(name)[0] for name in methods if name in MODEL_KINDS]
-    if any(m.needs_coulomb for m in models):
-        setup = replace(setup, coulomb_eps=EPSILON_GRID)  # every ε candidate, for fitting
-    if any(m.needs_regressor for m in models):
-        # the whole regressor, which the identified methods fit on (not a calibration's Ỹθ)
-        setup = replace(setup, regressor=True, regressor_optional=True, regressor_weights=None)
-    prepare: Bound[Path, PreparedLog] = Bound(prepare_log, setup)
+    # every ε candidate, for fitting; the whole regressor, which the identified methods fit on
+    # (skipped where no robot model is known)
+    features = ModelFeatures(
+        coulomb_eps=EPSILON_GRID if any(m.needs_coulomb for m in models) else (),
+        regressor=any(m.needs_regressor for m in models),
+        regressor_optional=True,
+    )
+    prepare: Bound[Path, PreparedLog] = Bound(prepare_log, setup, features)
     train: list[PreparedLog] = _by_source(run(prepare, train_paths, "train logs"))
     val: list[PreparedLog] = _by_source(run(prepare, val_paths, "val logs"))
     # every method must see the same columns: the order comes from the robot model or the
@@ -669,7 +666,7 @@ def _warn_on_overlap(
     """Test logs that also trained or thresholded a method make its figures optimistic."""
     learned = {Path(p).resolve() for p in (*train_paths, *val_paths)}
     if calibration is not None:
-        learned |= {Path(p).resolve() for p in calibration.fit_logs}
+        learned |= {Path(p).resolve() for p in calibration.fit.logs}
         if calibration.threshold is not None:
             learned |= {Path(p).resolve() for p in calibration.threshold.logs}
     shared = [str(p) for p in test_paths if Path(p).resolve() in learned]

@@ -1,6 +1,6 @@
 """``evaluate``'s per-log work for the calibration's own model, at flat memory: each log streams
 block by block down ``detect``'s chain and its ``ScoringStage`` (the scores, flags and events
-``detect_file`` gives, the same ``EventTracker`` closing the events), and what the metrics need
+``detect_streamed`` gives, the same ``EventTracker`` closing the events), and what the metrics need
 is kept as it passes: per judged sample its score (float64) filed by its label (the scores of
 labelled and of unlabelled samples, each sorted at the log's end: ``ScoredUnits``), 8 bytes;
 per log its event counts (``EventTally``), a few numbers per labelled event.
@@ -83,13 +83,14 @@ def judge_log(
     isolates: bool = True,
     keep: bool = True,
 ) -> JudgedLog:
-    """Score, flag and group one log's samples into events as ``detect_file`` does (the
+    """Score, flag and group one log's samples into events as ``detect_streamed`` does (the
     calibration's model and threshold), streamed; count its labelled events found, their delays
     and the false alarms (``EventTally``). ``link_topic``: where the log names the touched link
     (isolation is judged when it does, the method ``isolates`` and a robot model is known);
     ``method``: who is said to flag a log mostly; ``keep``: keep the judged samples' scores
     (False: counts only, e.g. the false alarms of validation logs)."""
     source = str(Path(path))
+    setup.check_against(calibration)
     links = read_link_messages(path, link_topic, setup.strict) if link_topic else None
     tally = EventTally(None if links is None else links.values)
     stage = ScoringStage(calibration)
@@ -101,6 +102,7 @@ def judge_log(
     with setup.open(path, model=stage.model) as stream:
         for frame in stream:
             stage.regressor_mask = stream.regressor_mask
+            stage.regressor_theta = stream.features.theta
             start = time.perf_counter()
             out, closed = stage.push(frame)
             score_s += time.perf_counter() - start

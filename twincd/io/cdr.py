@@ -227,10 +227,6 @@ def bool_cdr(value: bool) -> bytes:
     return bytes(typestore().serialize_cdr(_type(BOOL)(data=bool(value)), BOOL))
 
 
-def float64_cdr(value: float) -> bytes:
-    return bytes(typestore().serialize_cdr(_type(FLOAT64)(data=float(value)), FLOAT64))
-
-
 def serialize(msg: object, msgtype: str) -> bytes:
     """Any typestore message to CDR bytes."""
     return bytes(typestore().serialize_cdr(msg, msgtype))

@@ -88,7 +88,9 @@ class _Found:
 
 
 def _look(path: Path, options: LogOptions, joints: bool) -> _Found:
-    from twincd.io.stream import JointStateBatch, TopicReader
+    # the leaf modules: twincd.io.stream's sample stream checks named options through this one
+    from twincd.io.stream.batch import JointStateBatch
+    from twincd.io.stream.topics import TopicReader
 
     with TopicReader(path, strict=False) as reader:
         found = _Found(dict(reader.topics))

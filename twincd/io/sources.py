@@ -174,7 +174,9 @@ def headless_storage(folder: Path) -> Storage | None:
 
 def _one_after_another(files: tuple[Path, ...]) -> bool:
     """Each MCAP file's first message later than the previous file's (a split bag's parts)."""
-    from twincd.io.mcap import McapDamage, McapFile
+    # the leaf modules, not the package: twincd.io.mcap's writer copies logs through this module
+    from twincd.io.mcap.reader import McapFile
+    from twincd.io.mcap.records import McapDamage
 
     starts = []
     for path in files:

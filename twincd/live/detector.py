@@ -115,6 +115,7 @@ class LiveDetector:
     ) -> Frame:
         """τ̂ of the pushed samples the detector takes."""
         from twincd.chain import JointLayout, build_chain
+        from twincd.signal.features import ModelFeatures
 
         det = self._detector
         stamps = np.asarray(stamp_ns, dtype=np.int64)
@@ -124,8 +125,9 @@ class LiveDetector:
             names = tuple(self.joint_names)
             layout = JointLayout(names, robot.joint_names, names)
             fill = det.velocity_from_position
+            lowpass, features = self.calibration.lowpass, ModelFeatures()  # no filter: none
             built = build_chain(
-                self.calibration, layout, det.period_s, robot, fill, threads=1, filtered=False
+                lowpass, features, layout, det.period_s, robot, fill, threads=1, filtered=False
             )
             self._twin_chain = built.chain
         # the rows the detector takes: finite ones (samples come sorted by the reorder buffer)

@@ -79,7 +79,7 @@ def calibration_settings(cal: Calibration) -> list[tuple[str, str]]:
         ("joints", ", ".join(cal.joint_names)),
         ("filter", lp.describe()),
         ("topic", cal.options.topic),
-        ("fit logs", f"{len(cal.fit_logs)} ({cal.fit_samples} samples)"),
+        ("fit logs", f"{len(cal.fit.logs)} ({cal.fit.samples} samples)"),
     ]
     if cal.threshold is not None:
         th = cal.threshold
@@ -240,13 +240,15 @@ def evaluation_report(
 
 
 def fit_rows(cal: Calibration) -> list[list[str]]:
+    model = cal.model
+    r2, rmse = model.r2_, model.rmse_
     return [
         [
             name,
-            f"{cal.a[i]:.3f}",
-            f"{cal.b[i]:+.3f}",
-            "n/a" if cal.r2 is None else f"{cal.r2[i]:.3f}",
-            "n/a" if cal.rmse is None else f"{cal.rmse[i]:.3g}",
+            f"{model.a_[i]:.3f}",
+            f"{model.b_[i]:+.3f}",
+            "n/a" if r2 is None else f"{r2[i]:.3f}",
+            "n/a" if rmse is None else f"{rmse[i]:.3g}",
         ]
         for i, name in enumerate(cal.joint_names)
     ]
@@ -260,7 +262,7 @@ def fit_markdown(cal: Calibration) -> str:
         [
             "## twincd fit",
             "",
-            f"Affine twin calibration from {len(cal.fit_logs)} log(s), {cal.fit_samples} samples.",
+            f"Affine twin calibration from {len(cal.fit.logs)} log(s), {cal.fit.samples} samples.",
             "",
             markdown_table(FIT_COLUMNS, fit_rows(cal)),
             "",
@@ -272,8 +274,8 @@ def fit_markdown(cal: Calibration) -> str:
 
 def fit_html(cal: Calibration, pairs: ThinnedPairs | None) -> str:
     summary = [
-        f"<p>Affine twin calibration from {len(cal.fit_logs)} log(s), "
-        f"{cal.fit_samples} samples.</p>",
+        f"<p>Affine twin calibration from {len(cal.fit.logs)} log(s), "
+        f"{cal.fit.samples} samples.</p>",
         html.table(FIT_COLUMNS, fit_rows(cal)),
     ]
     figures = []

@@ -203,7 +203,8 @@ def fit_figure(cal: Calibration, pairs: ThinnedPairs) -> Any:
     cols = min(4, d)
     rows = -(-d // cols)
     fig, axes = _figure(rows, cols, 2.6 * rows + 0.4)
-    affine = cal.c is None and cal.theta is None
+    model = cal.model
+    affine = model.name == "affine"
     for j, name in enumerate(cal.joint_names):
         ax = axes[j // cols, j % cols]
         x, y = pairs.twin[:, j], pairs.measured[:, j]
@@ -211,9 +212,9 @@ def fit_figure(cal: Calibration, pairs: ThinnedPairs) -> Any:
         ax.scatter(x, y, s=2, alpha=0.3, color="tab:blue", lw=0, rasterized=True)
         if len(x) and affine:
             line = np.array([x.min(), x.max()])
-            ax.plot(line, cal.a[j] * line + cal.b[j], color="tab:red", lw=1)
-        r2 = "" if cal.r2 is None else f"\nR² = {cal.r2[j]:.3f}"
-        fitted = f"a = {cal.a[j]:.3f}, b = {cal.b[j]:+.3f}" if affine else cal.kind
+            ax.plot(line, model.a_[j] * line + model.b_[j], color="tab:red", lw=1)
+        r2 = "" if model.r2_ is None else f"\nR² = {model.r2_[j]:.3f}"
+        fitted = f"a = {model.a_[j]:.3f}, b = {model.b_[j]:+.3f}" if affine else model.kind
         ax.set_title(f"{name}: {fitted}{r2}", fontsize=8)
         ax.set_xlabel("twin τ̂̃ (N·m)")
         if j % cols == 0:

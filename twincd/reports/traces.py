@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from twincd.detection.events import Event
     from twincd.frames import Frame
     from twincd.pipeline import Setup
+    from twincd.signal.features import ModelFeatures
 
 
 # one column per pixel of a 1000-pixel-wide figure; min and max keep every spike
@@ -135,9 +136,11 @@ class ThinnedPairs:
         return out
 
 
-def fit_log_with_pairs(path: str | Path, setup: Setup) -> tuple[LogFit, ThinnedPairs]:
+def fit_log_with_pairs(
+    path: str | Path, setup: Setup, features: ModelFeatures | None = None
+) -> tuple[LogFit, ThinnedPairs]:
     """``fit``'s per-log step, also keeping the thinned pairs a report's figure draws."""
     from twincd.calibration.fitting import fit_log
 
     pairs = ThinnedPairs()
-    return fit_log(path, setup, [pairs]), pairs
+    return fit_log(path, setup, [pairs], features), pairs

@@ -1,0 +1,108 @@
+"""The calibration file's schema: ``twincd.calibration/2`` is written; ``/1`` files (the shipped
+calibrations as they were, in tests/data/calibrations_v1) load through ``upgrade_v1`` and score
+exactly as the re-made ``/2`` files of sample_logs do."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from twincd.calibration import SCHEMA, Calibration, upgrade_v1
+from twincd.detection import detect_streamed
+from twincd.errors import CalibrationError
+from twincd.pipeline import Setup
+
+ROOT = Path(__file__).resolve().parents[1]
+V1 = ROOT / "tests" / "data" / "calibrations_v1"
+NAMES = ["calibration", "calibration.affine", "calibration.causal", "calibration.friction"]
+LOG = ROOT / "sample_logs" / "test" / "test_000.mcap"
+
+
+def _scores(cal: Calibration) -> np.ndarray:
+    frames: list[np.ndarray] = []
+
+    class Keep:
+        def write(self, frame, events):  # type: ignore[no-untyped-def]
+            if frame.n:
+                frames.append(frame["score"])
+
+    detect_streamed(LOG, cal, Setup.from_calibration(cal), [Keep()])
+    return np.concatenate(frames)
+
+
+def _without_provenance(doc: dict) -> dict:  # type: ignore[type-arg]
+    """The file but for what a re-made one may change: when and by which version, timings."""
+    out = json.loads(json.dumps(doc))
+    for key in ("schema", "created", "twincd_version"):
+        out.pop(key)
+    out["fit"].pop("seconds")
+    return out  # type: ignore[no-any-return]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_v1_file_loads_and_scores_as_the_re_made_v2_one(name: str, tmp_path: Path) -> None:
+    old_doc = json.loads((V1 / f"{name}.json").read_text())
+    assert old_doc["schema"] == "twincd.calibration/1"
+    old = Calibration.load(V1 / f"{name}.json")
+    new = Calibration.load(ROOT / "sample_logs" / f"{name}.json")
+    assert json.loads((ROOT / "sample_logs" / f"{name}.json").read_text())["schema"] == SCHEMA
+    assert _without_provenance(old.to_dict()) == _without_provenance(new.to_dict())
+    np.testing.assert_array_equal(_scores(old), _scores(new))
+    # written again, a /1 file is a /2 file with the same content
+    old.save(tmp_path / "again.json")
+    again = json.loads((tmp_path / "again.json").read_text())
+    assert again["schema"] == SCHEMA
+    assert _without_provenance(again) == _without_provenance(old.to_dict())
+
+
+def test_the_converter_writes_what_v1_files_could_leave_out() -> None:
+    doc = json.loads((V1 / "calibration.affine.json").read_text())
+    for key in ("log_options", "fit", "created", "twincd_version"):
+        doc.pop(key)
+    doc["model"].pop("statistic", None)
+    doc["threshold"].pop("estimator")
+    del doc["filter"]["sample_rate_hz"]
+    del doc["robot"]["simulated"]
+    up = upgrade_v1(doc)
+    assert up["schema"] == SCHEMA and up["model"]["statistic"] == "sum"
+    assert up["log_options"]["topic"] == "/joint_states" and up["fit"]["logs"] == []
+    assert up["threshold"]["estimator"] == "mean-sd" and up["robot"]["simulated"] is True
+    assert up["filter"]["sample_rate_hz"] is None
+    cal = Calibration.from_dict(doc)
+    assert cal.period_s is None and cal.fit.samples == 0 and cal.model.statistic == "sum"
+    # a /2 file names every section: one left out is refused, not read as a default
+    v2 = cal.to_dict()
+    del v2["log_options"]
+    with pytest.raises(CalibrationError, match="lacks the field 'log_options'"):
+        Calibration.from_dict(v2)
+
+
+@pytest.mark.parametrize("schema", ["twincd.calibration/1", SCHEMA])
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        (("model", "joints", "joint1", "a"), float("nan"), "not a finite number"),
+        (("model", "joints", "joint1", "c"), "0.3", "not a number"),
+        (("model", "joints", "joint2", "theta", 3), float("inf"), "not a finite number"),
+        (("model", "joints", "joint1", "scale", 0), True, "not a number"),
+        (("fit", "joints", "joint1", "rmse"), "x", "not a number"),
+        (("fit", "samples"), 1.5, "not a count"),
+        (("threshold", "samples"), "80", "not a count"),
+        (("threshold", "mu"), float("nan"), "not a finite number"),
+        (("filter", "sample_rate_hz"), 0, "positive"),
+    ],
+)
+def test_every_number_is_validated_in_either_schema(
+    schema: str, path: tuple[object, ...], value: object, message: str
+) -> None:
+    doc = json.loads((V1 / "calibration.json").read_text())
+    doc["schema"] = schema
+    at = doc
+    for key in path[:-1]:
+        at = at[key]  # type: ignore[index]
+    at[path[-1]] = value  # type: ignore[index]
+    with pytest.raises(CalibrationError, match=message):
+        Calibration.from_dict(json.loads(json.dumps(doc)))

@@ -1,0 +1,191 @@
+"""The library does what the CLI does (contract: The library does what the CLI does): each
+command's function at its defaults gives what the command gives (the same calibration file but
+for when it was written and how long it took, the same flags and events, the same metrics), and
+returns its warnings as data without touching the user's logging set-up."""
+
+from __future__ import annotations
+
+import json
+import logging
+import pickle
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from support.builders import joint_recording, write
+from support.clitools import run
+
+import twincd
+from twincd.commands import LogsFailed
+
+# what may differ between two runs: when a calibration was written, how long work took
+CHANGING = {"created", "seconds", "train_s", "test_s", "train_s_std", "test_s_std"}
+
+
+def _stable(doc: Any) -> Any:
+    if isinstance(doc, dict):
+        return {k: _stable(v) for k, v in doc.items() if k not in CHANGING}
+    if isinstance(doc, list):
+        return [_stable(v) for v in doc]
+    return doc
+
+
+def _json(path: Path) -> Any:
+    return _stable(json.loads(path.read_text()))
+
+
+@pytest.fixture
+def cli_calibration(twin_dataset: Path, tmp_path: Path) -> Path:
+    """``twincd fit`` then ``twincd threshold`` at their defaults."""
+    path = tmp_path / "cli.json"
+    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
+    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
+    return path
+
+
+def test_fit_calibration_at_its_defaults_is_twincd_fit(twin_dataset: Path, tmp_path: Path) -> None:
+    """The default filter is the fit command's (critical at 1.5 Hz for the best model), not the
+    reading settings' Butterworth at 1 Hz."""
+    cli = tmp_path / "cli.json"
+    assert run("fit", twin_dataset / "train", "-o", cli, "-q").exit_code == 0
+    done = twincd.fit_calibration([twin_dataset / "train"], output=tmp_path / "lib.json")
+    assert _json(tmp_path / "lib.json") == _json(cli)
+    assert json.loads(cli.read_text())["filter"]["kind"] == "critical"
+    assert done.calibration.lowpass.kind == "critical" and done.calibration.lowpass.cutoff_hz == 1.5
+    assert done.failures == () and done.exit_code == 0
+
+
+def test_threshold_calibration_at_its_defaults_is_twincd_threshold(
+    twin_dataset: Path, tmp_path: Path
+) -> None:
+    cli, lib = tmp_path / "cli.json", tmp_path / "lib.json"
+    assert run("fit", twin_dataset / "train", "-o", cli, "-q").exit_code == 0
+    shutil.copy(cli, lib)
+    shown = run("threshold", twin_dataset / "val", "-c", cli, "--json")
+    assert shown.exit_code == 0, shown.output
+    done = twincd.threshold_calibration([twin_dataset / "val"], lib, output=lib)
+    assert _json(lib) == _json(cli)
+    assert done.written == lib and done.calibration.require_threshold().false_alarms is not None
+    doc = json.loads(shown.stdout)
+    answer = {k: v for k, v in doc.items() if k not in ("errors", "warnings")}
+    assert done.to_dict() == {**answer, "calibration": str(lib)}
+
+
+def test_detect_files_at_its_defaults_is_twincd_detect(
+    twin_dataset: Path, cli_calibration: Path
+) -> None:
+    shown = run("detect", twin_dataset / "test", "-c", cli_calibration, "--json", "--no-summary")
+    assert shown.exit_code == 1, shown.output
+    done = twincd.detect_files([twin_dataset / "test"], cli_calibration, step_summary=False)
+    doc = json.loads(shown.stdout)
+    assert done.to_dict() == {k: v for k, v in doc.items() if k not in ("errors", "warnings")}
+    assert done.collision and done.exit_code == 1
+    assert list(done.warnings) == doc["warnings"]
+
+
+def test_detect_file_is_twincd_detect_on_one_log(
+    twin_dataset: Path, cli_calibration: Path, tmp_path: Path
+) -> None:
+    log = twin_dataset / "test" / "test_0.mcap"
+    cli_out, lib_out = tmp_path / "cli.csv", tmp_path / "lib.csv"
+    shown = run("detect", log, "-c", cli_calibration, "--json", "-o", cli_out, "--no-summary")
+    summary = twincd.detect_file(log, cli_calibration, output=lib_out, step_summary=False)
+    assert [summary.to_dict()] == json.loads(shown.stdout)["logs"]
+    assert summary.events  # the log has labelled bumps
+    assert lib_out.read_text() == cli_out.read_text()  # the same flags, sample by sample
+
+
+def test_detect_file_refuses_a_setting_that_contradicts_the_calibration(
+    twin_dataset: Path, cli_calibration: Path
+) -> None:
+    with pytest.raises(twincd.TwincdError, match="contradicts the calibration"):
+        twincd.detect_file(twin_dataset / "test" / "test_0.mcap", cli_calibration, causal=True)
+
+
+def test_evaluate_logs_at_its_defaults_is_twincd_evaluate(
+    twin_dataset: Path, cli_calibration: Path
+) -> None:
+    shown = run("evaluate", twin_dataset / "test", "-c", cli_calibration, "--json", "--no-summary")
+    assert shown.exit_code == 0, shown.output
+    done = twincd.evaluate_logs([twin_dataset / "test"], cli_calibration, step_summary=False)
+    doc = json.loads(shown.stdout)
+    assert _stable(done.to_dict()) == _stable(
+        {k: v for k, v in doc.items() if k not in ("errors", "warnings")}
+    )
+    assert done.evaluation.methods[0].f1_at_threshold is not None and done.exit_code == 0
+
+
+def test_evaluate_logs_misses_a_gate_as_the_cli_does(
+    twin_dataset: Path, cli_calibration: Path
+) -> None:
+    gated = run("evaluate", twin_dataset / "test", "-c", cli_calibration, "--min-auc", "1.01")
+    done = twincd.evaluate_logs(
+        [twin_dataset / "test"], cli_calibration, min_auc=1.01, step_summary=False
+    )
+    assert gated.exit_code == done.exit_code == 1
+    assert done.missed and any("gate missed" in w for w in done.warnings)
+
+
+def test_simulate_logs_at_its_defaults_is_twincd_simulate(tmp_path: Path) -> None:
+    a = write(tmp_path / "a.mcap", "mcap", joint_recording(n=30))
+    b = write(tmp_path / "b.mcap", "mcap", joint_recording(n=30))
+    assert run("simulate", a, "-o", tmp_path / "a.cli.mcap", "-q").exit_code == 0
+    done = twincd.simulate_logs([b])
+    assert [r.output for r in done.outputs] == [tmp_path / "b.twin.mcap"]
+    cli, lib = (twincd.read_log(p) for p in (tmp_path / "a.cli.mcap", tmp_path / "b.twin.mcap"))
+    assert cli.sim_effort is not None and lib.sim_effort is not None
+    np.testing.assert_array_equal(lib.sim_effort, cli.sim_effort)
+
+
+def test_simulate_logs_refuses_a_filter(tmp_path: Path) -> None:
+    a = write(tmp_path / "a.mcap", "mcap", joint_recording(n=30))
+    with pytest.raises(twincd.TwincdError, match="unfiltered") as raised:
+        twincd.simulate_logs([a], cutoff_hz=2.0)
+    assert raised.value.option == "cutoff_hz"
+
+
+def test_inspect_logs_at_its_defaults_is_twincd_inspect(twin_dataset: Path) -> None:
+    log = twin_dataset / "train" / "train_0.mcap"
+    shown = run("inspect", log, "--json")
+    done = twincd.inspect_logs([log])
+    assert shown.exit_code == done.exit_code == 0
+    assert done.to_dict() == json.loads(shown.stdout)
+
+
+def test_warnings_are_data_and_the_users_handlers_stay(
+    twin_dataset: Path, cli_calibration: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A test log given twice is used once, with one warning: in ``warnings`` and on the
+    user's own handlers, which the command leaves in place."""
+    logger = logging.getLogger("twincd")
+    handlers, filters = list(logger.handlers), list(logger.filters)
+    log = twin_dataset / "test" / "test_0.mcap"
+    with caplog.at_level(logging.WARNING, logger="twincd"):
+        done = twincd.detect_files([log, log], cli_calibration, step_summary=False)
+    assert len(done.logs) == 1
+    assert done.warnings and any("twice" in w or "once" in w for w in done.warnings)
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == list(
+        done.warnings
+    )
+    assert logger.handlers == handlers and logger.filters == filters
+
+
+def test_keep_going_gives_the_failures_and_every_log_failing_is_an_error(
+    twin_dataset: Path, cli_calibration: Path, tmp_path: Path
+) -> None:
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"not a log")
+    good = twin_dataset / "test" / "test_0.mcap"
+    seen: list[Any] = []
+    done = twincd.detect_files(
+        [good, broken], cli_calibration, keep_going=True, on_failure=seen.append, step_summary=False
+    )
+    assert [f.path for f in done.failures] == [broken] == [f.path for f in seen]
+    assert [s.source for s in done.logs] == [str(good)] and done.exit_code == 2
+    with pytest.raises(LogsFailed) as raised:
+        twincd.detect_files([broken], cli_calibration, keep_going=True, step_summary=False)
+    assert raised.value.exit_code == 2 and len(raised.value.failures) == 1
+    again = pickle.loads(pickle.dumps(raised.value))  # it may cross a process boundary
+    assert again.exit_code == 2 and again.message == raised.value.message

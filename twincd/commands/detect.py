@@ -1,0 +1,185 @@
+"""``detect``: each log streamed down its calibration's chain, its per-sample output written
+where the work runs, then the reports (all or nothing)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from twincd.commands.runs import (
+    CommandRun,
+    Options,
+    as_path,
+    check_reports,
+    input_files,
+    setup_options,
+    split_options,
+)
+from twincd.errors import UsageError
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
+    from twincd.calibration import Calibration
+    from twincd.detection import DetectionSummary
+
+log = logging.getLogger("twincd")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DetectRun(CommandRun):
+    """What ``detect_files`` gives: each log's summary (counts and events), in the order given,
+    at the calibration's ``threshold``."""
+
+    logs: list[DetectionSummary] = field(default_factory=list)
+    threshold: float
+
+    @property
+    def collision(self) -> bool:
+        return any(s.events for s in self.logs)
+
+    @property
+    def exit_code(self) -> int:
+        """2 when a log failed (3 for a defect), else 1 when a collision was found, else 0."""
+        return super().exit_code or int(self.collision)
+
+    def to_dict(self) -> dict[str, object]:
+        """``detect --json`` (contract: ``--json`` documents) but for its errors and
+        warnings."""
+        return {
+            "collision": self.collision,
+            "threshold": self.threshold,
+            "logs": [s.to_dict() for s in self.logs],
+        }
+
+
+def detect_files(
+    logs: Iterable[str | Path],
+    calibration: Calibration | str | Path,
+    *,
+    output: str | Path | None = None,
+    report: str | Path | None = None,
+    junit: str | Path | None = None,
+    step_summary: bool = True,
+    force: bool = False,
+    **options: Unpack[Options],
+) -> DetectRun:
+    """``twincd detect``: collisions in ``logs`` (files, bags, folders of logs; each log once),
+    each streamed block by block down ``calibration``'s chain (one, or its file) at flat
+    memory, on ``jobs`` local processes or the Dask cluster at ``scheduler``.
+
+    ``options`` as ``fit_calibration``'s; the reading settings are the calibration's by
+    default, and one that contradicts it is an error.
+    ``output``: per-sample output (.mcap: the input plus twincd's channels, .csv, .jsonl) for
+    one log, or a folder of ``<log>.detect.mcap`` files; ``report`` (.md or .html) and
+    ``junit``: written after every log (all or nothing); ``step_summary``: the Markdown
+    summary appended to ``$GITHUB_STEP_SUMMARY`` when it is set."""
+    from twincd.calibration import Calibration
+    from twincd.executors import Bound, gathered_warnings
+    from twincd.io.atomic import check_target
+    from twincd.io.logs import expand_logs
+    from twincd.outputs import detect_and_write, detect_targets
+    from twincd.run import all_or_nothing
+
+    with gathered_warnings() as warnings:
+        running, settings = split_options(options)
+        cal = calibration if isinstance(calibration, Calibration) else Calibration.load(calibration)
+        threshold = cal.require_threshold().value
+        paths = expand_logs(logs)
+        setup = setup_options(settings).resolve(cal).for_logs(paths)
+        targets = detect_targets(paths, as_path(output))
+        inputs = [*paths, *input_files([calibration])]
+        for target in targets:
+            if target is not None:
+                kind = "detect" if target.suffix.lower() == ".mcap" else "table"
+                check_target(target, kind, force=force, inputs=inputs)
+        report_path, junit_path = as_path(report), as_path(junit)
+        check_reports(report_path, junit_path, force=force, inputs=inputs)
+        trace = report_path is not None and report_path.suffix.lower() == ".html"
+        items = list(zip(paths, targets, strict=True))
+        with all_or_nothing() as written:
+            # one log at a time: only the small summaries are kept, so memory stays flat
+            written.extend(target for target in targets if target is not None)
+            work: Bound[tuple[Path, Path | None], DetectionSummary] = Bound(
+                detect_and_write, cal, setup, trace
+            )
+            done = running.each(work, items, "detecting")
+            written.extend(p for p in (report_path, junit_path) if p is not None)
+            _write_reports(done.results, cal, report_path, junit_path, step_summary)
+        where = {str(path): target for path, target in items}
+        for result in done.results:  # the per-sample outputs written, as other commands say
+            if where.get(result.source) is not None:
+                log.info("wrote %s (%d samples)", where[result.source], result.samples)
+    return DetectRun(
+        logs=done.results,
+        threshold=threshold,
+        warnings=tuple(warnings),
+        failures=tuple(done.failures),
+    )
+
+
+def detect_file(
+    log: str | Path,
+    calibration: Calibration | str | Path,
+    *,
+    output: str | Path | None = None,
+    report: str | Path | None = None,
+    junit: str | Path | None = None,
+    step_summary: bool = True,
+    force: bool = False,
+    **options: Unpack[Options],
+) -> DetectionSummary:
+    """``twincd detect`` on one log (``detect_files``): its summary (counts and events), whose
+    ``warnings`` are the run's. A folder of several logs is an error."""
+    from twincd.io.logs import expand_logs
+
+    paths = expand_logs([log])
+    if len(paths) != 1:
+        raise UsageError(
+            f"one log expected, {len(paths)} found",
+            str(log),
+            "give one log file or bag (detect_files takes several)",
+        )
+    run = detect_files(
+        paths,
+        calibration,
+        output=output,
+        report=report,
+        junit=junit,
+        step_summary=step_summary,
+        force=force,
+        **options,
+    )
+    summary = run.logs[0]
+    summary.warnings = list(run.warnings)
+    return summary
+
+
+def _write_reports(
+    results: Sequence[DetectionSummary],
+    cal: Calibration,
+    report: Path | None,
+    junit: Path | None,
+    step_summary: bool,
+) -> None:
+    from twincd.reports import (
+        append_step_summary,
+        calibration_settings,
+        detection_junit,
+        detection_markdown,
+        detection_report,
+    )
+    from twincd.reports.documents import write_text
+
+    settings = calibration_settings(cal)
+    if report is not None:
+        detection_report(report, results, settings)
+        log.info("wrote %s", report)
+    if junit is not None:
+        write_text(junit, detection_junit(results))
+        log.info("wrote %s", junit)
+    if step_summary:
+        append_step_summary(detection_markdown(results, settings))

@@ -1,0 +1,193 @@
+"""What every command shares: the settings it takes by name, how it runs its logs (local
+processes or Dask, keep-going, a progress display), the reports it checks before any work, and
+what it hands back (its warnings as data, the logs that failed)."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypedDict, TypeVar
+
+from twincd.errors import TwincdError
+from twincd.run import LogFailure, LogRun, run_logs, warn_failure
+
+if TYPE_CHECKING:
+    from twincd.executors import MapExecutor, Progress
+    from twincd.settings import SetupOptions
+    from twincd.signal.filters import LowPass
+
+T = TypeVar("T")
+
+# opens a progress display for (number of logs, what is being done) and gives the function the
+# work calls as logs finish: (logs just done, their samples)
+ProgressDisplay = Callable[[int, str], contextlib.AbstractContextManager["Progress"]]
+
+
+class Settings(TypedDict, total=False):
+    """How to read logs, by name (``twincd.SetupOptions``' fields): the keyword arguments of
+    every command. With a calibration, a setting that contradicts it is an error."""
+
+    robot: str | None  # example-robot-data name or URDF path
+    topic: str | None
+    label_topic: str | None
+    sim_topic: str | None
+    joint_map: Mapping[str, str] | None  # log joint name → model joint name
+    cutoff_hz: float | None
+    filter_order: int | None
+    filter_kind: str | None
+    causal: bool | None
+    strict: bool  # refuse a truncated log instead of reading up to the damage
+    allow_urdf_change: bool  # accept a changed URDF whose dynamics did not change
+
+
+class RunOptions(TypedDict, total=False):
+    """How a command runs its logs (``twincd.run_logs``): ``jobs`` local processes (0: every
+    core, none for logs too small to pay for them), or the Dask cluster at ``scheduler``
+    (``"local"``: a LocalCluster); with ``keep_going`` a failing log is reported to
+    ``on_failure`` (by default a warning) and the others go on; ``progress`` opens a display
+    the run advances as logs finish."""
+
+    jobs: int
+    scheduler: str | None
+    keep_going: bool
+    progress: ProgressDisplay | None
+    on_failure: Callable[[LogFailure], None]
+
+
+class Options(Settings, RunOptions, total=False):
+    """The keyword arguments every command that runs many logs takes."""
+
+
+def split_options(options: Options) -> tuple[Running, Settings]:
+    """The run options (``Running``) and the reading settings of ``options``."""
+    running = Running(
+        options.pop("jobs", 0),
+        options.pop("scheduler", None),
+        options.pop("keep_going", False),
+        options.pop("progress", None),
+        options.pop("on_failure", warn_failure),
+    )
+    return running, options
+
+
+def filter_settings(lowpass: LowPass) -> Settings:
+    """The settings that ask for ``lowpass`` (e.g. to fit with a filter built elsewhere)."""
+    return Settings(
+        cutoff_hz=lowpass.cutoff_hz,
+        filter_order=lowpass.order,
+        causal=lowpass.causal,
+        filter_kind=lowpass.kind,
+    )
+
+
+def setup_options(settings: Settings) -> SetupOptions:
+    from twincd.settings import SetupOptions
+
+    return SetupOptions(**settings)
+
+
+class LogsFailed(TwincdError):
+    """Every log of a run failed (with ``keep_going``): nothing to go on with. Each failure was
+    reported as it happened (``on_failure``)."""
+
+    def __init__(self, failures: Sequence[LogFailure]) -> None:
+        first = failures[0]
+        super().__init__(
+            f"every log failed ({len(failures)}); the first: {first.error.what}",
+            first.error.where,
+            first.error.hint,
+            option=first.error.option,
+        )
+        self.failures = list(failures)
+        self.exit_code = max(f.error.exit_code for f in failures)
+
+    def __reduce__(self) -> tuple[type[LogsFailed], tuple[list[LogFailure]]]:  # type: ignore[override]
+        return (type(self), (self.failures,))
+
+
+@contextlib.contextmanager
+def _no_display(_logs: int, _what: str) -> Iterator[Progress]:
+    yield lambda _done, _samples: None
+
+
+@dataclass(frozen=True)
+class Running:
+    """How a command runs its per-log work (see ``twincd.run_logs``)."""
+
+    jobs: int = 0
+    scheduler: str | None = None
+    keep_going: bool = False
+    progress: ProgressDisplay | None = None
+    on_failure: Callable[[LogFailure], None] = warn_failure
+
+    def each(
+        self,
+        func: Callable[[T], Any],
+        items: Sequence[T],
+        what: str,
+        *,
+        executor: MapExecutor | None = None,
+    ) -> LogRun[Any]:
+        """``func`` over ``items`` on this run's executor (or ``executor``, which the caller
+        holds); a run of its own in which every log failed raises ``LogsFailed``."""
+        display = self.progress or _no_display
+        with display(len(items), what) as advance:
+            run = run_logs(
+                func,
+                items,
+                jobs=self.jobs,
+                scheduler=self.scheduler,
+                executor=executor,
+                keep_going=self.keep_going,
+                progress=advance,
+                on_failure=self.on_failure,
+            )
+        if executor is None and run.failures and not run.results:
+            raise LogsFailed(run.failures)
+        return run
+
+
+@dataclass(frozen=True, kw_only=True)
+class CommandRun:
+    """What every command hands back besides its answer: the warnings it gave (one line each,
+    in order; also logged on the ``twincd`` logger as they came) and, with ``keep_going``, the
+    logs that failed."""
+
+    warnings: tuple[str, ...] = ()
+    failures: tuple[LogFailure, ...] = field(default=())
+
+    @property
+    def exit_code(self) -> int:
+        """The command's exit code (contract: Exit codes): 0, or 2 when a log failed (3 when a
+        failure was a defect in twincd)."""
+        return max((f.error.exit_code for f in self.failures), default=0)
+
+
+def check_reports(
+    report: Path | None, junit: Path | None, *, force: bool = False, inputs: Sequence[Path] = ()
+) -> None:
+    """Fail before any work when a report or JUnit file cannot be written, or would replace
+    something that is not twincd's own report of that kind (unless ``force``)."""
+    from twincd.io.atomic import check_target
+    from twincd.reports import check_report_kind
+
+    if report is not None:
+        check_report_kind(report)
+        check_target(report, "report", force=force, inputs=inputs)
+        if report.suffix.lower() == ".html":
+            from twincd.reports.figures import pyplot
+
+            pyplot()  # a missing plot extra is an error now, not after the work
+    if junit is not None:
+        check_target(junit, "junit", force=force, inputs=inputs)
+
+
+def as_path(path: str | Path | None) -> Path | None:
+    return None if path is None else Path(path)
+
+
+def input_files(given: Iterable[object]) -> list[Path]:
+    """The files among ``given`` (a calibration in memory, or none, is no file)."""
+    return [Path(g) for g in given if isinstance(g, str | Path)]

@@ -1,0 +1,114 @@
+"""``simulate``: the twin's effort written into a lossless MCAP copy of each log."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from twincd.commands.runs import (
+    CommandRun,
+    Options,
+    as_path,
+    setup_options,
+    split_options,
+)
+from twincd.errors import UsageError
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
+    from twincd.simulate import SimulateResult
+
+# settings of the filter and the calibration: simulate writes the twin's effort as computed
+_NOT_FOR_SIMULATE = ("cutoff_hz", "filter_order", "filter_kind", "causal", "allow_urdf_change")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimulateRun(CommandRun):
+    """What ``simulate_logs`` gives: each log's output (in the order given)."""
+
+    outputs: list[SimulateResult] = field(default_factory=list)
+
+
+def simulate_logs(
+    logs: Iterable[str | Path],
+    *,
+    output: str | Path | None = None,
+    in_place: bool = False,
+    force: bool = False,
+    **options: Unpack[Options],
+) -> SimulateRun:
+    """``twincd simulate``: run the twin (``robot``, None: the default model) over ``logs``
+    and write its effort on ``sim_topic``, each log copied losslessly into MCAP: to
+    ``<log>.twin.mcap`` beside it, to ``output`` (a file for one log, a folder for several),
+    or over a bare ``.mcap`` input (``in_place``). ``options`` as ``fit_calibration``'s (no
+    filter setting: the twin's effort is written as computed)."""
+    from twincd.executors import Bound, gathered_warnings
+    from twincd.io.atomic import check_target, check_writable
+    from twincd.io.logs import expand_logs
+    from twincd.io.named import settle_named
+    from twincd.outputs import distinct_targets, make_output_folder
+    from twincd.simulate import default_output, simulate_item
+
+    with gathered_warnings() as warnings:
+        running, settings = split_options(options)
+        given = [name for name in _NOT_FOR_SIMULATE if settings.get(name)]
+        if given:
+            raise UsageError(
+                "simulate writes the twin's effort unfiltered, without a calibration",
+                "simulate",
+                "leave the filter and calibration settings out",
+                option=",".join(given),
+            )
+        paths = expand_logs(logs)
+        target = as_path(output)
+        if in_place and target is not None:
+            raise UsageError(
+                "in-place and output exclude each other",
+                "simulate",
+                "pick one",
+                option="in_place,output",
+            )
+        for path in paths if in_place else []:
+            if not (path.is_file() and path.suffix == ".mcap"):
+                raise UsageError(
+                    "in-place rewriting works on bare .mcap files only",
+                    str(path),
+                    "write to another output file",
+                    option="in_place",
+                )
+        several = len(paths) > 1
+        if several and target is not None:
+            if target.suffix == ".mcap":
+                raise UsageError(
+                    "several logs need an output folder", str(target), "give a folder name",
+                    option="output",
+                )  # fmt: skip
+            make_output_folder(target)
+        asked = setup_options(settings)
+        # the twin's topic is what simulate writes, not something a log must have
+        reading = settle_named(paths, asked.log_options().unnamed("sim_topic"))
+        targets: list[Path | None] = [None] * len(paths)
+        if not in_place:
+            folder = target if several else None
+            planned = distinct_targets(paths, default_output, folder)
+            targets = [target if target is not None and not several else t for t in planned]
+        for path, out in zip(paths, targets):
+            if out is None:
+                check_writable(path)  # in place: a read-only log is refused
+            else:
+                check_target(out, "simulate", force=force, inputs=paths)
+        items = list(zip(paths, targets, strict=True))
+        work: Bound[tuple[Path, Path | None], SimulateResult] = Bound(
+            simulate_item, asked.robot, reading, in_place, asked.strict
+        )
+        from twincd.run import all_or_nothing
+
+        with all_or_nothing() as written:
+            written.extend(t for t in targets if t is not None)
+            done = running.each(work, items, "simulating")
+    return SimulateRun(
+        outputs=done.results, warnings=tuple(warnings), failures=tuple(done.failures)
+    )

@@ -1,0 +1,107 @@
+"""``threshold``: the detection threshold from the score on collision-free logs, and the false
+alarms it gives on them counted as ``evaluate`` counts them."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from twincd.commands.runs import (
+    CommandRun,
+    Options,
+    as_path,
+    setup_options,
+    split_options,
+)
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
+    from twincd.calibration import Calibration
+
+log = logging.getLogger("twincd")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ThresholdRun(CommandRun):
+    """What ``threshold_calibration`` gives: the calibration with its threshold, and where it
+    was written (None: nowhere)."""
+
+    calibration: Calibration
+    written: Path | None = None
+
+    def to_dict(self) -> dict[str, object]:
+        """``threshold --json`` (contract: ``--json`` documents) but for its errors and
+        warnings: the value, the rule, the false alarms counted on the logs, and the
+        ``threshold`` object of the calibration."""
+        th = self.calibration.require_threshold()
+        return {
+            "value": th.value,
+            "rule": "budget" if th.budget_per_hour is not None else "k-sigma",
+            "false_alarms": th.false_alarms,
+            "hours": None if th.judged_s is None else th.judged_s / 3600.0,
+            "calibration": None if self.written is None else str(self.written),
+            "threshold": th.to_dict(),
+        }
+
+
+def threshold_calibration(
+    logs: Iterable[str | Path],
+    calibration: Calibration | str | Path,
+    *,
+    k_sigma: float | None = None,
+    false_alarms_per_hour: float | None = None,
+    output: str | Path | None = None,
+    force: bool = False,
+    **options: Unpack[Options],
+) -> ThresholdRun:
+    """``twincd threshold``: the threshold of ``calibration`` (one, or its file) from
+    collision-free ``logs`` (files, bags, folders of logs; each log once), each streamed: by
+    default a false-alarm budget for the models scored by depth, μ + 4σ for the others;
+    ``k_sigma`` keeps μ + kσ, ``false_alarms_per_hour`` sets the budget
+    (``twincd.threshold.threshold_from_parts``). Then, in a second pass, the false alarms the
+    threshold gives on these logs are counted (``detect``'s events, as ``evaluate`` counts
+    them) and a threshold that flags most of them is refused.
+
+    ``options`` as ``fit_calibration``'s; the reading settings are the calibration's by
+    default, and one that contradicts it is an error. ``output``: where to write the
+    calibration (None: nowhere)."""
+    from twincd.calibration import Calibration
+    from twincd.detection.files import AlarmTally, record_false_alarms, tally_false_alarms
+    from twincd.executors import Bound, gathered_warnings
+    from twincd.io.atomic import check_target
+    from twincd.io.logs import expand_logs
+    from twincd.threshold import (
+        LogScores,
+        check_threshold_choice,
+        score_log,
+        threshold_from_parts,
+    )
+
+    with gathered_warnings() as warnings:
+        running, settings = split_options(options)
+        check_threshold_choice(k_sigma, false_alarms_per_hour)
+        cal = calibration if isinstance(calibration, Calibration) else Calibration.load(calibration)
+        target = as_path(output)
+        paths = expand_logs(logs)
+        if target is not None:
+            check_target(target, "calibration", force=force, inputs=paths)
+        setup = setup_options(settings).resolve(cal).for_logs(paths)
+        scoring: Bound[Path, LogScores] = Bound(score_log, cal, setup)
+        done = running.each(scoring, paths, "scoring")
+        cal = threshold_from_parts(done.results, cal, k_sigma, false_alarms_per_hour)
+        # the false alarms the threshold gives on these logs: detect's events, counted as
+        # evaluate counts them (a second pass: the events need the threshold)
+        scored = [Path(p.source) for p in done.results]
+        counting: Bound[Path, AlarmTally] = Bound(tally_false_alarms, cal, setup)
+        tallied = running.each(counting, scored, "counting")
+        cal = record_false_alarms(cal, tallied.results)
+        if target is not None:
+            cal.save(target)
+            log.info("wrote %s", target)
+    return ThresholdRun(
+        calibration=cal, written=target, warnings=tuple(warnings), failures=tuple(done.failures)
+    )
