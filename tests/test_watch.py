@@ -343,26 +343,34 @@ def test_a_killed_session_stays_readable(
         assert topics.get(topic, 0) > 100, (topic, topics)
 
 
-def test_a_source_lost_mid_session_prints_the_summary_and_exits_2(twin_dataset, causal_cal):
+def _watch_until_lost(go_away: Any, source: str, cal: Path, timeout_s: str) -> dict[str, Any]:
+    """``watch SOURCE`` while ``go_away`` runs on a thread (the source goes away for good): the
+    summary is printed, then one error line and exit 2."""
     import threading
 
-    log = twin_dataset / "test" / "test_0.mcap"
-    replay = Replay(log, speed=SPEED)
+    thread = threading.Thread(target=go_away)
+    thread.start()
+    try:
+        result = run("watch", source, "-c", cal, "--json", "--connect-timeout", timeout_s)
+    finally:
+        thread.join(30)
+    assert_one_line_error(result, f"went away and did not come back within {timeout_s} s")
+    summary = _lines(result.stdout)[-1]
+    assert summary["type"] == "summary" and summary["ended"] == "source lost"
+    return summary
+
+
+def test_a_source_lost_mid_session_prints_the_summary_and_exits_2(twin_dataset, causal_cal):
+    replay = Replay(twin_dataset / "test" / "test_0.mcap", speed=SPEED)
 
     def stop_when_done() -> None:
         replay.done.wait(30)
         replay.stop()  # the server goes away and does not come back
 
-    stopper = threading.Thread(target=stop_when_done)
-    stopper.start()
     try:
-        result = run("watch", replay.url, "-c", causal_cal, "--json", "--connect-timeout", "1")
+        summary = _watch_until_lost(stop_when_done, replay.url, causal_cal, "1")
     finally:
-        stopper.join(30)
         replay.stop()
-    assert_one_line_error(result, "went away and did not come back within 1 s")
-    summary = _lines(result.stdout)[-1]
-    assert summary["type"] == "summary" and summary["ended"] == "source lost"
     assert summary["samples"] > 1000 and summary["collision"] is True  # what came is judged
 
 
@@ -693,7 +701,6 @@ def test_zenoh_with_another_type_on_the_topic_is_exit_2(causal_cal):
 
 def test_zenoh_router_lost_mid_session_prints_the_summary_and_exits_2(twin_dataset, causal_cal):
     zenoh = _zenoh_or_skip()
-    import threading
 
     _, messages = read_messages(twin_dataset / "test" / "test_0.mcap")
     robot = _ZenohRobot(zenoh)
@@ -709,12 +716,5 @@ def test_zenoh_router_lost_mid_session_prints_the_summary_and_exits_2(twin_datas
                 time.sleep(0.0003)
         robot.close()  # the router goes away and does not come back
 
-    publisher = threading.Thread(target=publish_then_go)
-    publisher.start()
-    try:
-        result = run("watch", robot.source, "-c", causal_cal, "--json", "--connect-timeout", "2")
-    finally:
-        publisher.join(30)
-    assert_one_line_error(result, "went away and did not come back within 2 s")
-    summary = _lines(result.stdout)[-1]
-    assert summary["ended"] == "source lost" and summary["samples"] > 300
+    summary = _watch_until_lost(publish_then_go, robot.source, causal_cal, "2")
+    assert summary["samples"] > 300
