@@ -14,10 +14,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from twincd.defaults import DEFAULT_TOPIC
-
 from .common import command, stderr, stdout
-from .options import CalibrationIn, Debug, Force, Json, Quiet
+from .options import CalibrationIn, Debug, Force, Json, LabelTopic, Quiet, Topic
 
 if TYPE_CHECKING:
     from twincd.live import WatchEvent, WatchStatus, WatchSummary
@@ -72,13 +70,15 @@ def _summary_line(item: WatchSummary) -> str:
 @command
 def watch(
     source: Annotated[
-        str, typer.Argument(help="ws://HOST:PORT (a foxglove_bridge) or ros2 (rclpy).")
+        str,
+        typer.Argument(
+            help="ws://HOST:PORT (a foxglove_bridge), ros2 (rclpy) or zenoh/tcp/HOST:PORT "
+            "(rmw_zenoh's router)."
+        ),
     ],
     calibration: CalibrationIn,
-    topic: Annotated[
-        str | None,
-        typer.Option("--topic", help=f"JointState topic [default: {DEFAULT_TOPIC}]"),
-    ] = None,
+    topic: Topic = None,
+    label_topic: LabelTopic = None,
     json_: Json = False,
     output: Annotated[
         Path | None,
@@ -149,6 +149,7 @@ def watch(
             source,
             calibration,
             topic=topic,
+            label_topic=label_topic,
             record=output,
             force=force,
             duration_s=duration,

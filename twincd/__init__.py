@@ -13,7 +13,7 @@ type checkers see the real types):
 - calibrate: ``Calibration``
 - detect: ``detect`` (a prepared log: ``twincd.detection.detect_log``), ``OnlineDetector``
   (live)
-- live: ``watch`` (a running robot's joint states through a Foxglove bridge or ROS 2)
+- live: ``watch`` (a running robot's joint states through a Foxglove bridge, ROS 2 or rmw_zenoh)
 - many logs: ``run_logs`` (a per-log function over paths: local processes or Dask, keep-going)
 
 Arguments come in one order: inputs, calibration, then settings by keyword

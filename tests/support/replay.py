@@ -3,9 +3,9 @@
 ``Replay(log, speed=…)`` starts a server on a free port (its own ``foxglove.Context``, so that
 servers of different tests never share channels), advertises every topic of the MCAP ``log``
 (or ``channels``: topic → (schema name, schema text)), and, once a client subscribes to the
-first topic, publishes the log's messages ``speed`` times faster than they were recorded, with
-the log time of *now* (as foxglove_bridge stamps what it receives). ``loop=True`` starts again
-at the end until stopped.
+first topic (and to each of ``WATCHED`` the log has, up to 5 s), publishes the log's messages
+``speed`` times faster than they were recorded, with the log time of *now* (as foxglove_bridge
+stamps what it receives). ``loop=True`` starts again at the end until stopped.
 """
 
 from __future__ import annotations
@@ -18,12 +18,18 @@ from typing import Any
 import foxglove
 from mcap.reader import make_reader
 
+# what watch subscribes to when a log carries it: publishing waits for each of them, so that
+# no twin effort is sent before its subscription arrived (samples without it are skipped)
+WATCHED = ("/joint_states", "/twincd/sim_effort", "/collision_flag")
+
 
 class _Listener:
     def __init__(self) -> None:
         self.subscribed = threading.Event()
+        self.topics: set[str] = set()
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
+        self.topics.add(str(getattr(channel, "topic", "")))
         self.subscribed.set()
 
     def on_unsubscribe(self, client: Any, channel: Any) -> None:
@@ -87,7 +93,12 @@ class Replay:
         while not self.listener.subscribed.wait(0.05):
             if self._stop.is_set():
                 return
-        time.sleep(0.2)  # the client's other subscriptions (labels, twin effort)
+        # the client's other subscriptions (labels, twin effort) may come in messages of their own
+        wanted = set(WATCHED) & set(self.channels_spec)
+        deadline = time.monotonic() + 5.0
+        while not wanted <= self.listener.topics and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(0.1)
         while not self._stop.is_set():
             if not self.messages:
                 break

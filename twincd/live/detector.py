@@ -4,6 +4,12 @@ Results are matched to samples by stamp: a detector that holds samples back (a c
 at high rates) returns them later with their ``stamp_ns``, and ``flush`` gives what it still
 holds at the end of a segment. A detector whose results carry no stamps returns one row per
 pushed sample, at once.
+
+With ``twin=True`` (a recorded session) and a calibration whose twin runs on the robot model,
+each pushed sample's τ̂ is computed per sample on the samples the detector takes, through the
+calibration's chain up to the twin (its causal derivative, inverse dynamics; no filter, no
+grid: ``build_chain(..., filtered=False)``, what ``detect --causal`` twins on at 100 Hz), and
+returned with the push (``Scored.twin``), for ``/twincd/sim_effort``.
 """
 
 from __future__ import annotations
@@ -14,22 +20,27 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from twincd.detection.events import Event
+from twincd.frames import Frame
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.detection.online import OnlineDetector
+    from twincd.frames import Chain
 
 
 @dataclass
 class Scored:
-    """Scored samples (by stamp) and the events that closed."""
+    """Scored samples (by stamp), the events that closed, and (``twin``) the twin's effort of
+    the samples pushed: a frame with ``stamp_ns``, ``log_time_ns``, ``position``, ``velocity``
+    and ``sim_effort``."""
 
     stamp_ns: IntArray
     score: FloatArray
     flag: BoolArray
     residual: FloatArray
     events: list[Event] = field(default_factory=list)
+    twin: Frame = field(default_factory=Frame)
 
     @staticmethod
     def empty(joints: int) -> Scored:
@@ -39,12 +50,15 @@ class Scored:
 class LiveDetector:
     """A restartable ``OnlineDetector``: one per segment of the stream."""
 
-    def __init__(self, calibration: Calibration, source: str) -> None:
+    def __init__(self, calibration: Calibration, source: str, twin: bool = False) -> None:
         self.calibration = calibration
         self.source = source
         self._detector = self._new()
         self.joint_names: list[str] = list(self._detector.joint_names)
         self.use_sim: bool = bool(self._detector.use_sim)
+        self.twin = twin and not self.use_sim  # τ̂ to compute for the session file
+        self._twin_chain: Chain | None = None
+        self._warm_up()
         self.samples = 0
         self.skipped = 0
         self.flagged = 0
@@ -55,15 +69,19 @@ class LiveDetector:
 
         return OnlineDetector(self.calibration, source=self.source)
 
+    def _warm_up(self) -> None:
+        """What the first push would import and compute (the filter's settling span, its
+        delay; a few hundred ms), done before the session starts instead of on the first
+        sample's time."""
+        from twincd.signal.filters import edge_span
+
+        edge_span(self.calibration.lowpass, self._detector.period_s)
+        self.filter_delay_s = float(self._detector.latency_s)  # the causal filter's group delay
+
     @property
     def judged(self) -> int:
         """Samples judged (past each segment's start-up span) over every segment."""
         return self._judged_before + int(self._detector.counts.judged)
-
-    @property
-    def latency_s(self) -> float:
-        """The causal filter's group delay (how late a step shows in the score)."""
-        return float(self._detector.latency_s)
 
     def push(
         self,
@@ -72,20 +90,9 @@ class LiveDetector:
         velocity: FloatArray,
         effort: FloatArray,
         sim_effort: FloatArray | None,
+        log_time_ns: IntArray | None = None,
     ) -> Scored:
         det = self._detector
-        if self.use_sim and sim_effort is not None and not np.isfinite(sim_effort).any():
-            # none has its twin effort: all would be skipped (and an empty push with a twin
-            # effort trips the chain), so skip them here
-            self.skipped += len(stamp_ns)
-            joints = len(self.joint_names)
-            n = len(stamp_ns)
-            return Scored(
-                np.asarray(stamp_ns, np.int64),
-                np.full(n, np.nan),
-                np.zeros(n, bool),
-                np.full((n, joints), np.nan),
-            )
         before = det.skipped
         out = det.push(stamp_ns, position, velocity, effort, sim_effort if self.use_sim else None)
         self.skipped += det.skipped - before
@@ -93,7 +100,49 @@ class LiveDetector:
         scored = Scored(stamps, out.score, out.flag, out.residual, list(out.events))
         self.samples += len(stamps) - (det.skipped - before)
         self.flagged += int(np.count_nonzero(out.flag))
+        if self.twin:
+            times = stamp_ns if log_time_ns is None else log_time_ns
+            scored.twin = self._twin(stamp_ns, times, position, velocity, effort)
         return scored
+
+    def _twin(
+        self,
+        stamp_ns: IntArray,
+        log_time_ns: IntArray,
+        position: FloatArray,
+        velocity: FloatArray,
+        effort: FloatArray,
+    ) -> Frame:
+        """τ̂ of the pushed samples the detector takes."""
+        from twincd.chain import JointLayout, build_chain
+        from twincd.signal.features import ModelFeatures
+
+        det = self._detector
+        stamps = np.asarray(stamp_ns, dtype=np.int64)
+        if self._twin_chain is None:
+            robot = det.robot
+            assert robot is not None, "a detector that simulates has its robot model"
+            names = tuple(self.joint_names)
+            layout = JointLayout(names, robot.joint_names, names)
+            fill = det.velocity_from_position
+            lowpass, features = self.calibration.lowpass, ModelFeatures()  # no filter: none
+            built = build_chain(
+                lowpass, features, layout, det.period_s, robot, fill, threads=1, filtered=False
+            )
+            self._twin_chain = built.chain
+        # the rows the detector takes: finite ones (samples come sorted by the reorder buffer)
+        ok = np.isfinite(position).all(axis=1) & np.isfinite(effort).all(axis=1)
+        if not det.velocity_from_position:
+            ok &= np.isfinite(velocity).all(axis=1)
+        frame = Frame(
+            {
+                "stamp_ns": stamps[ok],
+                "log_time_ns": np.asarray(log_time_ns, dtype=np.int64)[ok],
+                "position": np.asarray(position)[ok],
+                "velocity": np.asarray(velocity)[ok],
+            }
+        )
+        return self._twin_chain.push(frame)
 
     def finish(self) -> Scored:
         """End of a segment: what the detector still holds, and the event still open."""
@@ -107,6 +156,9 @@ class LiveDetector:
             self.samples += len(stamps)
             self.flagged += int(np.count_nonzero(out.flag))
         scored.events += det.close()
+        if self._twin_chain is not None:
+            scored.twin = self._twin_chain.finish()
+            self._twin_chain = None
         return scored
 
     def restart(self) -> Scored:

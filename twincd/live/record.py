@@ -22,9 +22,11 @@ from typing import IO
 import numpy as np
 from mcap.records import Metadata
 
+from twincd.defaults import DEFAULT_SIM_TOPIC
 from twincd.detection.events import Event
 from twincd.detection.outputs import COLLISION_TOPIC, EVENT_TOPIC, RESIDUAL_TOPIC, SCORE_TOPIC
 from twincd.errors import OutputError
+from twincd.frames import Frame
 from twincd.io.atomic import check_target, output_error
 from twincd.io.cdr import JOINT_STATE, STRING, bool_block, float64_block, joint_state_block
 from twincd.types import BoolArray, FloatArray, IntArray
@@ -33,7 +35,7 @@ from twincd.version import __version__
 __all__ = ["FLUSH_S", "SessionRecorder"]
 
 FLUSH_S = 0.5
-SIM_TOPIC = "/twincd/sim_effort"
+SIM_TOPIC = DEFAULT_SIM_TOPIC
 OUTPUT_KIND = "watch"
 
 
@@ -98,21 +100,29 @@ class SessionRecorder:
         residual: FloatArray,
         score: FloatArray,
         flag: BoolArray,
-        sim_effort: FloatArray | None = None,
     ) -> None:
         """twincd's channels for scored samples (each at its joint-state sample's log time)."""
         if not len(stamp_ns):
             return
-        names = self.joint_names
-        if sim_effort is not None:
-            sim = joint_state_block(stamp_ns, names, position, velocity, sim_effort)
-            self._out.append(self._channel(SIM_TOPIC, JOINT_STATE), log_time_ns, sim)
-        res = joint_state_block(stamp_ns, names, position, velocity, residual)
+        res = joint_state_block(stamp_ns, self.joint_names, position, velocity, residual)
         self._out.append(self._channel(RESIDUAL_TOPIC, JOINT_STATE), log_time_ns, res)
         score_cid = self._channel(SCORE_TOPIC, "std_msgs/msg/Float64")
         self._out.append(score_cid, log_time_ns, float64_block(score))
         flag_cid = self._channel(COLLISION_TOPIC, "std_msgs/msg/Bool")
         self._out.append(flag_cid, log_time_ns, bool_block(flag))
+
+    def twin(self, frame: Frame) -> None:
+        """``/twincd/sim_effort``: the twin's effort computed live (``stamp_ns``,
+        ``log_time_ns``, ``position``, ``velocity``, ``sim_effort``), each at its joint-state
+        sample's log time."""
+        sim = joint_state_block(
+            frame["stamp_ns"],
+            self.joint_names,
+            frame["position"],
+            frame["velocity"],
+            frame["sim_effort"],
+        )
+        self._out.append(self._channel(SIM_TOPIC, JOINT_STATE), frame["log_time_ns"], sim)
 
     def events(self, events: Sequence[Event], log_time_ns: Sequence[int]) -> None:
         """Closed events, one JSON String each, at the log time of their last sample."""

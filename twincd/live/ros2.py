@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from twincd.live.source import Arrival, SourceError, Wanted
+from twincd.live.source import Arrival, SourceError, Wanted, take_queued
 
 __all__ = ["Ros2Source"]
 
@@ -126,17 +126,7 @@ class Ros2Source:
         return take
 
     def receive(self, timeout_s: float) -> list[Arrival]:
-        out: list[Arrival] = []
-        try:
-            out.append(self._queue.get(timeout=max(timeout_s, 0.0)))
-        except queue.Empty:
-            return out
-        while len(out) < 4096:
-            try:
-                out.append(self._queue.get_nowait())
-            except queue.Empty:
-                break
-        return out
+        return take_queued(self._queue, timeout_s)
 
     def close(self) -> None:
         self._stop.set()

@@ -5,7 +5,9 @@ the transport by the form of ``spec``:
 
 - ``ws://HOST:PORT`` (or ``wss://``): a Foxglove WebSocket server such as foxglove_bridge
   (``twincd.live.foxglove``);
-- ``ros2``: DDS through rclpy (``twincd.live.ros2``; the user's ROS 2 or the extra ``twincd[ros]``).
+- ``ros2``: DDS through rclpy (``twincd.live.ros2``; the user's ROS 2 or the extra ``twincd[ros]``);
+- ``zenoh`` or ``zenoh/ENDPOINT`` (``zenoh/tcp/HOST:7447``): a robot on rmw_zenoh, through its
+  Zenoh router (``twincd.live.zenoh``; the extra ``twincd[zenoh]``).
 
 A fourth transport is one module that implements ``Source`` and one line in ``open_source``.
 Transport libraries are imported when a source opens, never on ``import twincd``.
@@ -13,6 +15,7 @@ Transport libraries are imported when a source opens, never on ``import twincd``
 
 from __future__ import annotations
 
+import queue
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -67,6 +70,24 @@ class Source(Protocol):
     def close(self) -> None: ...
 
 
+def take_queued(
+    arrivals: queue.Queue[Arrival], timeout_s: float, limit: int = 4096
+) -> list[Arrival]:
+    """What a transport's own thread queued: the first within ``timeout_s`` and every one
+    already there (up to ``limit``); empty when none came."""
+    out: list[Arrival] = []
+    try:
+        out.append(arrivals.get(timeout=max(timeout_s, 0.0)))
+    except queue.Empty:
+        return out
+    while len(out) < limit:
+        try:
+            out.append(arrivals.get_nowait())
+        except queue.Empty:
+            break
+    return out
+
+
 def ros_type(name: str) -> str:
     """The ROS 2 type name: ``sensor_msgs/JointState`` → ``sensor_msgs/msg/JointState``."""
     parts = name.strip().split("/")
@@ -86,8 +107,12 @@ def open_source(spec: str, connect_timeout_s: float = 10.0) -> Source:
         from twincd.live.ros2 import Ros2Source
 
         return Ros2Source(connect_timeout_s)
+    if text == "zenoh" or text.startswith("zenoh/"):
+        from twincd.live.zenoh import ZenohSource
+
+        return ZenohSource(text.removeprefix("zenoh").lstrip("/"), connect_timeout_s)
     raise SourceError(
         f"unknown live source {spec!r}",
         "source",
-        "give ws://HOST:PORT (a foxglove_bridge) or ros2",
+        "give ws://HOST:PORT (a foxglove_bridge), ros2 or zenoh/tcp/HOST:PORT (rmw_zenoh)",
     )

@@ -53,7 +53,9 @@ __all__ = [
 
 CONNECT_TIMEOUT_S = 10.0
 _POLL_S = 0.05
-_KEEP_LOG_TIMES = 100_000  # stamp → log time of recent samples (events are recorded at theirs)
+# recent samples by stamp, for the session file: their scores may come a few pushes later (a
+# coarse grid holds them), and events are recorded at the log time of their last sample
+_KEEP_SAMPLES = 30_000
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,7 @@ class WatchSummary:
     skipped: int  # samples the detector skipped (non-finite values)
     judged: int
     flagged: int
-    latency_ms: dict[str, float] = field(default_factory=dict)  # median, p95, max
+    latency_ms: dict[str, float] = field(default_factory=dict)  # p50, p95, p99, max
     filter_delay_ms: float = float("nan")
     error: str = ""
 
@@ -134,10 +136,11 @@ class _Latency:
     def summary(self) -> dict[str, float]:
         if not self.window:
             return {}
-        values = np.asarray(self.window)
+        p50, p95, p99 = np.percentile(np.asarray(self.window), [50, 95, 99])
         return {
-            "median": round(float(np.median(values)), 3),
-            "p95": round(float(np.percentile(values, 95)), 3),
+            "p50": round(float(p50), 3),
+            "p95": round(float(p95), 3),
+            "p99": round(float(p99), 3),
             "max": round(self.max, 3),
         }
 
@@ -170,7 +173,7 @@ class _Session:
         reorder_ns: int,
         recorder: SessionRecorder | None,
     ) -> None:
-        self.detector = LiveDetector(cal, source_name)
+        self.detector = LiveDetector(cal, source_name, twin=recorder is not None)
         self.topic, self.label_topic = topic, label_topic
         self.sim_topic = cal.options.sim_topic if self.detector.use_sim else None
         names = self.detector.joint_names
@@ -181,7 +184,7 @@ class _Session:
         self.segments = Segments()
         self.recorder = recorder
         self.threshold = float(cal.require_threshold().value)
-        self.log_times: OrderedDict[int, int] = OrderedDict()
+        self.recent: OrderedDict[int, Sample] = OrderedDict()  # kept when recording
         self.latency = _Latency()
         self.events = 0
         self.collision = False
@@ -241,54 +244,51 @@ class _Session:
             last = int(stamps[-1])
             for k in [k for k in self.sim if k <= last]:
                 del self.sim[k]
-        for s in samples:
-            self.log_times[s.stamp_ns] = s.log_time_ns
-        while len(self.log_times) > _KEEP_LOG_TIMES:
-            self.log_times.popitem(last=False)
-        scored = self.detector.push(stamps, pos, vel, eff, sim)
+        if self.recorder is not None:
+            for s in samples:
+                self.recent[s.stamp_ns] = s
+            while len(self.recent) > _KEEP_SAMPLES:
+                self.recent.popitem(last=False)
+        log_times = np.array([s.log_time_ns for s in samples], dtype=np.int64)
+        scored = self.detector.push(stamps, pos, vel, eff, sim, log_times)
         self.latency.add([s.received_ns for s in samples], time.monotonic_ns())
-        self._record(scored, samples, pos, vel, sim)
+        self._record(scored)
         return self._events(scored)
 
     def _finish(self, restart: bool) -> list[Event]:
         scored = self.detector.restart() if restart else self.detector.finish()
-        self._record(scored, [], None, None, None)
+        self._record(scored)
         return self._events(scored)
 
-    def _record(
-        self,
-        scored: Scored,
-        samples: list[Sample],
-        pos: np.ndarray | None,
-        vel: np.ndarray | None,
-        sim: np.ndarray | None,
-    ) -> None:
+    def _record(self, scored: Scored) -> None:
         n = len(scored.stamp_ns)
         if n:
             finite = scored.score[np.isfinite(scored.score)]
             if len(finite):
                 self.last_score = float(finite[-1])
             self.scored_in_interval += n
-        if self.recorder is None or not n:
+        if self.recorder is None:
             return
-        # results are matched to the pushed samples by stamp (a detector may hold some back)
-        pushed = {s.stamp_ns: i for i, s in enumerate(samples)}
-        rows = [pushed.get(int(t), -1) for t in scored.stamp_ns]
-        ok = np.array([r >= 0 for r in rows], dtype=bool)
-        if pos is None or vel is None or not ok.any():
+        if scored.twin.n:
+            self.recorder.twin(scored.twin)
+        if not n:
             return
-        idx = np.array([r for r in rows if r >= 0], dtype=np.intp)
-        stamps = scored.stamp_ns[ok]
-        log_times = np.array([self.log_times.get(int(t), int(t)) for t in stamps], np.int64)
-        good = np.isfinite(scored.score[ok])  # a skipped sample has no score to write
+        # results are matched to the pushed samples by stamp (a detector may hold some back),
+        # and a skipped sample has no score to write
+        rows = [self.recent.get(int(t)) for t in scored.stamp_ns]
+        ok = np.array([r is not None for r in rows], dtype=bool) & np.isfinite(scored.score)
+        kept = [r for r, good in zip(rows, ok, strict=True) if good and r is not None]
+        if not kept:
+            return
+        joints = len(self.detector.joint_names)
         self.recorder.scored(
-            stamps[good],
-            log_times[good],
-            pos[idx][good],
-            vel[idx][good],
-            scored.residual[ok][good],
-            scored.score[ok][good],
-            scored.flag[ok][good],
+            scored.stamp_ns[ok],
+            np.array([r.log_time_ns for r in kept], dtype=np.int64),
+            np.array([r.position for r in kept]).reshape(-1, joints),
+            np.array([r.velocity for r in kept]).reshape(-1, joints),
+            scored.residual[ok],
+            scored.score[ok],
+            scored.flag[ok],
         )
 
     def _events(self, scored: Scored) -> list[Event]:
@@ -297,9 +297,13 @@ class _Session:
             self.events += len(events)
             self.collision = True
             if self.recorder is not None:
-                times = [self.log_times.get(e.end_ns, e.end_ns) for e in events]
+                times = [self._log_time(e.end_ns) for e in events]
                 self.recorder.events(events, times)
         return events
+
+    def _log_time(self, stamp_ns: int) -> int:
+        sample = self.recent.get(stamp_ns)
+        return stamp_ns if sample is None else sample.log_time_ns
 
     def end(self) -> list[Event]:
         events = self._push(self.reorder.drain())
@@ -323,8 +327,15 @@ def watch(
     stop: threading.Event | None = None,
 ) -> Iterator[WatchItem]:
     """Watch ``source`` (``ws://HOST:PORT``, ``ros2``, or a ``Source``) with ``calibration``
-    (see the module's docstring). ``record``: the session MCAP (``-o``)."""
+    (see the module's docstring). ``topic`` and ``label_topic`` default to the calibration's
+    (one that contradicts it is a ``UsageError``); the label topic is subscribed to when it is
+    published, for ``record``: the session MCAP (``-o``)."""
+    from twincd.settings import SetupOptions
+
     cal = _load(calibration)
+    # the calibration's topics unless given; a topic that contradicts them is an error, as for
+    # every command (the session file then reads as the calibration's logs do)
+    options = SetupOptions(topic=topic, label_topic=label_topic).resolve(cal).options
     src = open_source(source, connect_timeout_s) if isinstance(source, str) else source
     recorder: SessionRecorder | None = None
     session = None
@@ -336,8 +347,8 @@ def watch(
         session = _Session(
             cal,
             src.name,
-            topic or cal.options.topic,
-            label_topic or cal.options.label_topic,
+            options.topic,
+            options.label_topic,
             reorder_ns,
             recorder,
         )
@@ -436,7 +447,7 @@ def _run(
         judged=counts.judged,
         flagged=counts.flagged,
         latency_ms=s.latency.summary(),
-        filter_delay_ms=round(s.detector.latency_s * 1e3, 3),
+        filter_delay_ms=round(s.detector.filter_delay_s * 1e3, 3),
         error=error,
     )
 
