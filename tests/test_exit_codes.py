@@ -244,7 +244,7 @@ def test_keep_going_reports_a_defect_per_log_and_exits_3(world, tmp_path, monkey
             raise ZeroDivisionError("injected")
         return original(path, *args, **kwargs)
 
-    monkeypatch.setattr("twincd.detection.outputs.detect_streamed", detect_streamed)
+    monkeypatch.setattr("twincd.detection.files.detect_streamed", detect_streamed)
     result = run("detect", good, bad, "-c", world["cal"], "--json", "--keep-going", "-j", jobs)
     assert result.exit_code == 3, result.output
     assert result.stderr.splitlines() == [

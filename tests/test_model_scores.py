@@ -114,7 +114,7 @@ def test_batch_and_whole_log_score_the_calibration_s_own_model(
 def test_streamed_evaluate_and_the_report_score_the_calibration_s_own_model(
     shipped: Calibration, change: str
 ) -> None:
-    from twincd.detection.outputs import detect_and_write
+    from twincd.commands.detect import detect_and_write
     from twincd.evaluation.runner import evaluate, method_for
     from twincd.evaluation.streamed import judge_log
 

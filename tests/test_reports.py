@@ -14,7 +14,7 @@ import pytest
 from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
-from twincd.detection.outputs import detect_and_write
+from twincd.commands.detect import detect_and_write
 from twincd.errors import OutputError, UsageError
 from twincd.prepare.setup import Setup
 from twincd.reports import (

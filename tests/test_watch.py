@@ -453,7 +453,7 @@ def test_a_push_without_twin_effort_is_skipped(causal_cal, twin_dataset):
     them, and the others score as if those had never been pushed."""
     from twincd import Calibration
     from twincd.detection import OnlineDetector
-    from twincd.pipeline import read_log
+    from twincd.prepare.setup import read_log
 
     cal = Calibration.load(causal_cal)
     states = read_log(twin_dataset / "test" / "test_1.mcap")

@@ -3,6 +3,7 @@ where the work runs, then the reports (all or nothing)."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -25,6 +26,8 @@ if TYPE_CHECKING:
 
     from twincd.calibration import Calibration
     from twincd.detection import DetectionSummary
+    from twincd.prepare.frames import FrameSink
+    from twincd.prepare.setup import Setup
 
 log = logging.getLogger("twincd")
 
@@ -78,7 +81,7 @@ def detect_files(
     ``junit``: written after every log (all or nothing); ``step_summary``: the Markdown
     summary appended to ``$GITHUB_STEP_SUMMARY`` when it is set."""
     from twincd.calibration import Calibration
-    from twincd.detection.outputs import detect_and_write, detect_targets
+    from twincd.detection.outputs import detect_targets
     from twincd.executors.local import Bound, gathered_warnings
     from twincd.executors.run import all_or_nothing
     from twincd.io.atomic import check_target
@@ -183,3 +186,32 @@ def _write_reports(
         log.info("wrote %s", junit)
     if step_summary:
         append_step_summary(detection_markdown(results, settings))
+
+
+def detect_and_write(
+    item: tuple[Path, Path | None],
+    calibration: Calibration,
+    setup: Setup,
+    trace: bool = False,
+) -> DetectionSummary:
+    """The per-log step of ``detect``: stream one log, writing its per-sample output (if any)
+    where the work runs; only the summary travels back (with ``trace``, also the bounded
+    figure data of a report)."""
+    from twincd.detection.files import detect_streamed
+    from twincd.detection.outputs import open_sink
+    from twincd.reports.traces import DetectionTrace
+
+    path, target = item
+    with contextlib.ExitStack() as outputs:
+        sinks: list[FrameSink] = []
+        if target is not None:
+            sink = open_sink(path, target, calibration.joint_names, partial=not setup.strict)
+            sinks.append(outputs.enter_context(sink))
+        figure_data = None
+        if trace:
+            threshold = calibration.require_threshold().value
+            figure_data = DetectionTrace(calibration.joint_names, threshold)
+            sinks.append(figure_data)
+        summary = detect_streamed(path, calibration, setup, sinks)
+        summary.trace = figure_data
+        return summary

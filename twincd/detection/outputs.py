@@ -16,15 +16,13 @@ from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
-from twincd.detection.detect import DetectionSummary, LogDetection
+from twincd.detection.detect import LogDetection
 from twincd.detection.events import Event
-from twincd.detection.files import detect_streamed
 from twincd.errors import OutputError, UsageError
 from twincd.prepare.frames import Frame, FrameSink
 
 if TYPE_CHECKING:
-    from twincd.calibration import Calibration
-    from twincd.prepare.setup import Setup
+    pass
 
 RESIDUAL_TOPIC = "/twincd/residual"
 SCORE_TOPIC = "/twincd/score"
@@ -247,33 +245,6 @@ class JsonlSink:
             self._text.write(json.dumps(dict(zip(self._keys, values, strict=True))) + "\n")
 
 
-def detect_and_write(
-    item: tuple[Path, Path | None],
-    calibration: Calibration,
-    setup: Setup,
-    trace: bool = False,
-) -> DetectionSummary:
-    """The per-log step of ``detect``: stream one log, writing its per-sample output (if any)
-    where the work runs; only the summary travels back (with ``trace``, also the bounded
-    figure data of a report)."""
-    path, target = item
-    with contextlib.ExitStack() as outputs:
-        sinks: list[FrameSink] = []
-        if target is not None:
-            sink = open_sink(path, target, calibration.joint_names, partial=not setup.strict)
-            sinks.append(outputs.enter_context(sink))
-        figure_data = None
-        if trace:
-            from twincd.reports.traces import DetectionTrace
-
-            threshold = calibration.require_threshold().value
-            figure_data = DetectionTrace(calibration.joint_names, threshold)
-            sinks.append(figure_data)
-        summary = detect_streamed(path, calibration, setup, sinks)
-        summary.trace = figure_data
-        return summary
-
-
 def write_detection(result: LogDetection, source: Path, target: Path) -> None:
     """Write a whole-log detection to ``target`` (same formats as streaming detection)."""
     states = result.log.states
@@ -303,7 +274,6 @@ __all__ = [
     "JsonlSink",
     "McapSink",
     "check_output_kind",
-    "detect_and_write",
     "detect_targets",
     "distinct_targets",
     "log_stem",

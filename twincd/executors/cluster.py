@@ -40,8 +40,9 @@ class Skipped(Exception):
 
 
 @dataclass(frozen=True)
-class Outcome(Generic[R]):
-    """One log's outcome: its result, or the error it raised (``skipped``: never started)."""
+class Settled(Generic[R]):
+    """How one log's future settled: its result, or the error it raised (``skipped``: never
+    started); the local executors' ``Outcome`` is what the caller gets."""
 
     index: int
     result: R | None = None
@@ -159,7 +160,7 @@ class DaskExecutor:
         items: Sequence[T],
         progress: Progress | None = None,
         stop_on_error: bool = False,
-    ) -> Iterator[Outcome[R]]:
+    ) -> Iterator[Settled[R]]:
         """Every log's outcome, as they finish. With ``stop_on_error`` the logs not yet started
         after a failure are skipped, and the failure comes last, once the run has drained."""
         if self._client is None:
@@ -179,10 +180,10 @@ class DaskExecutor:
             pure=False,
         )
         index = {f.key: i for i, f in enumerate(futures)}
-        first_error: Outcome[R] | None = None
+        first_error: Settled[R] | None = None
         try:
             for future in distributed.as_completed(futures, loop=self._client.loop):
-                outcome = self._outcome(future, index[future.key], items)
+                outcome = self._settled(future, index[future.key], items)
                 if progress and outcome.error is None and not outcome.skipped:
                     progress(1, samples_in(outcome.result))
                 if outcome.error is not None and stop_on_error:
@@ -199,15 +200,15 @@ class DaskExecutor:
         if first_error is not None:
             yield first_error
 
-    def _outcome(self, future: Any, index: int, items: Sequence[Any]) -> Outcome[Any]:
+    def _settled(self, future: Any, index: int, items: Sequence[Any]) -> Settled[Any]:
         from distributed import KilledWorker
 
         try:
-            return Outcome(index, result=future.result())
+            return Settled(index, result=future.result())
         except Skipped:
-            return Outcome(index, skipped=True)
+            return Settled(index, skipped=True)
         except KilledWorker:
-            return Outcome(
+            return Settled(
                 index,
                 error=ClusterError(
                     "workers died while processing the log, more often than the scheduler allows",
@@ -216,7 +217,7 @@ class DaskExecutor:
                 ),
             )
         except Exception as exc:
-            return Outcome(index, error=exc)
+            return Settled(index, error=exc)
 
 
 def _on_worker(item: T, work: Callable[[T], R], stop: str) -> R:

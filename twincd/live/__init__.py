@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from twincd.live.source import Arrival, Source, SourceError, SourceLost, Wanted, open_source
+from twincd.live.connect import open_source
+from twincd.live.source import Arrival, Source, SourceError, SourceLost, Wanted
 from twincd.live.watch import WatchEvent, WatchItem, WatchStatus, WatchSummary, watch
 
 __all__ = [

@@ -20,13 +20,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from twincd.detection.events import Event
-from twincd.frames import Frame
+from twincd.prepare.frames import Frame
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.detection.online import OnlineDetector
-    from twincd.frames import Chain
+    from twincd.prepare.frames import Chain
 
 
 @dataclass
@@ -114,7 +114,7 @@ class LiveDetector:
         effort: FloatArray,
     ) -> Frame:
         """τ̂ of the pushed samples the detector takes."""
-        from twincd.chain import JointLayout, build_chain
+        from twincd.prepare.chain import JointLayout, build_chain
         from twincd.signal.features import ModelFeatures
 
         det = self._detector

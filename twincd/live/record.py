@@ -26,9 +26,9 @@ from twincd.defaults import DEFAULT_SIM_TOPIC
 from twincd.detection.events import Event
 from twincd.detection.outputs import COLLISION_TOPIC, EVENT_TOPIC, RESIDUAL_TOPIC, SCORE_TOPIC
 from twincd.errors import OutputError
-from twincd.frames import Frame
 from twincd.io.atomic import check_target, output_error
 from twincd.io.cdr import JOINT_STATE, STRING, bool_block, float64_block, joint_state_block
+from twincd.prepare.frames import Frame
 from twincd.types import BoolArray, FloatArray, IntArray
 from twincd.version import __version__
 

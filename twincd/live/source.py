@@ -1,7 +1,7 @@
 """Live sources: one small interface, one module per transport.
 
-A source delivers raw CDR messages of the topics ``watch`` asks for. ``open_source(spec)`` picks
-the transport by the form of ``spec``:
+A source delivers raw CDR messages of the topics ``watch`` asks for.
+``twincd.live.connect.open_source(spec)`` picks the transport by the form of ``spec``:
 
 - ``ws://HOST:PORT`` (or ``wss://``): a Foxglove WebSocket server such as foxglove_bridge
   (``twincd.live.foxglove``);
@@ -9,7 +9,8 @@ the transport by the form of ``spec``:
 - ``zenoh`` or ``zenoh/ENDPOINT`` (``zenoh/tcp/HOST:7447``): a robot on rmw_zenoh, through its
   Zenoh router (``twincd.live.zenoh``; the extra ``twincd[zenoh]``).
 
-A fourth transport is one module that implements ``Source`` and one line in ``open_source``.
+A fourth transport is one module that implements ``Source`` and one line in ``open_source``
+(the transports import this module; it imports none of them).
 Transport libraries are imported when a source opens, never on ``import twincd``.
 """
 
@@ -22,7 +23,7 @@ from typing import Protocol
 
 from twincd.errors import TwincdError
 
-__all__ = ["Arrival", "Source", "SourceError", "SourceLost", "Wanted", "open_source", "ros_type"]
+__all__ = ["Arrival", "Source", "SourceError", "SourceLost", "Wanted", "ros_type", "take_queued"]
 
 
 class SourceError(TwincdError):
@@ -94,25 +95,3 @@ def ros_type(name: str) -> str:
     if len(parts) == 2:
         return f"{parts[0]}/msg/{parts[1]}"
     return name.strip()
-
-
-def open_source(spec: str, connect_timeout_s: float = 10.0) -> Source:
-    """The source that ``spec`` names (see the module's docstring)."""
-    text = spec.strip()
-    if text.startswith(("ws://", "wss://")):
-        from twincd.live.foxglove import FoxgloveSource
-
-        return FoxgloveSource(text, connect_timeout_s)
-    if text in ("ros2", "ros2:", "ros2://"):
-        from twincd.live.ros2 import Ros2Source
-
-        return Ros2Source(connect_timeout_s)
-    if text == "zenoh" or text.startswith("zenoh/"):
-        from twincd.live.zenoh import ZenohSource
-
-        return ZenohSource(text.removeprefix("zenoh").lstrip("/"), connect_timeout_s)
-    raise SourceError(
-        f"unknown live source {spec!r}",
-        "source",
-        "give ws://HOST:PORT (a foxglove_bridge), ros2 or zenoh/tcp/HOST:PORT (rmw_zenoh)",
-    )

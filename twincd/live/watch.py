@@ -34,9 +34,10 @@ import numpy as np
 from twincd.detection.events import Event
 from twincd.errors import CalibrationError
 from twincd.io.cdr import BOOL, JOINT_STATE
+from twincd.live.connect import open_source
 from twincd.live.detector import LiveDetector, Scored
 from twincd.live.samples import REORDER_WINDOW_NS, JointDecoder, Reorder, Sample, Segments
-from twincd.live.source import Arrival, Source, SourceError, SourceLost, Wanted, open_source
+from twincd.live.source import Arrival, Source, SourceError, SourceLost, Wanted
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
@@ -330,7 +331,7 @@ def watch(
     (see the module's docstring). ``topic`` and ``label_topic`` default to the calibration's
     (one that contradicts it is a ``UsageError``); the label topic is subscribed to when it is
     published, for ``record``: the session MCAP (``-o``)."""
-    from twincd.settings import SetupOptions
+    from twincd.commands.settings import SetupOptions
 
     cal = _load(calibration)
     # the calibration's topics unless given; a topic that contradicts them is an error, as for

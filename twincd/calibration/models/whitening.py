@@ -4,6 +4,7 @@ fit's statistics, and the depth statistic over the joints."""
 from __future__ import annotations
 
 from functools import lru_cache
+
 import numpy as np
 
 from twincd.calibration.models.constants import MIN_BIN_SAMPLES, MIN_SCALE
@@ -11,9 +12,7 @@ from twincd.calibration.models.statistics import SpeedStats
 from twincd.types import FloatArray, IndexArray
 
 
-def speed_scale(
-    stats: SpeedStats, w: FloatArray, b: FloatArray, overall: FloatArray
-) -> FloatArray:
+def speed_scale(stats: SpeedStats, w: FloatArray, b: FloatArray, overall: FloatArray) -> FloatArray:
     """(D, B) each joint's residual RMS in each bin of its own speed, exact from ``stats``, for
     the residual ``w · features − b`` (a model's ``residual_weights`` and offset ``b_``); a bin
     with fewer than ``MIN_BIN_SAMPLES`` samples takes ``overall`` (D,)."""
