@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from support.builders import trajectory
+from support.builders import jittered_xarm_log, trajectory
 from support.clitools import assert_one_line_error, run
-from test_pipeline import jittered_xarm_log
+from support.streaming import detect_frames
 
 from twincd.calibration import Calibration
 from twincd.calibration.affine import AffineStats
@@ -28,7 +28,7 @@ from twincd.calibration.models import (
     solve_identified,
 )
 from twincd.commands import fit_calibration, threshold_calibration
-from twincd.detection import OnlineDetector, detect_log, detect_streamed
+from twincd.detection import OnlineDetector, detect_log
 from twincd.errors import CalibrationError, DataError
 from twincd.prepare.setup import Setup
 from twincd.signal.derivatives import differentiate
@@ -265,14 +265,7 @@ def test_online_detector_equals_batch_with_an_identified_model(
     val = sorted((xarm_dataset / "val").glob("*.mcap"))
     cal = threshold_calibration(val, cal, k_sigma=6.0).calibration
     log = xarm_dataset / "test" / "test_000.mcap"
-    scores: list[np.ndarray] = []
-
-    class Keep:
-        def write(self, frame, events):  # type: ignore[no-untyped-def]
-            if frame.n:
-                scores.append(frame["score"])
-
-    batch = detect_streamed(log, cal, Setup.from_calibration(cal), [Keep()])
+    batch, frames = detect_frames(log, cal)
     assert batch.events
     states = Setup.from_calibration(cal).prepare(log).states
     det = OnlineDetector(cal)
@@ -286,7 +279,7 @@ def test_online_detector_equals_batch_with_an_identified_model(
         live.append(out.score)
         events += out.events
     events += det.close()
-    np.testing.assert_allclose(np.concatenate(live), np.concatenate(scores), rtol=1e-12)
+    np.testing.assert_allclose(np.concatenate(live), frames.column("score"), rtol=1e-12)
     assert events == batch.events
 
 
@@ -298,16 +291,9 @@ def test_detect_log_on_a_whole_log_equals_the_stream(
     cal = Calibration.load(identified_cal)
     setup = Setup.from_calibration(cal)
     log = xarm_dataset / "test" / "test_000.mcap"
-    scores: list[np.ndarray] = []
-
-    class Keep:
-        def write(self, frame, events):  # type: ignore[no-untyped-def]
-            if frame.n:
-                scores.append(frame["score"])
-
-    streamed = detect_streamed(log, cal, setup, [Keep()])
+    streamed, frames = detect_frames(log, cal, setup)
     whole = detect_log(setup.prepare(log, cal.model.features), cal)
-    np.testing.assert_allclose(whole.scores, np.concatenate(scores), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(whole.scores, frames.column("score"), rtol=1e-9, atol=1e-12)
     assert whole.events == streamed.events and whole.events
 
 

@@ -9,11 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.streaming import detect_frames
 
 from twincd.calibration import SCHEMA, Calibration, upgrade_v1
-from twincd.detection import detect_streamed
 from twincd.errors import CalibrationError
-from twincd.prepare.setup import Setup
 
 ROOT = Path(__file__).resolve().parents[1]
 V1 = ROOT / "tests" / "data" / "calibrations_v1"
@@ -22,15 +21,7 @@ LOG = ROOT / "sample_logs" / "test" / "test_000.mcap"
 
 
 def _scores(cal: Calibration) -> np.ndarray:
-    frames: list[np.ndarray] = []
-
-    class Keep:
-        def write(self, frame, events):  # type: ignore[no-untyped-def]
-            if frame.n:
-                frames.append(frame["score"])
-
-    detect_streamed(LOG, cal, Setup.from_calibration(cal), [Keep()])
-    return np.concatenate(frames)
+    return detect_frames(LOG, cal)[1].column("score")
 
 
 def _without_provenance(doc: dict) -> dict:  # type: ignore[type-arg]

@@ -8,6 +8,8 @@ from pathlib import Path
 import pytest
 from support.clitools import assert_one_line_error, run
 
+from twincd.evaluation.runner import SCORE_KEYS
+
 
 @pytest.fixture(scope="module")
 def cal(twin_dataset, tmp_path_factory):
@@ -36,17 +38,7 @@ def test_json_shape_and_report(cal, twin_dataset, tmp_path):
     doc = json.loads(result.stdout)
     assert doc["samples"] == 3200 and doc["positives"] > 0
     (row,) = doc["methods"]
-    for key in (
-        "name",
-        "f1_best",
-        "best_k",
-        "f1_at_threshold",
-        "auc",
-        "precision_at_threshold",
-        "recall_at_threshold",
-        "train_s",
-        "test_s",
-    ):
+    for key in ("name", *SCORE_KEYS):
         assert key in row
     text = report.read_text()
     assert text.startswith("## twincd evaluate") and "| proposed |" in text

@@ -68,19 +68,29 @@ def test_threshold_calibration_at_its_defaults_is_twincd_threshold(
     done = twincd.threshold_calibration([twin_dataset / "val"], lib, output=lib)
     assert _json(lib) == _json(cli)
     assert done.written == lib and done.calibration.require_threshold().false_alarms is not None
-    doc = json.loads(shown.stdout)
-    answer = {k: v for k, v in doc.items() if k not in ("errors", "warnings")}
-    assert done.to_dict() == {**answer, "calibration": str(lib)}
+    assert done.to_dict() == {**_answer(json.loads(shown.stdout)), "calibration": str(lib)}
+
+
+def _on_the_test_logs(command: str, dataset: Path, cal: Path, exit_code: int) -> dict[str, Any]:
+    """``twincd COMMAND`` on the test logs at its defaults: its ``--json`` document, once its
+    exit code is checked."""
+    shown = run(command, dataset / "test", "-c", cal, "--json", "--no-summary")
+    assert shown.exit_code == exit_code, shown.output
+    doc: dict[str, Any] = json.loads(shown.stdout)
+    return doc
+
+
+def _answer(doc: dict[str, Any]) -> dict[str, Any]:
+    """A ``--json`` document but for its errors and warnings (not in a run's ``to_dict``)."""
+    return {k: v for k, v in doc.items() if k not in ("errors", "warnings")}
 
 
 def test_detect_files_at_its_defaults_is_twincd_detect(
     twin_dataset: Path, cli_calibration: Path
 ) -> None:
-    shown = run("detect", twin_dataset / "test", "-c", cli_calibration, "--json", "--no-summary")
-    assert shown.exit_code == 1, shown.output
+    doc = _on_the_test_logs("detect", twin_dataset, cli_calibration, 1)
     done = twincd.detect_files([twin_dataset / "test"], cli_calibration, step_summary=False)
-    doc = json.loads(shown.stdout)
-    assert done.to_dict() == {k: v for k, v in doc.items() if k not in ("errors", "warnings")}
+    assert done.to_dict() == _answer(doc)
     assert done.collision and done.exit_code == 1
     assert list(done.warnings) == doc["warnings"]
 
@@ -107,13 +117,9 @@ def test_detect_file_refuses_a_setting_that_contradicts_the_calibration(
 def test_evaluate_logs_at_its_defaults_is_twincd_evaluate(
     twin_dataset: Path, cli_calibration: Path
 ) -> None:
-    shown = run("evaluate", twin_dataset / "test", "-c", cli_calibration, "--json", "--no-summary")
-    assert shown.exit_code == 0, shown.output
+    doc = _on_the_test_logs("evaluate", twin_dataset, cli_calibration, 0)
     done = twincd.evaluate_logs([twin_dataset / "test"], cli_calibration, step_summary=False)
-    doc = json.loads(shown.stdout)
-    assert _stable(done.to_dict()) == _stable(
-        {k: v for k, v in doc.items() if k not in ("errors", "warnings")}
-    )
+    assert _stable(done.to_dict()) == _stable(_answer(doc))
     assert done.evaluation.methods[0].f1_at_threshold is not None and done.exit_code == 0
 
 

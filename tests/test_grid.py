@@ -20,13 +20,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from support.builders import XARM, Message, joint_state, write
+from support.builders import XARM, jittered_xarm_log
+from support.streaming import detect_frames
 
 import twincd.prepare.grid
 from twincd.calibration import Calibration
 from twincd.calibration.models import EPSILON_GRID, SPEED_BINS, FitStats, speed_bin
 from twincd.commands import filter_settings, fit_calibration, threshold_calibration
-from twincd.detection import OnlineDetector, detect_streamed
+from twincd.detection import OnlineDetector
 from twincd.prepare.chain import JointLayout, build_chain
 from twincd.prepare.grid import GRID_MIN_PERIODS, grid_period_ns
 from twincd.prepare.setup import Setup
@@ -41,34 +42,17 @@ CAUSAL = LowPass(3.0, 2, True, "critical")
 WHITENED_RMS, WHITENED_MAX, SCORE_MAX = 0.05, 0.5, 0.2
 
 
-def _jittered(path: Path, seconds: float = 8.0, rate_hz: float = 1000.0) -> Path:
-    """An xArm 7 log at 1 kHz: ±15 % stamp jitter, a 3 ms dropout (shorter than a gap) and a
-    0.3 s gap (the stages restart after it)."""
-    rng = np.random.default_rng(5)
-    n = int(seconds * rate_hz)
-    t = np.arange(n) / rate_hz + rng.uniform(-0.15, 0.15, n) / rate_hz
-    keep = ((t < 2.0) | (t > 2.003)) & ((t < 5.0) | (t > 5.3))
-    t = t[keep]
-    w = np.linspace(0.3, 0.9, 7)
-    q = 0.4 * np.sin(w * t[:, None])
-    qd = 0.4 * w * np.cos(w * t[:, None]) + 0.002 * rng.standard_normal(q.shape)
-    effort = 5 * np.sin(q) + 0.05 * rng.standard_normal(q.shape)
-    stamps = 1_700_000_000_000_000_000 + np.round(t * 1e9).astype(np.int64)
-    msgs = [
-        Message(
-            "/joint_states",
-            "sensor_msgs/msg/JointState",
-            int(s) + 200_000,
-            joint_state(int(s), XARM, q[i], qd[i], effort[i]),
-        )
-        for i, s in enumerate(stamps)
-    ]
-    return write(path, "mcap", msgs)
-
-
 @pytest.fixture(scope="module")
 def jittered(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _jittered(tmp_path_factory.mktemp("grid") / "run.mcap")
+    # at 1 kHz, with noisy velocity, a 3 ms dropout (shorter than a gap) and a 0.3 s gap (the
+    # stages restart after it)
+    return jittered_xarm_log(
+        tmp_path_factory.mktemp("grid") / "run.mcap",
+        seconds=8.0,
+        rate_hz=1000.0,
+        gaps=((2.0, 2.003), (5.0, 5.3)),
+        velocity_noise=0.002,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -104,16 +88,9 @@ def causal_cal(xarm_1khz: Path) -> Calibration:
 
 def _detected(log: Path, cal: Calibration) -> dict[str, Any]:
     """Every frame ``detect`` scores, concatenated, and the events."""
-    rows: list[dict[str, np.ndarray]] = []
-
-    class Keep:
-        def write(self, frame, events):  # type: ignore[no-untyped-def]
-            if frame.n:
-                rows.append({k: frame[k] for k in ("stamp_ns", "score", "flag", "residual")})
-                rows[-1]["velocity"] = frame["velocity"]
-
-    summary = detect_streamed(log, cal, Setup.from_calibration(cal), [Keep()])
-    out: dict[str, Any] = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+    summary, frames = detect_frames(log, cal)
+    keys = ("stamp_ns", "score", "flag", "residual", "velocity")
+    out: dict[str, Any] = {k: frames.column(k) for k in keys}
     out["events"] = summary.events
     return out
 

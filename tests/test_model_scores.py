@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.streaming import detect_frames
 
 from twincd.calibration import Calibration, Threshold
 from twincd.calibration.models import ResidualModel
 from twincd.commands import fit_calibration
 from twincd.detection import OnlineDetector, detect_log, detect_streamed
 from twincd.errors import DataError, UsageError
-from twincd.prepare.frames import Frame
 from twincd.prepare.setup import Setup
 
 SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
@@ -58,24 +58,8 @@ def changed(cal: Calibration, change: str) -> Calibration:
     return replace(cal, model=model)
 
 
-class Keep:
-    """The scores and predictions ``detect`` writes to its sinks."""
-
-    def __init__(self) -> None:
-        self.frames: list[Frame] = []
-
-    def write(self, frame: Frame, events: object) -> None:
-        if frame.n:
-            self.frames.append(frame)
-
-    def column(self, name: str) -> np.ndarray:
-        return np.concatenate([f[name] for f in self.frames])
-
-
 def batch_scores(cal: Calibration, setup: Setup) -> np.ndarray:
-    keep = Keep()
-    detect_streamed(LOG, cal, setup, [keep])
-    return keep.column("score")
+    return detect_frames(LOG, cal, setup)[1].column("score")
 
 
 def assert_differ(a: np.ndarray, b: np.ndarray) -> None:

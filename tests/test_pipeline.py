@@ -13,10 +13,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support.builders import XARM, Message, joint_state, write
+from support.builders import Message, jittered_xarm_log, write
+from support.streaming import detect_frames
 
 from twincd.commands import fit_calibration, threshold_calibration
-from twincd.detection import OnlineDetector, detect_streamed
+from twincd.detection import OnlineDetector
 from twincd.prepare.setup import Setup
 from twincd.signal.filters import LowPass
 
@@ -26,31 +27,6 @@ CAUSAL = LowPass(cutoff_hz=3.0, causal=True)
 def _close(a: np.ndarray, b: np.ndarray, rel: float) -> None:
     scale = np.ptp(b, axis=0) + 1e-12
     assert np.all(np.abs(a - b) <= rel * scale), np.max(np.abs(a - b) / scale)
-
-
-def jittered_xarm_log(path: Path, seconds: float = 12.0, rate_hz: float = 250.0) -> Path:
-    """An xArm 7 log with ±15 % stamp jitter and a 0.3 s dropout (exercises derivative gaps)."""
-    rng = np.random.default_rng(5)
-    n = int(seconds * rate_hz)
-    t = np.arange(n) / rate_hz + rng.uniform(-0.15, 0.15, n) / rate_hz
-    keep = (t < 5.0) | (t > 5.3)
-    t = t[keep]
-    w = np.linspace(0.3, 0.9, 7)
-    q = 0.4 * np.sin(w * t[:, None])
-    qd = 0.4 * w * np.cos(w * t[:, None])
-    effort = 5 * np.sin(q) + 0.05 * rng.standard_normal(q.shape)
-    t0 = 1_700_000_000_000_000_000
-    stamps = t0 + np.round(t * 1e9).astype(np.int64)
-    msgs = [
-        Message(
-            "/joint_states",
-            "sensor_msgs/msg/JointState",
-            int(s) + 200_000,
-            joint_state(int(s), XARM, q[i], qd[i], effort[i]),
-        )
-        for i, s in enumerate(stamps)
-    ]
-    return write(path, "mcap", msgs)
 
 
 @pytest.mark.parametrize("lowpass", [LowPass(), CAUSAL], ids=["zero-phase", "causal"])
@@ -92,14 +68,7 @@ def test_online_detector_equals_batch_causal_detection(
     cal = causal_calibration
     log = twin_dataset / "test" / "test_0.mcap"
     setup = Setup.from_calibration(cal)
-    rows: list[dict[str, np.ndarray]] = []
-
-    class Keep:
-        def write(self, frame, events):  # type: ignore[no-untyped-def]
-            if frame.n:
-                rows.append({k: frame[k] for k in ("score", "flag")})
-
-    batch = detect_streamed(log, cal, setup, [Keep()])
+    batch, frames = detect_frames(log, cal, setup)
     assert batch.events, "the test log has labelled bumps: the detector should find them"
     prepared = replace(setup, lowpass=cal.lowpass).prepare(log)
     states = prepared.states
@@ -121,10 +90,8 @@ def test_online_detector_equals_batch_causal_detection(
         flags.append(out.flag)
         events += out.events
     events += det.close()
-    np.testing.assert_array_equal(
-        np.concatenate(scores), np.concatenate([r["score"] for r in rows])
-    )
-    np.testing.assert_array_equal(np.concatenate(flags), np.concatenate([r["flag"] for r in rows]))
+    np.testing.assert_array_equal(np.concatenate(scores), frames.column("score"))
+    np.testing.assert_array_equal(np.concatenate(flags), frames.column("flag"))
     assert events == batch.events
     assert 0 < det.latency_s < 0.2
 

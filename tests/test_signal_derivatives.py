@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from support.streaming import chunked, split_points
+from support.streaming import T0_NS, chunked, jittered_stamps, random_walk, split_points
 
 from twincd.errors import DataError, UsageError
 from twincd.signal import (
@@ -19,26 +19,13 @@ from twincd.signal import (
     segment_bounds,
 )
 
-T0_NS = 1_700_000_000_000_000_000  # absolute header stamps, as in real logs
 PERIOD_NS = 1_000_000
 PERIOD_S = PERIOD_NS * 1e-9
 
 
-def make_stamps(rng: np.random.Generator, n: int, gaps: int = 0, t0: int = T0_NS) -> np.ndarray:
-    """±15 % jitter around 1 ms, plus ``gaps`` intervals of 6–40 periods."""
-    dt = np.rint(PERIOD_NS * (1 + rng.uniform(-0.15, 0.15, n))).astype(np.int64)
-    if gaps and n > 1:
-        where = rng.choice(np.arange(1, n), size=min(gaps, n - 1), replace=False)
-        dt[where] = rng.integers(6 * PERIOD_NS, 40 * PERIOD_NS, len(where))
-    return t0 + np.cumsum(dt) - dt[0]
-
-
 def make_values(rng: np.random.Generator, n: int, channels: int) -> np.ndarray:
     """Random walk plus steps: a signal with all kinds of features; channels 0 → (n,)."""
-    c = max(channels, 1)
-    y = np.cumsum(rng.standard_normal((n, c)), axis=0)
-    y += 20 * (rng.uniform(size=(n, c)) < 0.01).cumsum(axis=0)
-    return y[:, 0] if channels == 0 else y
+    return random_walk(rng, n, channels, step=20, step_rate=0.01)
 
 
 def reference_derivative(
@@ -71,7 +58,7 @@ def reference_derivative(
 
 def test_nominal_period_is_the_median_of_the_first_positive_intervals():
     rng = np.random.default_rng(0)
-    stamps = make_stamps(rng, 800, gaps=5)
+    stamps = jittered_stamps(rng, 800, PERIOD_NS, gaps=5)
     stamps = np.insert(stamps, 10, stamps[10])  # a duplicate is not an interval
     assert nominal_period(stamps) == pytest.approx(PERIOD_S, rel=0.03)
     # only the first 1000 positive intervals count: a rate change later does not move it
@@ -106,7 +93,7 @@ def test_a_gap_is_an_interval_longer_than_gap_factor_periods():
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 300), gaps=st.integers(0, 6))
 def test_segment_cuts_do_not_depend_on_chunking(seed, n, gaps):
     rng = np.random.default_rng(seed)
-    stamps = make_stamps(rng, n, gaps)
+    stamps = jittered_stamps(rng, n, PERIOD_NS, gaps)
     whole = Segmenter(PERIOD_S).starts(stamps).tolist()
     seg = Segmenter(PERIOD_S)
     cuts = split_points(n, "random", rng)
@@ -133,7 +120,7 @@ def test_segment_cuts_do_not_depend_on_chunking(seed, n, gaps):
 )
 def test_chunked_equals_one_push(seed, n, gaps, channels, causal, how):
     rng = np.random.default_rng(seed)
-    stamps = make_stamps(rng, n, gaps)
+    stamps = jittered_stamps(rng, n, PERIOD_NS, gaps)
     y = make_values(rng, n, channels)
     whole = chunked(StreamingDerivative(period_s=PERIOD_S, causal=causal), stamps, y, [])
     got = chunked(
@@ -154,7 +141,7 @@ def test_chunked_equals_one_push(seed, n, gaps, channels, causal, how):
 def test_chunked_runs_are_bit_identical():
     # elementwise arithmetic only: a sample's output depends on its window alone
     rng = np.random.default_rng(1)
-    stamps = make_stamps(rng, 5000, gaps=4)
+    stamps = jittered_stamps(rng, 5000, PERIOD_NS, gaps=4)
     y = make_values(rng, 5000, 7)
     for causal in (False, True):
         whole = chunked(StreamingDerivative(period_s=PERIOD_S, causal=causal), stamps, y, [])
@@ -166,7 +153,7 @@ def test_chunked_runs_are_bit_identical():
 
 def test_results_do_not_depend_on_the_epoch():
     rng = np.random.default_rng(2)
-    stamps = make_stamps(rng, 400, gaps=2)
+    stamps = jittered_stamps(rng, 400, PERIOD_NS, gaps=2)
     y = make_values(rng, 400, 2)
     for causal in (False, True):
         a = chunked(StreamingDerivative(period_s=PERIOD_S, causal=causal), stamps, y, [])
@@ -182,7 +169,7 @@ def test_results_do_not_depend_on_the_epoch():
 @pytest.mark.parametrize("causal", [False, True])
 def test_exact_for_cubics_on_irregular_times(causal):
     rng = np.random.default_rng(6)
-    stamps = make_stamps(rng, 3000, gaps=3)
+    stamps = jittered_stamps(rng, 3000, PERIOD_NS, gaps=3)
     t = (stamps - stamps[0]) * 1e-9
     y = np.column_stack([1 + 2 * t - 3 * t**2 + 0.5 * t**3, -4 * t**3 + t])
     dy = np.column_stack([2 - 6 * t + 1.5 * t**2, -12 * t**2 + 1])
@@ -216,7 +203,7 @@ def test_a_step_across_a_gap_does_not_leak(causal):
 
 def test_lookahead_centred_four_samples_causal_none():
     rng = np.random.default_rng(3)
-    stamps = make_stamps(rng, 40)
+    stamps = jittered_stamps(rng, 40, PERIOD_NS)
     y = make_values(rng, 40, 1)
     centred = StreamingDerivative(period_s=PERIOD_S)
     causal = StreamingDerivative(period_s=PERIOD_S, causal=True)
@@ -232,7 +219,7 @@ def test_lookahead_centred_four_samples_causal_none():
 
 def test_buffers_stay_bounded_on_long_streams():
     rng = np.random.default_rng(4)
-    stamps = make_stamps(rng, 200_000, gaps=20)
+    stamps = jittered_stamps(rng, 200_000, PERIOD_NS, gaps=20)
     y = make_values(rng, 200_000, 3)
     for causal in (False, True):
         stage = StreamingDerivative(period_s=PERIOD_S, causal=causal)
@@ -264,7 +251,7 @@ def test_short_segments_and_a_lone_sample():
 
 def test_whole_log_wrapper_matches_the_stream_and_the_old_uses():
     rng = np.random.default_rng(5)
-    stamps = make_stamps(rng, 3000, gaps=3)
+    stamps = jittered_stamps(rng, 3000, PERIOD_NS, gaps=3)
     y = make_values(rng, 3000, 2)
     t_s = (stamps - stamps[0]) * 1e-9
     stream = chunked(StreamingDerivative(period_s=nominal_period(stamps)), stamps, y, [])
@@ -293,7 +280,7 @@ def test_bad_settings_and_inputs_are_clear_errors():
 
 def test_a_finished_stage_takes_a_new_stream():
     rng = np.random.default_rng(7)
-    stamps = make_stamps(rng, 100)
+    stamps = jittered_stamps(rng, 100, PERIOD_NS)
     y = make_values(rng, 100, 1)
     stage = StreamingDerivative(period_s=PERIOD_S)
     first = chunked(stage, stamps, y, [50])
@@ -303,7 +290,7 @@ def test_a_finished_stage_takes_a_new_stream():
 
 def test_the_stage_keeps_no_reference_to_pushed_arrays():
     rng = np.random.default_rng(8)
-    stamps = make_stamps(rng, 200)
+    stamps = jittered_stamps(rng, 200, PERIOD_NS)
     y = make_values(rng, 200, 2)
     expect = chunked(StreamingDerivative(period_s=PERIOD_S), stamps, y, [])
     stage = StreamingDerivative(period_s=PERIOD_S)

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy import signal
-from support.streaming import chunked, split_points
+from support.streaming import T0_NS, chunked, jittered_stamps, random_walk, split_points
 
 from twincd.defaults import DEFAULT_CUTOFF_HZ
 from twincd.errors import DataError, UsageError
@@ -31,24 +31,11 @@ from twincd.signal.iir import critical_max_cutoff, rest_state, sosfilt
 FS = 100.0
 T = np.arange(0, 20, 1 / FS)
 INNER = slice(300, -300)  # away from start-up at the ends
-T0_NS = 1_700_000_000_000_000_000
-
-
-def make_stamps(rng: np.random.Generator, n: int, period_ns: int, gaps: int = 0) -> np.ndarray:
-    """±15 % jitter around ``period_ns``, plus ``gaps`` intervals of 6–40 periods."""
-    dt = np.rint(period_ns * (1 + rng.uniform(-0.15, 0.15, n))).astype(np.int64)
-    if gaps and n > 1:
-        where = rng.choice(np.arange(1, n), size=min(gaps, n - 1), replace=False)
-        dt[where] = rng.integers(6 * period_ns, 40 * period_ns, len(where))
-    return T0_NS + np.cumsum(dt) - dt[0]
 
 
 def make_values(rng: np.random.Generator, n: int, channels: int) -> np.ndarray:
     """Random walk plus big steps plus an offset; channels 0 → (n,)."""
-    c = max(channels, 1)
-    y = 50 + np.cumsum(rng.standard_normal((n, c)), axis=0)
-    y += 30 * (rng.uniform(size=(n, c)) < 0.005).cumsum(axis=0)
-    return y[:, 0] if channels == 0 else y
+    return random_walk(rng, n, channels, step=30, step_rate=0.005, offset=50)
 
 
 def pivot(x: np.ndarray) -> np.ndarray:
@@ -225,7 +212,7 @@ def test_streamed_equals_scipy_on_each_segment(
 ):
     rng = np.random.default_rng(seed)
     period_ns = 10_000_000  # 100 Hz: margins of 100–900 samples, so long segments exceed them
-    stamps = make_stamps(rng, n, period_ns, gaps)
+    stamps = jittered_stamps(rng, n, period_ns, gaps)
     x = make_values(rng, n, channels)
     # a critically damped filter is refused where it would ring (test below)
     assume(kind == "butterworth" or cutoff <= critical_max_cutoff(order, 100.0))
@@ -249,7 +236,7 @@ def test_streamed_equals_scipy_on_each_segment(
 def test_default_filter_at_1khz_streams_like_sosfiltfilt_in_bounded_memory():
     rng = np.random.default_rng(0)
     n = 60_000
-    stamps = make_stamps(rng, n, 1_000_000, gaps=3)
+    stamps = jittered_stamps(rng, n, 1_000_000, gaps=3)
     x = make_values(rng, n, 4)
     period = nominal_period(stamps)
     lp = LowPass()
@@ -277,7 +264,7 @@ def test_zero_phase_emits_a_sample_once_margin_later_samples_are_known():
     assert m == stage.margin > 0
     rng = np.random.default_rng(1)
     n = m + 50
-    stamps = make_stamps(rng, n, 10_000_000)
+    stamps = jittered_stamps(rng, n, 10_000_000)
     x = make_values(rng, n, 1)
     for k in range(n):
         stage.push(stamps[k : k + 1], x[k : k + 1])
@@ -325,7 +312,7 @@ def test_short_segments_use_a_shorter_pad():
 
 def test_apply_is_one_push_with_the_nominal_or_given_period():
     rng = np.random.default_rng(3)
-    stamps = make_stamps(rng, 5000, 10_000_000, gaps=2)
+    stamps = jittered_stamps(rng, 5000, 10_000_000, gaps=2)
     x = make_values(rng, 5000, 2)
     t_s = (stamps - stamps[0]) * 1e-9
     lp = LowPass(2.0)
@@ -340,7 +327,7 @@ def test_apply_is_one_push_with_the_nominal_or_given_period():
 @pytest.mark.parametrize("causal", [False, True])
 def test_stages_keep_no_reference_to_pushed_arrays(causal):
     rng = np.random.default_rng(4)
-    stamps = make_stamps(rng, 3000, 10_000_000)
+    stamps = jittered_stamps(rng, 3000, 10_000_000)
     x = make_values(rng, 3000, 2)
     lp = LowPass(2.0, causal=causal)
     expect = chunked(StreamingLowPass(lp, 0.01), stamps, x, [])
@@ -424,7 +411,7 @@ def test_a_wide_input_filters_to_the_bits_of_each_channel_alone() -> None:
     chunks, with only the end extension's raw values kept: the same bits as one narrow run."""
     rng = np.random.default_rng(4)
     n, width = 9000, 700  # wide enough that every pass is cut into row chunks
-    stamps = make_stamps(rng, n, 1_000_000, gaps=1)
+    stamps = jittered_stamps(rng, n, 1_000_000, gaps=1)
     values = make_values(rng, n, width)
     picked = [0, 333, width - 1]
     cuts = list(itertools.pairwise([0, 1500, 5000, n]))

@@ -43,6 +43,12 @@ def _lines(output: str) -> list[dict[str, object]]:
     return [json.loads(line) for line in output.splitlines() if line.startswith("{")]
 
 
+def _watch_process(url: str, cal: Path, *args: str, **popen: Any) -> subprocess.Popen[Any]:
+    """``twincd watch URL -c CAL ARGS`` running in a process of its own."""
+    command = [sys.executable, "-m", "twincd_cli.main", "watch", url, "-c", str(cal), *args]
+    return subprocess.Popen(command, **popen)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -160,17 +166,10 @@ def test_a_signal_ends_the_session_with_its_summary(twin_dataset, causal_cal, si
     log = twin_dataset / "test" / "test_0.mcap"
     with Replay(log, speed=4.0, loop=True) as replay:
         env = {**os.environ, "NO_COLOR": "1"}
-        proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "twincd_cli.main",
-                "watch",
-                replay.url,
-                "-c",
-                str(causal_cal),
-                "--json",
-            ],
+        proc = _watch_process(
+            replay.url,
+            causal_cal,
+            "--json",
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -316,20 +315,7 @@ def test_a_killed_session_stays_readable(
         log, cal = next((xarm_dataset / "test").glob("*.mcap")), xarm_causal
     session = tmp_path / "killed.mcap"
     with Replay(log, speed=4.0, loop=True) as replay:
-        proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "twincd_cli.main",
-                "watch",
-                replay.url,
-                "-c",
-                str(cal),
-                "-o",
-                str(session),
-                "-q",
-            ],
-        )
+        proc = _watch_process(replay.url, cal, "-o", str(session), "-q")
         assert replay.listener.subscribed.wait(30)
         time.sleep(2.0)
         proc.kill()

@@ -144,6 +144,40 @@ def joint_recording(
     return msgs
 
 
+def jittered_xarm_log(
+    path: Path,
+    seconds: float = 12.0,
+    rate_hz: float = 250.0,
+    gaps: Sequence[tuple[float, float]] = ((5.0, 5.3),),
+    velocity_noise: float = 0.0,
+) -> Path:
+    """An xArm 7 MCAP log of slow sines with ±15 % stamp jitter, no samples inside ``gaps``
+    ((start, end) s: dropouts, which exercise derivative gaps), noisy effort and
+    ``velocity_noise`` (std, rad/s) on the velocity."""
+    rng = np.random.default_rng(5)
+    n = int(seconds * rate_hz)
+    t = np.arange(n) / rate_hz + rng.uniform(-0.15, 0.15, n) / rate_hz
+    for start, end in gaps:
+        t = t[(t < start) | (t > end)]
+    w = np.linspace(0.3, 0.9, 7)
+    q = 0.4 * np.sin(w * t[:, None])
+    qd = 0.4 * w * np.cos(w * t[:, None])
+    if velocity_noise:
+        qd = qd + velocity_noise * rng.standard_normal(q.shape)
+    effort = 5 * np.sin(q) + 0.05 * rng.standard_normal(q.shape)
+    stamps = 1_700_000_000_000_000_000 + np.round(t * 1e9).astype(np.int64)
+    msgs = [
+        Message(
+            "/joint_states",
+            "sensor_msgs/msg/JointState",
+            int(s) + 200_000,
+            joint_state(int(s), XARM, q[i], qd[i], effort[i]),
+        )
+        for i, s in enumerate(stamps)
+    ]
+    return write(path, "mcap", msgs)
+
+
 def write_humble_sqlite3(path: Path, msgs: Sequence[Message]) -> Path:
     """A rosbag2 sqlite3 bag as ROS 2 Humble writes it: metadata version 5, no message
     definitions stored (readers must bring their own types)."""

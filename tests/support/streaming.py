@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,3 +26,60 @@ def split_points(n: int, how: str | int, rng: np.random.Generator) -> list[int]:
     if how == "random":
         return sorted(rng.choice(np.arange(1, max(n, 2)), size=min(n - 1, 6), replace=False))
     return list(range(int(how), n, int(how)))
+
+
+class Frames:
+    """A sink of ``detect``: the frames it scores (empty ones left out), by column."""
+
+    def __init__(self) -> None:
+        self.frames: list[Any] = []
+
+    def write(self, frame: Any, events: object) -> None:
+        if frame.n:
+            self.frames.append(frame)
+
+    def column(self, name: str) -> np.ndarray:
+        return np.concatenate([f[name] for f in self.frames])
+
+
+def detect_frames(log: Path, cal: Any, setup: Any = None) -> tuple[Any, Frames]:
+    """``detect_streamed`` of ``log`` (with the calibration's own setup by default): its
+    summary and the frames it scored."""
+    from twincd.detection import detect_streamed
+    from twincd.prepare.setup import Setup
+
+    frames = Frames()
+    if setup is None:
+        setup = Setup.from_calibration(cal)
+    return detect_streamed(log, cal, setup, [frames]), frames
+
+
+T0_NS = 1_700_000_000_000_000_000  # absolute header stamps, as in real logs
+
+
+def jittered_stamps(
+    rng: np.random.Generator, n: int, period_ns: int, gaps: int = 0, t0: int = T0_NS
+) -> np.ndarray:
+    """``n`` stamps from ``t0``: ±15 % jitter around ``period_ns``, plus ``gaps`` intervals
+    of 6–40 periods."""
+    dt = np.rint(period_ns * (1 + rng.uniform(-0.15, 0.15, n))).astype(np.int64)
+    if gaps and n > 1:
+        where = rng.choice(np.arange(1, n), size=min(gaps, n - 1), replace=False)
+        dt[where] = rng.integers(6 * period_ns, 40 * period_ns, len(where))
+    return t0 + np.cumsum(dt) - dt[0]
+
+
+def random_walk(
+    rng: np.random.Generator,
+    n: int,
+    channels: int,
+    step: float,
+    step_rate: float,
+    offset: float = 0.0,
+) -> np.ndarray:
+    """A random walk plus ``step``s at a ``step_rate`` per sample, from ``offset``: a signal
+    with all kinds of features; (n, channels), channels 0 → (n,)."""
+    c = max(channels, 1)
+    y = offset + np.cumsum(rng.standard_normal((n, c)), axis=0)
+    y += step * (rng.uniform(size=(n, c)) < step_rate).cumsum(axis=0)
+    return y[:, 0] if channels == 0 else y

@@ -233,20 +233,24 @@ class Held:
                 f"{REST_POSITION:g} rad): their friction c and d are not determined and are held "
                 "at 0. Give logs where these joints move both ways at several speeds"
             )
-        coulomb = self.c & ~self.resting
-        if coulomb.any():
-            out.append(
-                f"these logs do not determine c (Coulomb friction) on {listed(coulomb)}: the "
-                "joint turns one way only, or its speed never leaves the Coulomb step; c is "
-                "held at 0. Give logs where it moves both ways, at speeds well beyond ε"
-            )
-        viscous = self.d & ~self.resting
-        if viscous.any():
-            out.append(
-                f"these logs do not determine d (viscous friction) on {listed(viscous)}: its "
-                "speed hardly varies apart from its direction; d is held at 0. Give logs where "
-                "it moves at several speeds"
-            )
+        friction = (
+            (
+                self.c,
+                "c (Coulomb friction)",
+                "the joint turns one way only, or its speed never leaves the Coulomb step; c is "
+                "held at 0. Give logs where it moves both ways, at speeds well beyond ε",
+            ),
+            (
+                self.d,
+                "d (viscous friction)",
+                "its speed hardly varies apart from its direction; d is held at 0. Give logs "
+                "where it moves at several speeds",
+            ),
+        )
+        for held, coefficient, why in friction:
+            moving = held & ~self.resting
+            if moving.any():
+                out.append(f"these logs do not determine {coefficient} on {listed(moving)}: {why}")
         return out
 
 

@@ -5,6 +5,7 @@ training logs from the same mergeable statistics as ``twincd fit --model NAME``.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +35,12 @@ class ModelMethod(ScoringMethod):
     learns = True
     calibrated = True
     isolates = True
+
+    def __init_subclass__(cls, kind: str = "", **kwargs: Any) -> None:
+        """``kind``: the calibration model a subclass stands for, and its method's name."""
+        super().__init_subclass__(**kwargs)
+        if kind:
+            cls.name = cls.model_kind = kind
 
     def __init__(self, kappa: float | None = None) -> None:
         self.kappa = kappa  # the isolation rule's κ (None: twincd.detection.isolation's)
@@ -101,26 +108,16 @@ class ModelMethod(ScoringMethod):
         )
 
 
-class AffineWhitened(ModelMethod):
-    name = "affine-whitened"
-    model_kind = "affine-whitened"
+class AffineWhitened(ModelMethod, kind="affine-whitened"): ...
 
 
-class Friction(ModelMethod):
-    name = "friction"
-    model_kind = "friction"
+class Friction(ModelMethod, kind="friction"): ...
 
 
-class FrictionWhitened(ModelMethod):
-    name = "friction-whitened"
-    model_kind = "friction-whitened"
+class FrictionWhitened(ModelMethod, kind="friction-whitened"): ...
 
 
-class Identified(ModelMethod):
-    name = "identified"
-    model_kind = "identified"
+class Identified(ModelMethod, kind="identified"): ...
 
 
-class IdentifiedWhitened(ModelMethod):
-    name = "identified-whitened"
-    model_kind = "identified-whitened"
+class IdentifiedWhitened(ModelMethod, kind="identified-whitened"): ...

@@ -71,6 +71,17 @@ _AVERAGED = (
     "train_s",
     "test_s",
 )
+# each method's scores, first in its row of ``evaluate --json`` (contract: --json documents)
+SCORE_KEYS = (
+    "f1_best",
+    "best_k",
+    "f1_at_threshold",
+    "auc",
+    "precision_at_threshold",
+    "recall_at_threshold",
+    "train_s",
+    "test_s",
+)
 # event metrics (contract: Metrics), averaged over repeats like the figures above
 EVENT_KEYS = (
     "events_total",
@@ -157,14 +168,7 @@ class MethodResult:
         if self.unit != "sample":
             d["unit"] = self.unit
         for key in (
-            "f1_best",
-            "best_k",
-            "f1_at_threshold",
-            "auc",
-            "precision_at_threshold",
-            "recall_at_threshold",
-            "train_s",
-            "test_s",
+            *SCORE_KEYS,
             "k_sigma",
             "mu",
             "sigma",

@@ -270,6 +270,37 @@ class _Columns:
     y: FloatArray | None
     kept: BoolArray | None
 
+    @classmethod
+    def of(
+        cls,
+        sim_effort_f: FloatArray,
+        effort_f: FloatArray,
+        velocity_f: FloatArray | None,
+        coulomb_f: FloatArray | None,
+        regressor_f: FloatArray | None,
+        regressor_mask: BoolArray | None,
+    ) -> _Columns:
+        """The columns of every row (zero velocity when ``velocity_f`` is None)."""
+        sim = np.asarray(sim_effort_f, dtype=np.float64)
+        f = None if coulomb_f is None else coulomb_grid(coulomb_f, "whitening scale")
+        y, kept = None, None
+        if regressor_f is not None:
+            y, kept = compact_regressor(regressor_f, regressor_mask)
+        effort = np.asarray(effort_f, dtype=np.float64)
+        velocity = np.zeros_like(sim) if velocity_f is None else np.asarray(velocity_f, np.float64)
+        return cls(sim, effort, velocity, f, y, kept)
+
+    def select(self, rows: BoolArray) -> _Columns:
+        """The columns of the rows where ``rows`` holds."""
+        return _Columns(
+            self.sim[rows],
+            self.effort[rows],
+            self.velocity[rows],
+            None if self.coulomb is None else self.coulomb[rows],
+            None if self.y is None else self.y[rows],
+            self.kept,
+        )
+
 
 @dataclass(frozen=True)
 class SpeedStats:
@@ -315,25 +346,18 @@ class SpeedStats:
         """Statistics of (N, D) speeds |q̇| (raw, as scoring sees them), efforts and velocity,
         the (N, E, D) Coulomb features and the regressor (whole or masked, as
         ``IdentifiedStats.from_arrays``), rows where ``mask`` holds."""
-        sim = np.asarray(sim_effort_f, dtype=np.float64)
-        rows = np.ones(len(sim), bool) if mask is None else np.asarray(mask, bool)
-        f = None if coulomb_f is None else coulomb_grid(coulomb_f, "whitening scale")[rows]
-        y, kept = None, None
-        if regressor_f is not None:
-            y, kept = compact_regressor(regressor_f, regressor_mask)
-            y = y[rows]
-        bins = speed_bin(np.asarray(speed, dtype=np.float64)[rows])
-        sim, effort = sim[rows], np.asarray(effort_f, dtype=np.float64)[rows]
-        velocity = (
-            np.zeros_like(sim) if velocity_f is None else np.asarray(velocity_f, np.float64)[rows]
+        columns = _Columns.of(
+            sim_effort_f, effort_f, velocity_f, coulomb_f, regressor_f, regressor_mask
         )
+        rows = np.ones(len(columns.sim), bool) if mask is None else np.asarray(mask, bool)
+        bins = speed_bin(np.asarray(speed, dtype=np.float64)[rows])
 
         def cells(j: int) -> Iterator[tuple[int, Any, int, FloatArray | None]]:
             for b in np.unique(bins[:, j]):
                 at = bins[:, j] == b
                 yield int(b), at, int(np.count_nonzero(at)), None
 
-        return cls._by_bin(_Columns(sim, effort, velocity, f, y, kept), cells)
+        return cls._by_bin(columns.select(rows), cells)
 
     @classmethod
     def _by_bin(
@@ -381,13 +405,9 @@ class SpeedStats:
         """``from_arrays`` of rows that stand for samples (a grid's nodes for their cells'):
         ``weight`` (N, D, B) counts, per row, joint and bin of the joint's speed, the samples
         a row stands for."""
-        sim = np.asarray(sim_effort_f, dtype=np.float64)
-        f = None if coulomb_f is None else coulomb_grid(coulomb_f, "whitening scale")
-        y, kept = None, None
-        if regressor_f is not None:
-            y, kept = compact_regressor(regressor_f, regressor_mask)
-        effort = np.asarray(effort_f, dtype=np.float64)
-        velocity = np.zeros_like(sim) if velocity_f is None else np.asarray(velocity_f, np.float64)
+        columns = _Columns.of(
+            sim_effort_f, effort_f, velocity_f, coulomb_f, regressor_f, regressor_mask
+        )
         w = np.asarray(weight, dtype=np.float64)
 
         def cells(j: int) -> Iterator[tuple[int, Any, int, FloatArray | None]]:
@@ -395,7 +415,7 @@ class SpeedStats:
                 at = np.flatnonzero(w[:, j, b])
                 yield int(b), at, int(w[at, j, b].sum()), w[at, j, b]
 
-        return cls._by_bin(_Columns(sim, effort, velocity, f, y, kept), cells)
+        return cls._by_bin(columns, cells)
 
     def __add__(self, other: SpeedStats) -> SpeedStats:
         if (self.params, self.coulomb) != (other.params, other.coulomb):
@@ -415,6 +435,26 @@ class SpeedStats:
         for b in range(1, len(self.n)):
             total = total + Moments(self.n[b], self.mean[b], self.cross[b])
         return int(np.max(total.n, initial=0)), total.mean, total.m2
+
+
+def _binned(
+    inputs: ModelInputs,
+    speed: bool,
+    stats: Callable[[FloatArray | None, FloatArray | None], SpeedStats],
+) -> tuple[SpeedStats | None, IdentifiedStats | None]:
+    """The speed bins ``stats`` gives of the Coulomb features and the regressor (each None
+    unless the logs were prepared with every ε), and the identified model's statistics
+    (without a regressor: None; and no bins unless ``speed`` asks for them)."""
+    grid = inputs.coulomb_eps == EPSILON_GRID
+    regressor = inputs.regressor_f if grid else None
+    if not speed and regressor is None:
+        return None, None
+    bins = stats(inputs.coulomb_f if grid else None, regressor)
+    if regressor is None:
+        return bins, None
+    # the identified model's moments are the speed bins' pooled: one product, not two
+    n, mean, cross = bins.pooled()
+    return bins, IdentifiedStats(n, mean, cross)
 
 
 @dataclass(frozen=True)
@@ -450,24 +490,20 @@ class FitStats:
             friction = FrictionStats.from_arrays(
                 sim, _required(inputs.velocity_f), _required(inputs.coulomb_f), effort, clean
             )
-        regressor = inputs.regressor_f if grid else None
-        if not speed and regressor is None:
-            return cls(affine, None, friction, None, motion)
-        bins = SpeedStats.from_arrays(
-            _required(inputs.velocity),
-            sim,
-            effort,
-            inputs.velocity_f,
-            inputs.coulomb_f if grid else None,
-            regressor,
-            inputs.regressor_mask,
-            clean,
+        bins, identified = _binned(
+            inputs,
+            speed,
+            lambda coulomb, regressor: SpeedStats.from_arrays(
+                _required(inputs.velocity),
+                sim,
+                effort,
+                inputs.velocity_f,
+                coulomb,
+                regressor,
+                inputs.regressor_mask,
+                clean,
+            ),
         )
-        identified = None
-        if regressor is not None:
-            # the identified model's moments are the speed bins' pooled: one product, not two
-            n, mean, cross = bins.pooled()
-            identified = IdentifiedStats(n, mean, cross)
         return cls(affine, bins, friction, identified, motion)
 
     @classmethod
@@ -487,22 +523,13 @@ class FitStats:
             friction = FrictionStats.from_weighted(
                 sim, _required(inputs.velocity_f), _required(inputs.coulomb_f), effort, count
             )
-        regressor = inputs.regressor_f if grid else None
-        if not speed and regressor is None:
-            return cls(affine, None, friction, None)
-        bins = SpeedStats.from_weighted(
-            by_speed,
-            sim,
-            effort,
-            inputs.velocity_f,
-            inputs.coulomb_f if grid else None,
-            regressor,
-            inputs.regressor_mask,
+        bins, identified = _binned(
+            inputs,
+            speed,
+            lambda coulomb, regressor: SpeedStats.from_weighted(
+                by_speed, sim, effort, inputs.velocity_f, coulomb, regressor, inputs.regressor_mask
+            ),
         )
-        identified = None
-        if regressor is not None:
-            n, mean, cross = bins.pooled()
-            identified = IdentifiedStats(n, mean, cross)
         return cls(affine, bins, friction, identified)
 
     def __add__(self, other: FitStats) -> FitStats:

@@ -16,6 +16,7 @@ from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
+from typing import TypeVar
 
 import numpy as np
 from mcap.records import Metadata
@@ -94,7 +95,51 @@ def _finish(
     stack.close()
 
 
-class AugmentedMcap:
+class _AtomicMcap:
+    """An MCAP written to ``path`` atomically and marked as twincd's ``output``: opened on
+    entering, finished and renamed into place when the block ends without error."""
+
+    def __init__(self, path: Path, output: str) -> None:
+        self._path = path
+        self.output = output
+        self._stack: contextlib.ExitStack | None = None
+        self._out: McapOutput | None = None
+
+    def _begin(self, out: McapOutput) -> None:
+        """What goes into ``out`` before the mark (nothing here)."""
+
+    def _end(self, out: McapOutput) -> None:
+        """What ends ``out`` before the rename."""
+        out.finish()
+
+    def __enter__(self: _Writer) -> _Writer:
+        with contextlib.ExitStack() as stack:
+            stream = stack.enter_context(atomic_output(self._path))
+            out = McapOutput(stream, str(self._path))
+            stack.callback(out.close)
+            self._begin(out)
+            mark(out, self.output)
+            self._out = out
+            self._stack = stack.pop_all()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        stack, out = self._stack, self._out
+        self._stack = self._out = None
+        if stack is None or out is None:
+            return
+        _finish(stack, lambda: self._end(out), exc_type, exc, tb)
+
+
+_Writer = TypeVar("_Writer", bound=_AtomicMcap)
+
+
+class AugmentedMcap(_AtomicMcap):
     """``source`` copied losslessly into ``target``, plus new channels written in blocks.
 
     >>> with AugmentedMcap(source, target, {"/twincd/sim_effort"}) as out:  # doctest: +SKIP
@@ -117,37 +162,15 @@ class AugmentedMcap:
     ) -> None:
         self.source = Path(source)
         self.target = Path(target)
-        self.output = output
+        super().__init__(self.target, output)
         self.partial = partial  # a truncated source is copied up to the damage
         self.replace_topics = frozenset(replace_topics)
-        self._stack: contextlib.ExitStack | None = None
-        self._out: McapOutput | None = None
         self._new: set[int] = set()
         self._copied_topics: set[str] = set()
 
-    def __enter__(self) -> AugmentedMcap:
-        with contextlib.ExitStack() as stack:
-            stream = stack.enter_context(atomic_output(self.target))
-            out = McapOutput(stream, str(self.target))
-            stack.callback(out.close)
-            copy_log(self.source, out, self.replace_topics, self.partial)
-            self._copied_topics = {c.topic for c in out.channels.values()}
-            mark(out, self.output)
-            self._out = out
-            self._stack = stack.pop_all()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        stack, out = self._stack, self._out
-        self._stack = self._out = None
-        if stack is None or out is None:
-            return
-        _finish(stack, out.finish, exc_type, exc, tb)
+    def _begin(self, out: McapOutput) -> None:
+        copy_log(self.source, out, self.replace_topics, self.partial)
+        self._copied_topics = {c.topic for c in out.channels.values()}
 
     def _output(self) -> McapOutput:
         if self._out is None:
@@ -178,7 +201,7 @@ class AugmentedMcap:
         self._output().append(channel_id, log_time_ns, payloads, publish_time_ns)
 
 
-class McapLogWriter:
+class McapLogWriter(_AtomicMcap):
     """Write a new ros2 MCAP log (e.g. synthetic recordings) atomically.
 
     >>> with McapLogWriter(Path("run.mcap")) as out:          # doctest: +SKIP
@@ -188,37 +211,17 @@ class McapLogWriter:
 
     def __init__(self, path: Path, output: str = "synth") -> None:
         self.path = Path(path)
-        self.output = output
-        self._stack: contextlib.ExitStack | None = None
-        self._out: McapOutput | None = None
+        super().__init__(self.path, output)
         self._batches: _Batches | None = None
 
-    def __enter__(self) -> McapLogWriter:
-        with contextlib.ExitStack() as stack:
-            stream = stack.enter_context(atomic_output(self.path))
-            self._out = McapOutput(stream, str(self.path))
-            stack.callback(self._out.close)
-            mark(self._out, self.output)
-            self._batches = _Batches(self._out)
-            self._stack = stack.pop_all()
-        return self
+    def _begin(self, out: McapOutput) -> None:
+        self._batches = _Batches(out)
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        stack, out, batches = self._stack, self._out, self._batches
-        self._stack = self._out = self._batches = None
-        if stack is None or out is None or batches is None:
-            return
-
-        def finish() -> None:
+    def _end(self, out: McapOutput) -> None:
+        batches, self._batches = self._batches, None
+        if batches is not None:
             batches.flush()
-            out.finish()
-
-        _finish(stack, finish, exc_type, exc, tb)
+        out.finish()
 
     def _parts(self) -> tuple[McapOutput, _Batches]:
         if self._out is None or self._batches is None:
