@@ -135,17 +135,30 @@ def twin_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 # ---------------------------------------------------------------- reports
 
 
+def _fit_and_threshold(dataset: Path, folder: Path, *fit_options: str) -> Path:
+    """``twincd fit`` on ``dataset``/train with ``fit_options``, then ``twincd threshold`` on
+    its val logs: the calibration file in ``folder``."""
+    from support.clitools import run
+
+    path = folder / "cal.json"
+    assert run("fit", dataset / "train", "-o", path, "-q", *fit_options).exit_code == 0
+    assert run("threshold", dataset / "val", "-c", path, "-q").exit_code == 0
+    return path
+
+
 @pytest.fixture(scope="session")
 def twin_calibration(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The paper's calibration (``--model affine``, fit on twin_dataset/train, threshold on
     val) shared by many tests (read-only: copy it before changing it)."""
-    from support.clitools import run
+    folder = tmp_path_factory.mktemp("twin_calibration")
+    return _fit_and_threshold(twin_dataset, folder, "--model", "affine")
 
-    path = tmp_path_factory.mktemp("twin_calibration") / "cal.json"
-    fit = run("fit", twin_dataset / "train", "-o", path, "-q", "--model", "affine")
-    assert fit.exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
-    return path
+
+@pytest.fixture(scope="session")
+def default_calibration(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``twincd fit`` then ``twincd threshold`` at their defaults on twin_dataset (read-only:
+    copy it before changing it)."""
+    return _fit_and_threshold(twin_dataset, tmp_path_factory.mktemp("default_calibration"))
 
 
 @pytest.fixture(scope="session")

@@ -14,8 +14,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from support.builders import jittered_xarm_log, trajectory
-from support.clitools import assert_one_line_error, run
-from support.streaming import detect_frames
+from support.calibrations import refused
+from support.clitools import assert_one_line_error, evaluate_methods, run
+from support.streaming import blocks, detect_frames, pushed
 
 from twincd.calibration import Calibration
 from twincd.calibration.affine import AffineStats
@@ -29,7 +30,7 @@ from twincd.calibration.models import (
 )
 from twincd.commands import fit_calibration, threshold_calibration
 from twincd.detection import OnlineDetector, detect_log
-from twincd.errors import CalibrationError, DataError
+from twincd.errors import DataError
 from twincd.prepare.setup import Setup
 from twincd.signal.derivatives import differentiate
 from twincd.signal.features import ModelFeatures, ModelInputs
@@ -213,40 +214,25 @@ def test_identified_needs_a_urdf(twin_dataset: Path, tmp_path: Path) -> None:
     assert_one_line_error(result, "URDF")
     assert not out.exists()
     # evaluate skips the method there, and still runs the others
-    result = run(
-        "evaluate", twin_dataset / "test", "--train", twin_dataset / "train", "--val",
-        twin_dataset / "val", "-m", "friction,identified", "--json",
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
-    rows = {m["name"]: m for m in json.loads(result.stdout)["methods"]}
+    rows = evaluate_methods(twin_dataset, "-m", "friction,identified")
     assert rows["friction"]["auc"] > 0.9
     assert "URDF" in rows["identified"]["skipped"] and rows["identified"].get("auc") is None
 
 
 def test_broken_theta_is_refused(identified_cal: Path) -> None:
     doc = json.loads(identified_cal.read_text())
-    ragged = json.loads(json.dumps(doc))
-    next(iter(ragged["model"]["joints"].values()))["theta"].pop()
-    with pytest.raises(CalibrationError, match="one length"):
-        Calibration.from_dict(ragged)
-    nan = json.loads(json.dumps(doc))
-    next(iter(nan["model"]["joints"].values()))["theta"][3] = "NaN"
-    with pytest.raises(CalibrationError, match="theta"):
-        Calibration.from_dict(nan)
-    short = json.loads(json.dumps(doc))
-    for coeff in short["model"]["joints"].values():
-        coeff["theta"] = coeff["theta"][:65]
-    with pytest.raises(CalibrationError, match="not 10 per link"):
-        Calibration.from_dict(short)
-    missing = json.loads(json.dumps(doc))
-    for coeff in missing["model"]["joints"].values():
-        del coeff["theta"]
-    with pytest.raises(CalibrationError, match="lacks its coefficient"):
-        Calibration.from_dict(missing)
-    stray = json.loads(json.dumps(doc))
-    stray["model"]["kind"] = "friction-whitened"
-    with pytest.raises(CalibrationError, match="only identified models"):
-        Calibration.from_dict(stray)
+    with refused(doc, "one length") as ragged:
+        next(iter(ragged["model"]["joints"].values()))["theta"].pop()
+    with refused(doc, "theta") as nan:
+        next(iter(nan["model"]["joints"].values()))["theta"][3] = "NaN"
+    with refused(doc, "not 10 per link") as short:
+        for coeff in short["model"]["joints"].values():
+            coeff["theta"] = coeff["theta"][:65]
+    with refused(doc, "lacks its coefficient") as missing:
+        for coeff in missing["model"]["joints"].values():
+            del coeff["theta"]
+    with refused(doc, "only identified models") as stray:
+        stray["model"]["kind"] = "friction-whitened"
 
 
 @pytest.mark.parametrize("chunk", [1, 333])
@@ -269,17 +255,10 @@ def test_online_detector_equals_batch_with_an_identified_model(
     assert batch.events
     states = Setup.from_calibration(cal).prepare(log).states
     det = OnlineDetector(cal)
-    live: list[np.ndarray] = []
-    events = []
-    for a in range(0, len(states), chunk):
-        sl = slice(a, a + chunk)
-        out = det.push(
-            states.stamp_ns[sl], states.position[sl], states.velocity[sl], states.effort[sl]
-        )
-        live.append(out.score)
-        events += out.events
-    events += det.close()
-    np.testing.assert_allclose(np.concatenate(live), frames.column("score"), rtol=1e-12)
+    outs = pushed(det, states, blocks(len(states), chunk))
+    events = [event for out in outs for event in out.events] + det.close()
+    live = np.concatenate([out.score for out in outs])
+    np.testing.assert_allclose(live, frames.column("score"), rtol=1e-12)
     assert events == batch.events
 
 

@@ -11,7 +11,8 @@ import pytest
 from conftest import T0_NS
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from support.clitools import assert_one_line_error, run
+from support.calibrations import refused
+from support.clitools import assert_one_line_error, evaluate_methods, run
 
 from twincd.calibration import Calibration
 from twincd.calibration.affine import AffineStats
@@ -23,7 +24,7 @@ from twincd.calibration.models import (
     make_model,
     solve_friction,
 )
-from twincd.errors import CalibrationError, DataError
+from twincd.errors import DataError
 from twincd.signal.features import ModelInputs
 
 
@@ -156,19 +157,8 @@ def test_fit_model_threshold_detect_end_to_end(friction_cal, twin_dataset, tmp_p
 
 
 def test_friction_beats_affine_on_logs_with_friction(twin_dataset):
-    result = run(
-        "evaluate",
-        twin_dataset / "test",
-        "--train",
-        twin_dataset / "train",
-        "--val",
-        twin_dataset / "val",
-        "-m",
-        "proposed,friction,friction-whitened,affine-whitened",
-        "--json",
-    )
-    assert result.exit_code == 0, result.output
-    rows = {m["name"]: m for m in json.loads(result.stdout)["methods"]}
+    methods = "proposed,friction,friction-whitened,affine-whitened"
+    rows = evaluate_methods(twin_dataset, "-m", methods)
     assert rows["friction"]["auc"] > rows["proposed"]["auc"]
     for row in rows.values():
         for key in ("events_total", "delay_ms_median", "false_alarms_per_hour"):
@@ -190,19 +180,13 @@ def test_old_and_broken_calibration_files(friction_cal, tmp_path):
     assert cal.links is None
     assert cal.model.features.coulomb_eps == ()
     # a friction model without its Coulomb coefficient is refused
-    broken = json.loads(json.dumps(doc))
-    for coeff in broken["model"]["joints"].values():
-        del coeff["c"]
-    with pytest.raises(CalibrationError, match="lacks its coefficient"):
-        Calibration.from_dict(broken)
-    unknown = json.loads(json.dumps(doc))
-    unknown["model"]["kind"] = "spline"
-    with pytest.raises(CalibrationError, match="unknown model kind"):
-        Calibration.from_dict(unknown)
-    bad_eps = json.loads(json.dumps(doc))
-    next(iter(bad_eps["model"]["joints"].values()))["epsilon"] = 0.0
-    with pytest.raises(CalibrationError, match="positive"):
-        Calibration.from_dict(bad_eps)
+    with refused(doc, "lacks its coefficient") as broken:
+        for coeff in broken["model"]["joints"].values():
+            del coeff["c"]
+    with refused(doc, "unknown model kind") as unknown:
+        unknown["model"]["kind"] = "spline"
+    with refused(doc, "positive") as bad_eps:
+        next(iter(bad_eps["model"]["joints"].values()))["epsilon"] = 0.0
     # the round trip keeps every coefficient
     again = Calibration.from_dict(Calibration.load(friction_cal).to_dict())
     assert again.model.kind == "friction" and again.model.coefficients()["epsilon"] is not None

@@ -10,11 +10,8 @@ from support.clitools import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")
-def cal(twin_dataset, tmp_path_factory):
-    path = tmp_path_factory.mktemp("detect") / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
-    return path
+def cal(default_calibration):
+    return default_calibration
 
 
 def test_collision_found_exits_1_and_lists_events(cal, twin_dataset):

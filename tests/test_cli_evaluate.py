@@ -6,17 +6,14 @@ import json
 from pathlib import Path
 
 import pytest
-from support.clitools import assert_one_line_error, run
+from support.clitools import assert_one_line_error, evaluate_methods, run
 
 from twincd.evaluation.runner import SCORE_KEYS
 
 
 @pytest.fixture(scope="module")
-def cal(twin_dataset, tmp_path_factory):
-    path = tmp_path_factory.mktemp("evaluate") / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", path, "-q", "--model", "affine").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
-    return path
+def cal(twin_calibration):
+    return twin_calibration
 
 
 def test_end_to_end_fit_threshold_detect_evaluate(twin_dataset, tmp_path):
@@ -87,12 +84,7 @@ def test_a_calibration_without_threshold_evaluates_with_train_and_val(twin_datas
     # brings the settings, and its missing threshold is never asked for
     bare = tmp_path / "bare.json"
     assert run("fit", twin_dataset / "train", "-o", bare, "-q").exit_code == 0
-    result = run(
-        "evaluate", twin_dataset / "test", "-c", bare, "--train", twin_dataset / "train",
-        "--val", twin_dataset / "val", "--json", "-q",
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
-    row = json.loads(result.stdout)["methods"][0]
+    (row,) = evaluate_methods(twin_dataset, "-c", bare, "-q").values()
     assert row["threshold"] == pytest.approx(row["mu"] + 4.0 * row["sigma"])
 
 

@@ -37,12 +37,9 @@ def _json(path: Path) -> Any:
 
 
 @pytest.fixture
-def cli_calibration(twin_dataset: Path, tmp_path: Path) -> Path:
+def cli_calibration(default_calibration: Path) -> Path:
     """``twincd fit`` then ``twincd threshold`` at their defaults."""
-    path = tmp_path / "cli.json"
-    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
-    return path
+    return default_calibration
 
 
 def test_fit_calibration_at_its_defaults_is_twincd_fit(twin_dataset: Path, tmp_path: Path) -> None:

@@ -27,6 +27,7 @@ import pytest
 from scipy import signal
 from support.builders import XARM
 from support.clitools import run
+from support.streaming import pushed
 
 from twincd.calibration import Calibration
 from twincd.detection import OnlineDetector
@@ -143,19 +144,12 @@ def test_causal_and_live_starts_never_flag(rate_set: RateSet) -> None:
     states_ = Setup.from_calibration(cal).prepare(rate_set.fresh).states
     live = OnlineDetector(cal)
     rng = np.random.default_rng(rate_set.rate)
-    flags, events, at = [], [], 0
+    slices, at = [], 0
     while at < len(states_):
         size = int(rng.integers(1, 400))
-        block = slice(at, at + size)
-        out = live.push(
-            states_.stamp_ns[block],
-            states_.position[block],
-            states_.velocity[block],
-            states_.effort[block],
-        )
-        flags.append(out.flag)
-        events += out.events
+        slices.append(slice(at, at + size))
         at += size
-    events += live.close()
-    assert not np.concatenate(flags).any() and events == []
+    outs = pushed(live, states_, slices)
+    events = [event for out in outs for event in out.events] + live.close()
+    assert not np.concatenate([out.flag for out in outs]).any() and events == []
     assert live.counts.judged == entry["judged_samples"]

@@ -25,11 +25,8 @@ from twincd.io.atomic import (
 
 
 @pytest.fixture(scope="module")
-def cal(twin_dataset, tmp_path_factory):
-    path = tmp_path_factory.mktemp("atomic") / "cal.json"
-    assert run("fit", twin_dataset / "train", "-o", path, "-q").exit_code == 0
-    assert run("threshold", twin_dataset / "val", "-c", path, "-q").exit_code == 0
-    return path
+def cal(default_calibration):
+    return default_calibration
 
 
 def dead_pid() -> int:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 from support.builders import Message, jittered_xarm_log, write
-from support.streaming import detect_frames
+from support.streaming import blocks, detect_frames, pushed
 
 from twincd.commands import fit_calibration, threshold_calibration
 from twincd.detection import OnlineDetector
@@ -75,23 +75,13 @@ def test_online_detector_equals_batch_causal_detection(
     n = len(states)
     det = OnlineDetector(cal)
     size = n if chunk is None else chunk
-    scores, flags, events = [], [], []
-    for a in range(0, n, size):
-        sl = slice(a, a + size)
-        out = det.push(
-            states.stamp_ns[sl],
-            states.position[sl],
-            states.velocity[sl],
-            states.effort[sl],
-            prepared.sim_effort[sl],
-        )
+    slices = blocks(n, size)
+    outs = pushed(det, states, slices, prepared.sim_effort)
+    for sl, out in zip(slices, outs, strict=True):
         assert len(out.score) == len(states.stamp_ns[sl])
-        scores.append(out.score)
-        flags.append(out.flag)
-        events += out.events
-    events += det.close()
-    np.testing.assert_array_equal(np.concatenate(scores), frames.column("score"))
-    np.testing.assert_array_equal(np.concatenate(flags), frames.column("flag"))
+    events = [event for out in outs for event in out.events] + det.close()
+    np.testing.assert_array_equal(np.concatenate([o.score for o in outs]), frames.column("score"))
+    np.testing.assert_array_equal(np.concatenate([o.flag for o in outs]), frames.column("flag"))
     assert events == batch.events
     assert 0 < det.latency_s < 0.2
 

@@ -23,9 +23,13 @@ PERIOD_NS = 1_000_000
 PERIOD_S = PERIOD_NS * 1e-9
 
 
-def make_values(rng: np.random.Generator, n: int, channels: int) -> np.ndarray:
-    """Random walk plus steps: a signal with all kinds of features; channels 0 → (n,)."""
-    return random_walk(rng, n, channels, step=20, step_rate=0.01)
+def make_signal(
+    rng: np.random.Generator, n: int, channels: int, gaps: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` stamps ±15 % around 1 ms with ``gaps``, and a random walk plus steps on them: a
+    signal with all kinds of features; channels 0 → (n,)."""
+    stamps = jittered_stamps(rng, n, PERIOD_NS, gaps)
+    return stamps, random_walk(rng, n, channels, step=20, step_rate=0.01)
 
 
 def reference_derivative(
@@ -120,8 +124,7 @@ def test_segment_cuts_do_not_depend_on_chunking(seed, n, gaps):
 )
 def test_chunked_equals_one_push(seed, n, gaps, channels, causal, how):
     rng = np.random.default_rng(seed)
-    stamps = jittered_stamps(rng, n, PERIOD_NS, gaps)
-    y = make_values(rng, n, channels)
+    stamps, y = make_signal(rng, n, channels, gaps)
     whole = chunked(StreamingDerivative(period_s=PERIOD_S, causal=causal), stamps, y, [])
     got = chunked(
         StreamingDerivative(period_s=PERIOD_S, causal=causal),
@@ -141,8 +144,7 @@ def test_chunked_equals_one_push(seed, n, gaps, channels, causal, how):
 def test_chunked_runs_are_bit_identical():
     # elementwise arithmetic only: a sample's output depends on its window alone
     rng = np.random.default_rng(1)
-    stamps = jittered_stamps(rng, 5000, PERIOD_NS, gaps=4)
-    y = make_values(rng, 5000, 7)
+    stamps, y = make_signal(rng, 5000, 7, gaps=4)
     for causal in (False, True):
         whole = chunked(StreamingDerivative(period_s=PERIOD_S, causal=causal), stamps, y, [])
         for how in (1, 7, 1000, "random"):
@@ -153,8 +155,7 @@ def test_chunked_runs_are_bit_identical():
 
 def test_results_do_not_depend_on_the_epoch():
     rng = np.random.default_rng(2)
-    stamps = jittered_stamps(rng, 400, PERIOD_NS, gaps=2)
-    y = make_values(rng, 400, 2)
+    stamps, y = make_signal(rng, 400, 2, gaps=2)
     for causal in (False, True):
         a = chunked(StreamingDerivative(period_s=PERIOD_S, causal=causal), stamps, y, [])
         b = chunked(
@@ -203,8 +204,7 @@ def test_a_step_across_a_gap_does_not_leak(causal):
 
 def test_lookahead_centred_four_samples_causal_none():
     rng = np.random.default_rng(3)
-    stamps = jittered_stamps(rng, 40, PERIOD_NS)
-    y = make_values(rng, 40, 1)
+    stamps, y = make_signal(rng, 40, 1)
     centred = StreamingDerivative(period_s=PERIOD_S)
     causal = StreamingDerivative(period_s=PERIOD_S, causal=True)
     assert (centred.lookahead, causal.lookahead) == (4, 0)
@@ -219,8 +219,7 @@ def test_lookahead_centred_four_samples_causal_none():
 
 def test_buffers_stay_bounded_on_long_streams():
     rng = np.random.default_rng(4)
-    stamps = jittered_stamps(rng, 200_000, PERIOD_NS, gaps=20)
-    y = make_values(rng, 200_000, 3)
+    stamps, y = make_signal(rng, 200_000, 3, gaps=20)
     for causal in (False, True):
         stage = StreamingDerivative(period_s=PERIOD_S, causal=causal)
         held = []
@@ -251,8 +250,7 @@ def test_short_segments_and_a_lone_sample():
 
 def test_whole_log_wrapper_matches_the_stream_and_the_old_uses():
     rng = np.random.default_rng(5)
-    stamps = jittered_stamps(rng, 3000, PERIOD_NS, gaps=3)
-    y = make_values(rng, 3000, 2)
+    stamps, y = make_signal(rng, 3000, 2, gaps=3)
     t_s = (stamps - stamps[0]) * 1e-9
     stream = chunked(StreamingDerivative(period_s=nominal_period(stamps)), stamps, y, [])
     np.testing.assert_array_equal(differentiate(t_s, y), stream)
@@ -280,8 +278,7 @@ def test_bad_settings_and_inputs_are_clear_errors():
 
 def test_a_finished_stage_takes_a_new_stream():
     rng = np.random.default_rng(7)
-    stamps = jittered_stamps(rng, 100, PERIOD_NS)
-    y = make_values(rng, 100, 1)
+    stamps, y = make_signal(rng, 100, 1)
     stage = StreamingDerivative(period_s=PERIOD_S)
     first = chunked(stage, stamps, y, [50])
     second = chunked(stage, stamps, y, [])  # its stamps go back in time: a new stream anyway
@@ -290,8 +287,7 @@ def test_a_finished_stage_takes_a_new_stream():
 
 def test_the_stage_keeps_no_reference_to_pushed_arrays():
     rng = np.random.default_rng(8)
-    stamps = jittered_stamps(rng, 200, PERIOD_NS)
-    y = make_values(rng, 200, 2)
+    stamps, y = make_signal(rng, 200, 2)
     expect = chunked(StreamingDerivative(period_s=PERIOD_S), stamps, y, [])
     stage = StreamingDerivative(period_s=PERIOD_S)
     out = []

@@ -83,3 +83,23 @@ def random_walk(
     y = offset + np.cumsum(rng.standard_normal((n, c)), axis=0)
     y += step * (rng.uniform(size=(n, c)) < step_rate).cumsum(axis=0)
     return y[:, 0] if channels == 0 else y
+
+
+def blocks(n: int, size: int) -> list[slice]:
+    """``n`` samples in blocks of ``size`` (the last one shorter)."""
+    return [slice(a, a + size) for a in range(0, n, size)]
+
+
+def pushed(detector: Any, states: Any, slices: list[slice], sim_effort: Any = None) -> list[Any]:
+    """What ``detector`` (an ``OnlineDetector``) gives for each block of the samples
+    ``states`` (and the twin's effort ``sim_effort``) pushed in turn."""
+    return [
+        detector.push(
+            states.stamp_ns[sl],
+            states.position[sl],
+            states.velocity[sl],
+            states.effort[sl],
+            None if sim_effort is None else sim_effort[sl],
+        )
+        for sl in slices
+    ]

@@ -124,19 +124,22 @@ def detect_files(
     )
 
 
+class DetectOptions(Options, total=False):
+    """The keyword arguments of ``detect_files``."""
+
+    output: str | Path | None
+    report: str | Path | None
+    junit: str | Path | None
+    step_summary: bool
+    force: bool
+
+
 def detect_file(
-    log: str | Path,
-    calibration: Calibration | str | Path,
-    *,
-    output: str | Path | None = None,
-    report: str | Path | None = None,
-    junit: str | Path | None = None,
-    step_summary: bool = True,
-    force: bool = False,
-    **options: Unpack[Options],
+    log: str | Path, calibration: Calibration | str | Path, **options: Unpack[DetectOptions]
 ) -> DetectionSummary:
-    """``twincd detect`` on one log (``detect_files``): its summary (counts and events), whose
-    ``warnings`` are the run's. A folder of several logs is an error."""
+    """``twincd detect`` on one log (``detect_files``, whose keyword arguments it takes): its
+    summary (counts and events), whose ``warnings`` are the run's. A folder of several logs is
+    an error."""
     from twincd.io.logs import expand_logs
 
     paths = expand_logs([log])
@@ -146,16 +149,7 @@ def detect_file(
             str(log),
             "give one log file or bag (detect_files takes several)",
         )
-    run = detect_files(
-        paths,
-        calibration,
-        output=output,
-        report=report,
-        junit=junit,
-        step_summary=step_summary,
-        force=force,
-        **options,
-    )
+    run = detect_files(paths, calibration, **options)
     summary = run.logs[0]
     summary.warnings = list(run.warnings)
     return summary

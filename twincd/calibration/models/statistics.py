@@ -349,6 +349,13 @@ class SpeedStats:
         columns = _Columns.of(
             sim_effort_f, effort_f, velocity_f, coulomb_f, regressor_f, regressor_mask
         )
+        return cls._from_rows(speed, columns, mask)
+
+    @classmethod
+    def _from_rows(
+        cls, speed: FloatArray, columns: _Columns, mask: BoolArray | None = None
+    ) -> SpeedStats:
+        """``from_arrays`` of ``columns``."""
         rows = np.ones(len(columns.sim), bool) if mask is None else np.asarray(mask, bool)
         bins = speed_bin(np.asarray(speed, dtype=np.float64)[rows])
 
@@ -392,22 +399,10 @@ class SpeedStats:
         return cls(n, mean, cross, params, out.coulomb)
 
     @classmethod
-    def from_weighted(
-        cls,
-        weight: IntArray,
-        sim_effort_f: FloatArray,
-        effort_f: FloatArray,
-        velocity_f: FloatArray | None = None,
-        coulomb_f: FloatArray | None = None,
-        regressor_f: FloatArray | None = None,
-        regressor_mask: BoolArray | None = None,
-    ) -> SpeedStats:
+    def _from_weighted(cls, weight: IntArray, columns: _Columns) -> SpeedStats:
         """``from_arrays`` of rows that stand for samples (a grid's nodes for their cells'):
         ``weight`` (N, D, B) counts, per row, joint and bin of the joint's speed, the samples
         a row stands for."""
-        columns = _Columns.of(
-            sim_effort_f, effort_f, velocity_f, coulomb_f, regressor_f, regressor_mask
-        )
         w = np.asarray(weight, dtype=np.float64)
 
         def cells(j: int) -> Iterator[tuple[int, Any, int, FloatArray | None]]:
@@ -437,24 +432,39 @@ class SpeedStats:
         return int(np.max(total.n, initial=0)), total.mean, total.m2
 
 
-def _binned(
+def _by_model(
     inputs: ModelInputs,
     speed: bool,
-    stats: Callable[[FloatArray | None, FloatArray | None], SpeedStats],
-) -> tuple[SpeedStats | None, IdentifiedStats | None]:
-    """The speed bins ``stats`` gives of the Coulomb features and the regressor (each None
-    unless the logs were prepared with every ε), and the identified model's statistics
-    (without a regressor: None; and no bins unless ``speed`` asks for them)."""
+    friction_stats: Callable[[FloatArray, FloatArray], FrictionStats],
+    speed_stats: Callable[[_Columns], SpeedStats],
+) -> tuple[FrictionStats | None, SpeedStats | None, IdentifiedStats | None]:
+    """What ``FitStats`` holds beyond the affine map: the friction statistics
+    ``friction_stats`` gives of the filtered velocity and the Coulomb features, the speed bins
+    ``speed_stats`` gives of the model's columns (friction, Coulomb features and regressor: None
+    unless the logs were prepared with every ε), and the identified model's statistics (None
+    without a regressor; no bins unless ``speed`` or the regressor asks)."""
     grid = inputs.coulomb_eps == EPSILON_GRID
+    friction = None
+    if grid:
+        friction = friction_stats(_required(inputs.velocity_f), _required(inputs.coulomb_f))
     regressor = inputs.regressor_f if grid else None
     if not speed and regressor is None:
-        return None, None
-    bins = stats(inputs.coulomb_f if grid else None, regressor)
+        return friction, None, None
+    bins = speed_stats(
+        _Columns.of(
+            inputs.sim_effort_f,
+            inputs.measured,
+            inputs.velocity_f,
+            inputs.coulomb_f if grid else None,
+            regressor,
+            inputs.regressor_mask,
+        )
+    )
     if regressor is None:
-        return bins, None
+        return friction, bins, None
     # the identified model's moments are the speed bins' pooled: one product, not two
     n, mean, cross = bins.pooled()
-    return bins, IdentifiedStats(n, mean, cross)
+    return friction, bins, IdentifiedStats(n, mean, cross)
 
 
 @dataclass(frozen=True)
@@ -484,25 +494,13 @@ class FitStats:
         sim, effort = inputs.sim_effort_f, inputs.measured
         affine = AffineStats.from_arrays(sim, effort, clean)
         motion = motion_stats(inputs, clean)
-        grid = inputs.coulomb_eps == EPSILON_GRID
-        friction = None
-        if grid:
-            friction = FrictionStats.from_arrays(
-                sim, _required(inputs.velocity_f), _required(inputs.coulomb_f), effort, clean
-            )
-        bins, identified = _binned(
+        friction, bins, identified = _by_model(
             inputs,
             speed,
-            lambda coulomb, regressor: SpeedStats.from_arrays(
-                _required(inputs.velocity),
-                sim,
-                effort,
-                inputs.velocity_f,
-                coulomb,
-                regressor,
-                inputs.regressor_mask,
-                clean,
+            lambda velocity_f, coulomb_f: FrictionStats.from_arrays(
+                sim, velocity_f, coulomb_f, effort, clean
             ),
+            lambda columns: SpeedStats._from_rows(_required(inputs.velocity), columns, clean),
         )
         return cls(affine, bins, friction, identified, motion)
 
@@ -517,18 +515,13 @@ class FitStats:
         its cell's node."""
         sim, effort = inputs.sim_effort_f, inputs.measured
         affine = AffineStats.from_weighted(sim, effort, count)
-        grid = inputs.coulomb_eps == EPSILON_GRID
-        friction = None
-        if grid:
-            friction = FrictionStats.from_weighted(
-                sim, _required(inputs.velocity_f), _required(inputs.coulomb_f), effort, count
-            )
-        bins, identified = _binned(
+        friction, bins, identified = _by_model(
             inputs,
             speed,
-            lambda coulomb, regressor: SpeedStats.from_weighted(
-                by_speed, sim, effort, inputs.velocity_f, coulomb, regressor, inputs.regressor_mask
+            lambda velocity_f, coulomb_f: FrictionStats.from_weighted(
+                sim, velocity_f, coulomb_f, effort, count
             ),
+            lambda columns: SpeedStats._from_weighted(by_speed, columns),
         )
         return cls(affine, bins, friction, identified)
 
