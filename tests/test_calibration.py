@@ -181,7 +181,7 @@ def test_other_schema_and_broken_files_are_calibration_errors(tmp_path):
     doc = cal.to_dict()
     del doc["model"]["joints"]["j2"]
     (tmp_path / "partial.json").write_text(json.dumps(doc))
-    with pytest.raises(CalibrationError, match="lacks the field 'j2'"):
+    with pytest.raises(CalibrationError, match=r"lacks the field 'model\.joints\.j2'"):
         Calibration.load(tmp_path / "partial.json")
     (tmp_path / "binary.json").write_bytes(b"\x89MCAP0\r\n\xff\xfe")
     with pytest.raises(CalibrationError, match="not JSON text"):

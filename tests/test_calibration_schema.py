@@ -97,3 +97,36 @@ def test_every_number_is_validated_in_either_schema(
     at[path[-1]] = value  # type: ignore[index]
     with pytest.raises(CalibrationError, match=message):
         Calibration.from_dict(json.loads(json.dumps(doc)))
+
+
+@pytest.mark.parametrize("schema", ["twincd.calibration/1", SCHEMA])
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        (("model",), None, "field model is null, not an object"),
+        (("filter",), "x", "field filter is a JSON string, not an object"),
+        (("model", "joints"), "x", "field model.joints is a JSON string, not an object"),
+        (("model", "joints", "joint3"), [1.0], "field model.joints.joint3 is a JSON list, not an"),
+        (("threshold",), 3, "field threshold is a JSON number, not an object"),
+    ],
+)
+def test_a_section_of_the_wrong_kind_is_named_in_the_files_words(
+    schema: str, path: tuple[str, ...], value: object, message: str
+) -> None:
+    """Not Python's words ("string indices must be integers", "'NoneType' object has no
+    attribute 'get'"): the field and what it is instead of an object."""
+    doc = json.loads((V1 / "calibration.json").read_text())
+    doc["schema"] = schema
+    at = doc
+    for key in path[:-1]:
+        at = at[key]
+    at[path[-1]] = value
+    with pytest.raises(CalibrationError, match=message):
+        Calibration.from_dict(doc)
+
+
+def test_a_joint_missing_from_the_model_is_named_with_its_section() -> None:
+    doc = json.loads((V1 / "calibration.json").read_text())
+    del doc["model"]["joints"]["joint3"]
+    with pytest.raises(CalibrationError, match=r"lacks the field 'model\.joints\.joint3'"):
+        Calibration.from_dict(doc)

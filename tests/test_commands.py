@@ -149,6 +149,39 @@ def test_simulate_logs_refuses_a_filter(tmp_path: Path) -> None:
     assert raised.value.option == "cutoff_hz"
 
 
+def test_simulate_logs_refuses_a_filter_setting_whatever_its_value(tmp_path: Path) -> None:
+    """``causal=False`` (the zero-phase filter) is a filter setting too: refused, not ignored."""
+    a = write(tmp_path / "a.mcap", "mcap", joint_recording(n=30))
+    with pytest.raises(twincd.TwincdError, match="unfiltered") as raised:
+        twincd.simulate_logs([a], causal=False)
+    assert raised.value.option == "causal"
+    assert not (tmp_path / "a.twin.mcap").exists()
+
+
+def test_threshold_calibration_gives_a_log_that_failed_counting(
+    twin_dataset: Path, default_calibration: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A log that fails in the second pass (the false alarms counted at the threshold) is a
+    failure of the run, as one that fails scoring is (exit 2, --json's errors)."""
+    from twincd.detection import files
+    from twincd.errors import DataError
+
+    logs = sorted((twin_dataset / "val").glob("*.mcap"))
+    bad = logs[0]
+    tally = files.tally_false_alarms
+
+    def failing(path: Any, *args: Any) -> Any:
+        if Path(path) == bad:
+            raise DataError("cannot count", str(path), "")
+        return tally(path, *args)
+
+    monkeypatch.setattr(files, "tally_false_alarms", failing)
+    done = twincd.threshold_calibration(
+        logs, default_calibration, keep_going=True, on_failure=lambda _f: None, jobs=1
+    )
+    assert [f.path for f in done.failures] == [bad] and done.exit_code == 2
+
+
 def test_inspect_logs_at_its_defaults_is_twincd_inspect(twin_dataset: Path) -> None:
     log = twin_dataset / "train" / "train_0.mcap"
     shown = run("inspect", log, "--json")

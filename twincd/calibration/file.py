@@ -251,8 +251,42 @@ class Calibration:
             stream.write(text.encode("utf-8"))
 
 
+# what a JSON value that is not an object is, in the file's words
+_JSON_KINDS = {type(None): "null", str: "a JSON string", list: "a JSON list",
+               bool: "true or false", int: "a JSON number", float: "a JSON number"}  # fmt: skip
+
+
+def _section(d: Mapping[str, Any], key: str, where: str, name: str = "") -> Mapping[str, Any]:
+    """``d[key]``, a JSON object, or a ``CalibrationError`` naming the field (``name``: its
+    path in the file) rather than Python's words for what went wrong with it."""
+    field = name or key
+    if key not in d:
+        raise CalibrationError(
+            f"calibration lacks the field {field!r}",
+            where,
+            "re-run `twincd fit` to write a new one",
+        )
+    value = d[key]
+    if not isinstance(value, Mapping):
+        kind = _JSON_KINDS.get(type(value), type(value).__name__)
+        raise CalibrationError(
+            f"calibration field {field} is {kind}, not an object",
+            where,
+            "re-run `twincd fit` to write a new one",
+        )
+    return value
+
+
 def _read(d: Mapping[str, Any], source: str, where: str) -> Calibration:
     """A calibration of schema ``SCHEMA``: every section it names present."""
+    for key in ("robot", "log_options", "filter", "model", "fit"):
+        _section(d, key, where)
+    if d.get("threshold") is not None:
+        _section(d, "threshold", where)
+    joints = _section(_section(d, "model", where), "joints", where, "model.joints")
+    for name in _joint_names(d["robot"].get("joint_names"), where):
+        _section(joints, name, where, f"model.joints.{name}")
+    _section(d["fit"], "joints", where, "fit.joints")
     robot = d["robot"]
     names = _joint_names(robot["joint_names"], where)
     links, depths = robot.get("links"), robot.get("depths")

@@ -54,7 +54,14 @@ def simulate_logs(
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)
-        given = [name for name in _NOT_FOR_SIMULATE if settings.get(name)]
+        # given at all, whatever the value (causal=False, a cut-off of 0 are settings too);
+        # allow_urdf_change only when asked for (False is every command's default)
+        given = [
+            name
+            for name in _NOT_FOR_SIMULATE
+            if settings.get(name) is not None
+            and (name != "allow_urdf_change" or settings.get(name))
+        ]
         if given:
             raise UsageError(
                 "simulate writes the twin's effort unfiltered, without a calibration",

@@ -102,6 +102,8 @@ def threshold_calibration(
         if target is not None:
             cal.save(target)
             log.info("wrote %s", target)
+    # a log that failed in either pass is the run's failure (exit 2, --json's errors)
+    failures = (*done.failures, *tallied.failures)
     return ThresholdRun(
-        calibration=cal, written=target, warnings=tuple(warnings), failures=tuple(done.failures)
+        calibration=cal, written=target, warnings=tuple(warnings), failures=failures
     )
