@@ -23,6 +23,7 @@ import numpy as np
 from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_ROBOT
 from twincd.errors import TwincdError
 from twincd.io.options import LogOptions
+from twincd.signal.moments import Moments
 from twincd.types import FloatArray, IntArray
 
 if TYPE_CHECKING:
@@ -288,15 +289,13 @@ class _Ranges:
         self.samples = 0
         self.first: int | None = None
         self.last: int | None = None
-        self.period_ns = 0.0  # nominal, from the first block (as the pipeline does)
+        self.period_ns = 0.0  # nominal, from the first block (as ``twincd.prepare.setup`` does)
         self.steps = np.zeros(3)  # count, sum, sum of squares of the intervals (ns)
         self.gaps = 0
         self.largest_gap_ns = 0
         self.pos = np.full((2, width), np.nan)
         self.eff = np.full((2, width), np.nan)
-        self.eff_n = 0
-        self.eff_mean = np.zeros(width)
-        self.eff_m2 = np.zeros(width)  # sum of squared deviations (Chan et al.'s merge)
+        self.effort = Moments(0, np.zeros(width), np.zeros(width))  # each joint's own spread
 
     def add(self, stamp: IntArray, position: FloatArray, effort: FloatArray | None) -> None:
         from twincd.signal import nominal_period
@@ -324,12 +323,8 @@ class _Ranges:
     def _add_effort(self, effort: FloatArray) -> None:
         self.eff[0] = np.fmin(self.eff[0], effort.min(axis=0))
         self.eff[1] = np.fmax(self.eff[1], effort.max(axis=0))
-        k, mean = len(effort), effort.mean(axis=0)
-        total = self.eff_n + k
-        delta = mean - self.eff_mean
-        self.eff_m2 += ((effort - mean) ** 2).sum(axis=0) + delta**2 * self.eff_n * k / total
-        self.eff_mean += delta * k / total
-        self.eff_n = total
+        mean = effort.mean(axis=0)
+        self.effort += Moments(len(effort), mean, ((effort - mean) ** 2).sum(axis=0))
 
     def sampling(self) -> Sampling:
         assert self.first is not None and self.last is not None
@@ -409,8 +404,9 @@ def _read_samples(
         warn_velocity_from_position(found.path, velocity, joints)
         warn_unwrapped(found.path, unwrap, joints)
     _warn_if_at_rest(found.path, acc.pos[1] - acc.pos[0])
-    std = np.sqrt(acc.eff_m2 / max(acc.eff_n, 1))
-    has_effort = acc.eff_n > 0
+    count = int(acc.effort.n)
+    std = np.sqrt(acc.effort.m2 / max(count, 1))
+    has_effort = count > 0
     found.joints = [
         JointRange(
             name=name,
