@@ -111,6 +111,20 @@ def test_detect_file_refuses_a_setting_that_contradicts_the_calibration(
         twincd.detect_file(twin_dataset / "test" / "test_0.mcap", cli_calibration, causal=True)
 
 
+def test_a_calibration_is_one_or_its_file_else_a_usage_error(
+    twin_dataset: Path, cli_calibration: Path
+) -> None:
+    log = twin_dataset / "test" / "test_0.mcap"
+    loaded = twincd.Calibration.load(cli_calibration)
+    by_path = twincd.detect_file(log, cli_calibration).to_dict()
+    assert twincd.detect_file(log, loaded).to_dict() == by_path
+    for wrong in (None, 3, {"schema": "twincd.calibration/2"}):
+        with pytest.raises(twincd.TwincdError, match="a Calibration or the path of its file"):
+            twincd.detect_files([log], wrong)  # type: ignore[arg-type]
+        with pytest.raises(twincd.TwincdError, match="a Calibration or the path of its file"):
+            twincd.threshold_calibration([log], wrong)  # type: ignore[arg-type]
+
+
 def test_evaluate_logs_at_its_defaults_is_twincd_evaluate(
     twin_dataset: Path, cli_calibration: Path
 ) -> None:

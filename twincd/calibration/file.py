@@ -13,7 +13,7 @@ from typing import Any
 from twincd.calibration.models import ResidualModel, depth_order, read_model
 from twincd.calibration.tail import TAIL_METHODS, TailFit
 from twincd.calibration.values import finite_array, finite_number
-from twincd.errors import CalibrationError, NotFittedError
+from twincd.errors import CalibrationError, NotFittedError, UsageError
 from twincd.io.options import LogOptions
 from twincd.signal.filters import LowPass
 from twincd.types import FloatArray
@@ -212,6 +212,22 @@ class Calibration:
                 where,
                 "re-run `twincd fit` to write a new one",
             ) from exc
+
+    @classmethod
+    def given(cls, calibration: Calibration | str | Path) -> Calibration:
+        """``calibration`` itself, or the calibration of the file it names (what every library
+        command takes); anything else is a ``UsageError``."""
+        if isinstance(calibration, Calibration):
+            return calibration
+        if isinstance(calibration, str | Path):
+            return cls.load(calibration)
+        raise UsageError(
+            "a calibration is a Calibration or the path of its file, "
+            f"not {type(calibration).__name__}",
+            "calibration",
+            "give the JSON file written by `twincd fit`",
+            option="calibration",
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:

@@ -89,7 +89,7 @@ def detect_files(
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)
-        cal = calibration if isinstance(calibration, Calibration) else Calibration.load(calibration)
+        cal = Calibration.given(calibration)
         threshold = cal.require_threshold().value
         paths = expand_logs(logs)
         setup = setup_options(settings).resolve(cal).for_logs(paths)

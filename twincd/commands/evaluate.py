@@ -85,7 +85,7 @@ def evaluate_logs(
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)
-        cal = Calibration.load(calibration) if isinstance(calibration, str | Path) else calibration
+        cal = None if calibration is None else Calibration.given(calibration)
         text = methods if methods is None or isinstance(methods, str) else ",".join(methods)
         names = parse_methods(text, method_for(cal.model.kind) if cal is not None else "proposed")
         test_paths = expand_logs(logs)

@@ -47,7 +47,7 @@ def inspect_logs(
     from twincd.io.logs import expand_logs
 
     with gathered_warnings() as warnings:
-        cal = Calibration.load(calibration) if isinstance(calibration, str | Path) else calibration
+        cal = None if calibration is None else Calibration.given(calibration)
         paths = expand_logs(logs)
         setup = setup_options(settings).resolve(cal).for_logs(paths)  # named options checked
         found = [

@@ -84,7 +84,7 @@ def threshold_calibration(
     with gathered_warnings() as warnings:
         running, settings = split_options(options)
         check_threshold_choice(k_sigma, false_alarms_per_hour)
-        cal = calibration if isinstance(calibration, Calibration) else Calibration.load(calibration)
+        cal = Calibration.given(calibration)
         target = as_path(output)
         paths = expand_logs(logs)
         if target is not None:

@@ -149,7 +149,7 @@ class _Latency:
 def _load(calibration: Calibration | str | Path) -> Calibration:
     from twincd.calibration import Calibration
 
-    cal = calibration if isinstance(calibration, Calibration) else Calibration.load(calibration)
+    cal = Calibration.given(calibration)
     if not cal.lowpass.causal:
         raise CalibrationError(
             "the calibration was fitted with the zero-phase filter, which needs the future of "
