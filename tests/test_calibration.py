@@ -19,11 +19,13 @@ from twincd.calibration import (
     make_model,
     solve,
 )
+from twincd.calibration.affine import FIT_EDGE_FACTOR
 from twincd.commands import fit_calibration
 from twincd.errors import CalibrationError, DataError, NotFittedError
 from twincd.io.logs import expand_logs
 from twincd.io.options import LogOptions
-from twincd.signal.filters import LowPass, edge_span
+from twincd.signal.edges import edge_profile
+from twincd.signal.filters import LowPass
 
 A = np.array([1.39, 1.17, 21.7])
 B = np.array([0.24, -1.27, 0.18])
@@ -205,9 +207,13 @@ def test_fit_calibration_over_logs_recovers_the_gains(twin_dataset):
     np.testing.assert_allclose(cal.model.a_, GAINS, rtol=0.02)
     np.testing.assert_allclose(cal.model.b_, OFFSET, atol=0.05)
     assert cal.robot is None and not cal.simulated  # the logs carry their own twin effort
-    # the filter's settling time at each end (0.33 s at 5 Hz) is its edge: not fitted
-    span = edge_span(LowPass(5.0), 0.01)
-    assert span == 33 and len(cal.fit.logs) == 3 and cal.fit.samples == 3 * (1600 - 2 * span)
+    # the samples next to each end whose filtered values are noisier than the middle's by more
+    # than FIT_EDGE_FACTOR are not fitted (judged, not fitted: twincd.signal.edges)
+    profile = edge_profile(((1, LowPass(5.0)),), 0.01)
+    start = int((profile.start > FIT_EDGE_FACTOR).sum())
+    end = int((profile.end > FIT_EDGE_FACTOR).sum())
+    assert 0 < start < 10 and 0 < end < 10  # a few samples, not the settling time (33)
+    assert len(cal.fit.logs) == 3 and cal.fit.samples == 3 * (1600 - start - end)
     assert np.all(cal.model.r2_ > 0.9)
 
 

@@ -179,15 +179,14 @@ def test_test_logs_used_for_thresholds_are_flagged(calibration, split, caplog):
     assert "also used for fitting or thresholds" in caplog.text
 
 
-def test_samples_at_the_filter_edges_are_not_judged(calibration, split):
-    # detect never flags within the zero-phase filter's edge spans: evaluate judges the same
+def test_every_sample_is_judged_the_ends_too(calibration, split):
+    # detect judges a log's ends (with the noise their filtering leaves): evaluate judges the same
     setup = Setup.from_calibration(calibration)
     result = evaluate(split["test"], ["proposed"], setup, calibration)
     logs = [setup.prepare(p) for p in split["test"]]
-    edges = sum(int(lg.edge.sum()) for lg in logs if lg.edge is not None)
-    assert edges > 0
+    assert all((lg.edge_factor[[0, -1], 0] > 1.5).all() for lg in logs)  # noisier ends
     (row,) = result.methods
-    assert row.units == sum(len(lg) for lg in logs) - edges
+    assert row.units == sum(len(lg) for lg in logs)
 
 
 # ---------------------------------------------------------------- flat memory: what is kept
@@ -206,8 +205,8 @@ def test_metrics_equal_the_whole_arrays(calibration, split, k_sigma):
         at = replace(calibration, threshold=Threshold(k_sigma, mu, sigma))
     logs = sorted((setup.prepare(p) for p in split["test"]), key=lambda lg: lg.source)
     found = [detect_log(lg, at) for lg in logs]
-    y = np.concatenate([lg.labels[~lg.edge] for lg in logs])
-    s = np.concatenate([d.scores[~lg.edge] for lg, d in zip(logs, found, strict=True)])
+    y = np.concatenate([lg.labels for lg in logs])
+    s = np.concatenate([d.scores for d in found])
     assert row.sweep == f1_sweep(y, s, mu, sigma)
     want = at_threshold(y, s, at.threshold.value)
     assert row.threshold == want.threshold
@@ -236,11 +235,11 @@ def test_a_judged_log_keeps_a_score_per_sample_filed_by_label(calibration, split
     assert [a.dtype for a in arrays] == [np.float64, np.float64] and len(arrays) == 2
     whole = setup.prepare(path)
     assert judged.samples == len(whole) and judged.positives == int(whole.labels.sum())
-    assert judged.judged == len(whole) - int(whole.edge.sum())  # the edges are not judged
+    assert judged.judged == len(whole)  # every sample, the ends too
     scores = detect_log(whole, calibration).scores
     y = whole.labels
-    np.testing.assert_array_equal(judged.units.positive, np.sort(scores[~whole.edge & y]))
-    np.testing.assert_array_equal(judged.units.negative, np.sort(scores[~whole.edge & ~y]))
+    np.testing.assert_array_equal(judged.units.positive, np.sort(scores[y]))
+    np.testing.assert_array_equal(judged.units.negative, np.sort(scores[~y]))
     # 8 bytes a judged sample, and nothing else that grows with the log (events are counted)
     assert sum(a.nbytes for a in arrays) == 8 * judged.judged
     assert len(pickle.dumps(judged)) < 8 * judged.judged + 4096

@@ -341,17 +341,18 @@ def test_short_logs_are_refused(world, tmp_path):
         assert_one_line_error(run("fit", log, "-o", tmp_path / "c.json"), "log too short")
 
 
-def test_a_log_mostly_at_the_filter_edges_is_warned_about(world, tmp_path):
-    # 1.5 × the edge spans: two thirds of the log within them, a third judged (all of it within
-    # them: too short to judge, tests/test_real_signals.py)
-    from twincd.prepare.setup import min_judged_s
+def test_a_log_mostly_near_its_ends_is_judged_and_said_to_be_short(world, tmp_path):
+    # 1.5 × the stretch near the ends where the filter leaves ≥ 1.5× the middle's noise: every
+    # sample judged, most of them less sensitively, and said so
+    from twincd.prepare.setup import edges_s
 
-    spans = min_judged_s(Calibration.load(world["cal"]).lowpass, 0.01)
-    log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5 * spans)
+    near = edges_s(Calibration.load(world["cal"]).lowpass, 0.01)
+    log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5 * near)
     result = run("detect", log, "-c", world["cal"], "--json")
-    assert result.exit_code == 0 and "within the filter's edge spans" in result.stderr
-    assert any("edge spans" in w for w in json.loads(result.stdout)["warnings"])
-    assert json.loads(result.stdout)["logs"][0]["too_short"] is False
+    assert result.exit_code == 0 and "judged less sensitively" in result.stderr
+    assert any("of a segment's end" in w for w in json.loads(result.stdout)["warnings"])
+    (entry,) = json.loads(result.stdout)["logs"]
+    assert entry["too_short"] is False and entry["judged_samples"] == entry["samples"]
 
 
 def test_a_clock_jumping_back_is_reported_not_merged(world, tmp_path):

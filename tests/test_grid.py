@@ -258,10 +258,12 @@ def test_live_detection_at_1khz_equals_batch_causal_detection(
         stamps.append(out.stamp_ns)
         flags.append(out.flag)
         events += out.events
-        held = max(held, det.pending)
         if det.pending:  # only the newest samples wait, never beyond one grid period
             newest = int(states.stamp_ns[min(a + size, len(states)) - 1])
             oldest = int(states.stamp_ns[len(np.concatenate(stamps))])
+            if oldest - int(states.stamp_ns[0]) < det.start_hold_s * 1e9:
+                continue  # a segment's start waits for the causal derivative's window
+            held = max(held, det.pending)
             assert newest - oldest < det.hold_s * 1e9
     last = det.flush()
     assert det.pending == 0
@@ -315,7 +317,9 @@ def test_fit_on_the_grid_is_the_per_sample_fit_within_the_noise(
     monkeypatch.setattr(twincd.prepare.grid, "GRID_MIN_PERIODS", 10**9)
     train = sorted((xarm_1khz / "train").glob("*.mcap"))
     per_sample = fit_calibration(train, jobs=1, **filter_settings(ZERO_PHASE)).calibration
-    assert zero_phase_cal.fit.samples == per_sample.fit.samples
+    # the same samples, but for the few next to each end whose edge factor (on the grid's
+    # period or the samples') is just about FIT_EDGE_FACTOR
+    assert abs(zero_phase_cal.fit.samples - per_sample.fit.samples) <= 20 * len(train)
     grid_model, sample_model = zero_phase_cal.model, per_sample.model
     np.testing.assert_array_equal(grid_model.epsilon_, sample_model.epsilon_)  # type: ignore[attr-defined]
     assert grid_model.rmse_ is not None and sample_model.rmse_ is not None

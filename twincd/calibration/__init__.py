@@ -6,6 +6,8 @@ from twincd.calibration.affine import (
     AffineStats,
     clean_mask,
     clean_rows,
+    fit_mask,
+    fit_rows,
     solve,
 )
 from twincd.calibration.file import (
@@ -45,6 +47,8 @@ __all__ = [
     "clean_mask",
     "clean_rows",
     "fit_log",
+    "fit_mask",
+    "fit_rows",
     "make_model",
     "merge_fits",
     "solve",

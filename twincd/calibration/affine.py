@@ -29,20 +29,36 @@ log = logging.getLogger("twincd")
 # a joint whose twin effort varies less than this fraction of the measured effort's spread gives
 # a slope that mostly amplifies noise (the paper's joint 7: a = 21.7)
 CONDITION_RATIO = 0.1
+# a fit leaves out samples whose filtered values are noisier than this many times the middle's
+# (the first and last ≈ 0.15 s of a segment under the critically damped 1.5 Hz filter)
+FIT_EDGE_FACTOR = 1.1
 
 
-def clean_rows(labels: BoolArray | None, n: int, edge: Any = None) -> BoolArray:
-    """Rows usable for fitting and thresholds: all, or those labelled collision-free; never
-    those at a filter edge (``edge`` > 0, see ``twincd.signal.filters.edge_span``)."""
-    rows = np.ones(n, dtype=bool) if labels is None else ~np.asarray(labels, dtype=bool)
-    if edge is not None:
-        rows &= np.asarray(edge) == 0
+def clean_rows(labels: BoolArray | None, n: int) -> BoolArray:
+    """Rows of collision-free samples: all, or those labelled collision-free (what a threshold
+    judges: every sample is judged, its ends with their own noise, ``twincd.signal.edges``)."""
+    return np.ones(n, dtype=bool) if labels is None else ~np.asarray(labels, dtype=bool)
+
+
+def fit_rows(labels: BoolArray | None, n: int, edge_factor: Any = None) -> BoolArray:
+    """Rows a fit sums: the collision-free ones (``clean_rows``) whose filtered values are as
+    good as the segment's middle (edge factor at most ``FIT_EDGE_FACTOR``): a fit weighs every
+    sample alike, so the noisier estimates next to a segment's ends are left to scoring."""
+    rows = clean_rows(labels, n)
+    if edge_factor is not None:
+        factor = np.asarray(edge_factor, dtype=np.float64).reshape(n, -1)
+        rows &= factor.max(axis=1) <= FIT_EDGE_FACTOR
     return rows
 
 
 def clean_mask(log_: PreparedLog) -> BoolArray:
     """``clean_rows`` of a whole prepared log."""
-    return clean_rows(log_.labels, len(log_), log_.edge)
+    return clean_rows(log_.labels, len(log_))
+
+
+def fit_mask(log_: PreparedLog) -> BoolArray:
+    """``fit_rows`` of a whole prepared log."""
+    return fit_rows(log_.labels, len(log_), log_.edge_factor)
 
 
 def same_joints(mine: int, theirs: int) -> None:

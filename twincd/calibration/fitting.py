@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.calibration.affine import clean_rows, solve, warn_ill_conditioned
+from twincd.calibration.affine import fit_rows, solve, warn_ill_conditioned
 from twincd.calibration.excitation import check_motion
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.calibration.models import (
@@ -78,7 +78,7 @@ def fit_log(
         for frame in stream:
             labelled |= "labels" in frame
             start = time.perf_counter()
-            clean = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
+            clean = fit_rows(frame.get("labels"), frame.n, frame.get("edge_factor"))
             # the stream knows its regressor's entries once its first block is read
             eps, mask = stream.coulomb_eps, stream.regressor_mask
             if "node" in frame:

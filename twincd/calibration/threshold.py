@@ -31,6 +31,7 @@ from twincd.calibration.tail import (
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.prepare.setup import PreparedLog, Setup
+from twincd.signal.edges import edge_scaled
 from twincd.signal.features import ModelInputs
 from twincd.signal.moments import Moments
 from twincd.types import BoolArray, FloatArray, IntArray
@@ -294,10 +295,11 @@ def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogSc
             residual = model.residual(inputs, frame.get("predicted"))
             velocity = inputs.velocity
             speed = None if velocity is None else np.asarray(velocity, dtype=np.float64)
-            scores = model.score(residual, speed)
-            usable = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
+            judged = edge_scaled(residual, frame.get("edge_factor"))
+            scores = model.score(judged, speed)
+            usable = clean_rows(frame.get("labels"), frame.n)
             stats = stats + ScoreStats.from_scores(scores, usable)
-            noise = noise + NoiseRatio.from_residual(model.in_noise_units(residual, speed), usable)
+            noise = noise + NoiseRatio.from_residual(model.in_noise_units(judged, speed), usable)
             peaks.push(scores, usable)
     excursions = None if peaks is None else peaks.excursions
     return LogScores(str(path), stats, stream.samples, excursions, noise)
@@ -448,7 +450,7 @@ def threshold_prepared_logs(
     model = calibration.model
     for lg in logs:
         inputs = model_inputs(lg)
-        residual = model.residual(inputs)
+        residual = edge_scaled(model.residual(inputs), lg.edge_factor)
         scores = model.score(residual, lg.states.velocity)
         usable = clean_mask(lg)
         period = lg.period_s or float(np.median(np.diff(lg.states.stamp_ns))) * 1e-9

@@ -439,12 +439,12 @@ def _warn_if_at_rest(source: str, spans: FloatArray) -> None:
 
 
 def _warn_if_too_short(source: str, sampling: Sampling, calibration: Calibration | None) -> None:
-    """What detect would say of a log no sample of which lies outside the filter's edges."""
-    from twincd.prepare.setup import min_judged_s, warn_short
+    """What detect would say of a log near a segment's end throughout."""
+    from twincd.prepare.setup import edges_s, warn_short
     from twincd.signal.filters import LowPass
 
     lowpass = calibration.lowpass if calibration is not None else LowPass()
     period_s = 1.0 / sampling.rate_hz if sampling.rate_hz > 0 else 0.0
-    if period_s and sampling.duration_s < min_judged_s(lowpass, period_s):
+    if period_s and sampling.duration_s < edges_s(lowpass, period_s):
         n = sampling.samples
         warn_short(source, n, n, sampling.duration_s, lowpass, period_s)

@@ -15,6 +15,7 @@ from twincd.calibration.models import model_inputs
 from twincd.detection.events import Event, EventRules, EventTracker, LabelSpans, false_alarms
 from twincd.detection.isolation import isolator_for
 from twincd.prepare.frames import Frame, FrameSink
+from twincd.signal.edges import edge_scaled
 from twincd.signal.features import ModelInputs
 from twincd.types import BoolArray, FloatArray
 
@@ -32,10 +33,10 @@ MOSTLY_FLAGGED = 0.5
 
 @dataclass
 class FlagCount:
-    """Judged and flagged samples of one log, counted block by block: samples at a filter's
-    edge (``twincd.signal.filters.edge_span``) are not judged, and samples labelled as
-    collisions (when the log has labels) are left out of both counts, so a labelled collision
-    never makes a log "mostly flagged"."""
+    """Judged and flagged samples of one log, counted block by block (every sample is judged,
+    a segment's ends with their own noise: ``twincd.signal.edges``); samples labelled as
+    collisions (when the log has labels) are left out of the clean counts, so a labelled
+    collision never makes a log "mostly flagged"."""
 
     judged: int = 0  # judged samples, labelled ones included
     clean: int = 0  # judged samples not labelled as collisions
@@ -100,15 +101,14 @@ class ScoringStage:
         # a grid's frames carry the prediction, made on its nodes (twincd.prepare.chain.build_chain)
         predicted = frame["predicted"] if "predicted" in frame else self.model.predict(inputs)
         r = self.model.residual(inputs, predicted)
-        # the events weigh joints as the score does: by their noise at their speed, if known
-        scores, evidence = self.model.weigh(r, inputs.velocity)
+        # the events weigh joints as the score does: by their noise at their speed, if known,
+        # and near a segment's end by the noise its filtering leaves there
+        scores, evidence = self.model.weigh(
+            edge_scaled(r, frame.get("edge_factor")), inputs.velocity
+        )
         flags = scores >= self.threshold
         hold = scores >= self.release
         judged = np.ones(len(flags), dtype=bool)
-        if "edge" in frame:  # a filter's edge never flags a collision, nor holds an event
-            judged = frame["edge"].reshape(len(flags)) == 0
-            flags &= judged
-            hold &= judged
         self.counts.add(flags, judged, frame.get("labels"))
         closed = self.events.push(flags, scores, evidence, frame["stamp_ns"], hold)
         columns = {"predicted": predicted, "residual": r, "score": scores, "flag": flags}
@@ -155,7 +155,7 @@ def detect_log(
         {
             **model_inputs(log).columns(),
             "stamp_ns": log.states.stamp_ns,
-            "edge": None if log.edge is None else log.edge.astype(np.float64),
+            "edge_factor": log.edge_factor,
             "labels": log.labels,
         }
     )
@@ -176,7 +176,7 @@ class DetectionSummary:
     threshold: float
     samples: int = 0
     collision_samples: int = 0
-    judged_samples: int = 0  # samples outside the filter's edge spans (the only ones that flag)
+    judged_samples: int = 0  # samples scored (every sample: its ends with their own noise)
     events: list[Event] = field(default_factory=list)
     joint_names: tuple[str, ...] = ()
     first_stamp_ns: int = 0
@@ -211,7 +211,7 @@ class DetectionSummary:
 
     @property
     def too_short(self) -> bool:
-        """No sample could be judged: the log is shorter than the filter's edge spans."""
+        """No sample could be judged (a log with samples always has some judged)."""
         return self.samples > 0 and self.judged_samples == 0
 
     def add(self, frame: Frame, events: list[Event]) -> None:
@@ -222,11 +222,9 @@ class DetectionSummary:
             self.first_stamp_ns = int(frame["stamp_ns"][0])
         self.samples += frame.n
         self.collision_samples += int(frame["flag"].sum())
-        edge = frame.get("edge")
-        self.judged_samples += frame.n - (0 if edge is None else int(np.count_nonzero(edge)))
+        self.judged_samples += frame.n
         labels = frame.get("labels")
-        judged = np.ones(frame.n, bool) if edge is None else np.asarray(edge).reshape(-1) == 0
-        clean = judged if labels is None else judged & ~np.asarray(labels, dtype=bool)
+        clean = np.ones(frame.n, bool) if labels is None else ~np.asarray(labels, dtype=bool)
         self.clean_samples += int(np.count_nonzero(clean))
         self.clean_flagged += int(np.count_nonzero(clean & np.asarray(frame["flag"], dtype=bool)))
         self.labels.push(frame["stamp_ns"], labels)

@@ -8,13 +8,15 @@ pushing a log in any chunking gives the scores, flags and events of ``twincd det
 filter's second-order sections, one open event.
 
 Start-up: the first samples of the stream, and of every stretch after a gap (an interval over 5
-periods), are scored but never flagged, for the filter's settling time
-(``twincd.signal.filters.edge_span``: 0.3 s for the critically damped 3 Hz filter of
-``fit --causal``), where the filter and the derivative start on a few samples;
+periods), are judged like the others, with the noise the filter's start at rest on one sample
+leaves there (``twincd.signal.edges``: 3.7× the settled noise at the first sample of the
+critically damped 3 Hz filter of ``fit --causal``, within 0.1 % of it after 0.3 s);
 ``counts.judged`` counts the samples that were judged.
 
 Latency: on logs sampled at up to a few hundred hertz no stage holds a sample back, so each
-push returns a score for every sample it carried. Sampled far faster than the filter keeps
+push returns a score for every sample it carried, but at a segment's start: its first samples
+wait for the causal derivative's window (8 samples), which the filter starts after
+(``OnlineDetector.start_hold_s``). Sampled far faster than the filter keeps
 (``twincd.prepare.grid``: 1 kHz), the twin and the filter run on a coarse grid, and a sample waits
 for its grid cell to end: a push returns the samples whose cells have ended (the held ones of
 earlier pushes first), each sample at most ``OnlineDetector.hold_s`` (one grid period, ≈ 5 ms
@@ -152,6 +154,17 @@ class OnlineDetector:
 
         grid = grid_period_ns(self.calibration.lowpass.cutoff_hz, self.period_s)
         return 0.0 if grid is None else grid * 1e-9
+
+    @property
+    def start_hold_s(self) -> float:
+        """The longest a sample waits at a segment's start (a stream's first samples, or those
+        after a gap): the causal derivative's window, whose samples the filter starts after
+        (``twincd.prepare.chain.warmup_samples``), on the grid's period when there is one,
+        plus ``hold_s``."""
+        from twincd.prepare.chain import warmup_samples
+
+        step = self.hold_s or self.period_s
+        return warmup_samples(True, self._fill) * step + self.hold_s
 
     @property
     def pending(self) -> int:

@@ -23,6 +23,7 @@ from twincd.detection.isolation import DEFAULT_KAPPA, LinkIsolator
 from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.prepare.setup import PreparedLog
+from twincd.signal.edges import edge_scaled
 from twincd.types import BoolArray, FloatArray
 
 
@@ -78,7 +79,7 @@ class ModelMethod(ScoringMethod):
         return self._model().residual(model_inputs(log))
 
     def score(self, log: PreparedLog) -> FloatArray:
-        return self._model().score(self.residual(log), log.states.velocity)
+        return self._model().scores(model_inputs(log), log.edge_factor)
 
     def isolator(self, log: PreparedLog) -> LinkIsolator | None:
         """The isolation rule on this log's joints (None without a robot model)."""
@@ -98,7 +99,7 @@ class ModelMethod(ScoringMethod):
     ) -> list[Event]:
         """Detect's events, with the joint and the link each names."""
         stamps = log.states.stamp_ns
-        r = self.residual(log)
+        r = edge_scaled(self.residual(log), log.edge_factor)
         # the joints weighed as detect weighs them
         evidence = self._model().whitened_residual(r, log.states.velocity)
         evidence = r if evidence is None else evidence

@@ -53,4 +53,4 @@ class ProposedMethod(ScoringMethod):
         return self.model_
 
     def score(self, log: PreparedLog) -> FloatArray:
-        return self._model().scores(model_inputs(log))
+        return self._model().scores(model_inputs(log), log.edge_factor)

@@ -254,18 +254,8 @@ def _val_stats(
     for lg in val:
         scores.append(method.score(lg))
         mask = ~method.unit_labels(lg) if lg.labels is not None else None
-        judged = _judged(method, lg, len(scores[-1]))  # as `threshold` does
-        mask = judged if mask is None else mask & judged
         total = total + ScoreStats.from_scores(scores[-1], mask)
     return total, scores
-
-
-def _judged(method: ScoringMethod, lg: PreparedLog, units: int) -> BoolArray:
-    """The units of ``lg`` that count: all but the samples within the filter's edge spans,
-    which ``detect`` never flags (where start-up transients may still show)."""
-    if method.unit == "sample" and lg.edge is not None and len(lg.edge) == units:
-        return ~np.asarray(lg.edge, dtype=bool)
-    return np.ones(units, dtype=bool)
 
 
 def _events(
@@ -282,12 +272,11 @@ def _events(
     release = EventRules().release_level(threshold, mu)
     total = EventCounts()
     for lg, score in zip(logs, scores, strict=True):
-        judged = _judged(method, lg, len(score))
-        flags = (np.asarray(score) >= threshold) & judged
-        hold = (np.asarray(score) >= release) & judged
+        flags = np.asarray(score) >= threshold
+        hold = np.asarray(score) >= release
         if method.calibrated and method.unit == "sample":
             counts = FlagCount()
-            counts.add(flags, judged, lg.labels)
+            counts.add(flags, np.ones(len(flags), dtype=bool), lg.labels)
             counts.warn(lg.source, by=method.name)
         labels = lg.labels if lg.labels is not None else np.zeros(len(lg), dtype=bool)
         truth = links.get(lg.source)
@@ -569,8 +558,7 @@ class _Active:
         labels = np.asarray(self.method.unit_labels(lg), dtype=bool)
         finite = bool(np.isfinite(score).all())
         _require_scores(lg.source, self.method.name, len(score), len(labels), finite)
-        judged = _judged(self.method, lg, len(score))
-        self.parts.append((labels[judged], score[judged]))
+        self.parts.append((labels, score))
         self.events = self.events + _events(
             self.method, [lg], [score], self.threshold, self.mu, {lg.source: links}
         )

@@ -34,11 +34,11 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class JudgedLog:
     """What ``evaluate`` keeps of one log judged by a calibration model: the scores of its
-    judged samples (not within a zero-phase filter's edge spans) by label, and its counts."""
+    judged samples (every sample: its ends with their own noise) by label, and its counts."""
 
     source: str
-    samples: int  # every sample read (edges too)
-    positives: int  # samples labelled as collision (edges too)
+    samples: int  # every sample read
+    positives: int  # samples labelled as collision
     labelled: bool  # the log carries collision labels
     units: ScoredUnits = field(repr=False)  # the judged samples' scores, by label
     events: EventCounts = field(default_factory=EventCounts)
@@ -116,11 +116,9 @@ def judge_log(
             held = None if links is None else links.held(frame["log_time_ns"])
             tally.push(frame["stamp_ns"], label, out["flag"], held)
             if keep:
-                edge = frame.get("edge")
-                judged = np.ones(out.n, bool) if edge is None else edge.reshape(out.n) == 0
                 score = np.asarray(out["score"], dtype=np.float64)
-                positive.extend(score[judged & label])
-                negative.extend(score[judged & ~label])
+                positive.extend(score[label])
+                negative.extend(score[~label])
         events.extend(stage.finish())
         robot = stream.robot
         samples = stream.samples

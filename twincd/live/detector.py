@@ -70,12 +70,12 @@ class LiveDetector:
         return OnlineDetector(self.calibration, source=self.source)
 
     def _warm_up(self) -> None:
-        """What the first push would import and compute (the filter's settling span, its
+        """What the first push would import and compute (the filter's edge factors, its
         delay; a few hundred ms), done before the session starts instead of on the first
         sample's time."""
-        from twincd.signal.filters import edge_span
+        from twincd.signal.edges import edge_profile
 
-        edge_span(self.calibration.lowpass, self._detector.period_s)
+        edge_profile(((1, self.calibration.lowpass),), self._detector.period_s)
         self.filter_delay_s = float(self._detector.latency_s)  # the causal filter's group delay
 
     @property

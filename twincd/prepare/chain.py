@@ -192,8 +192,10 @@ def filter_stages(
     regressor: BoolArray | None = None,
     theta: FloatArray | None = None,
     on_grid: bool = False,
+    warmup: int = 0,
 ) -> list[Stage]:
-    """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass.
+    """τ̃ and τ̂̃: measured and twin effort through the same low-pass filter, in one pass (a
+    causal one started after ``warmup`` samples of each segment: ``warmup_samples``).
 
     With ``coulomb_eps`` (friction models), also the velocity (``velocity_f``) and tanh(q̇/ε)
     for each ε (``coulomb_f``, (N, E, joints)) through the same filter, so that they lag as the
@@ -257,20 +259,33 @@ def filter_stages(
 
     return [
         Mapped(stack),
-        Derived(StreamingLowPass(lowpass, period_s=period_s), "both", "both_f", keep=False),
+        Derived(StreamingLowPass(lowpass, period_s, warmup=warmup), "both", "both_f", keep=False),
         Mapped(split),
-        *(() if on_grid else edge_stages(lowpass, period_s)),
+        *(() if on_grid else edge_stages(lowpass, period_s, warmup=warmup)),
     ]
 
 
-def edge_stages(lowpass: LowPass, period_s: float) -> list[Stage]:
-    """An ``edge`` column: 1.0 within the filter's edge span (its settling time) of a
-    segment's start and, zero-phase, of its end; else 0.0."""
-    from twincd.signal.filters import EdgeMarker, edge_span
+def edge_stages(
+    lowpass: LowPass, period_s: float, run_period_s: float | None = None, warmup: int = 0
+) -> list[Stage]:
+    """An ``edge_factor`` column, (N, 1): each sample's edge factor (``twincd.signal.edges``) for
+    ``lowpass`` run every ``run_period_s`` (a coarse grid's period; default the samples') after
+    ``warmup`` of them, by its time from its segment's ends."""
+    from twincd.signal.edges import EdgeFactors, edge_profile
 
-    span = edge_span(lowpass, period_s)
-    marker = EdgeMarker(span, period_s, ends=not lowpass.causal)
-    return [Derived(marker, "stamp_ns", "edge")] if span else []
+    profile = edge_profile(((1, lowpass),), run_period_s or period_s, warmup)
+    return [Derived(EdgeFactors([profile], period_s), "stamp_ns", "edge_factor")]
+
+
+def warmup_samples(causal: bool, fill_velocity: bool) -> int:
+    """Samples a causal filter waits at each segment's start before it starts: those whose
+    causal derivative has no full window yet (acceleration; and velocity, differentiated from
+    position), so the twin's effort there (RNEA of an acceleration from one or two samples)
+    never enters the filter's state. Zero-phase: none (its derivative's window is centred and
+    shifted inside the segment)."""
+    from twincd.signal.derivatives import DEFAULT_WINDOW
+
+    return (DEFAULT_WINDOW - 1) * (2 if fill_velocity else 1) if causal else 0
 
 
 # ------------------------------------------------------------------ one chain
@@ -401,12 +416,15 @@ def build_chain(
     grid = grid_period_ns(lowpass.cutoff_hz, period_s) if filtered else None
     if grid is not None:
         models = (twin, regressor, None if nodes else model)
-        stage = _grid_stage(lowpass, features, layout, grid, period_s, models, threads, nodes)
+        warmup = warmup_samples(causal, fill_velocity)  # in nodes: as many as samples
+        stage = _grid_stage(
+            lowpass, features, layout, grid, period_s, models, threads, nodes, warmup
+        )
         stages: list[Stage] = [
             pick_columns(layout.to_twin),
             *twin_stages(None, period_s, causal, fill_velocity),  # the velocity, if missing
             pick_columns(layout.to_output),
-            *edge_stages(lowpass, period_s),
+            *edge_stages(lowpass, period_s, grid * 1e-9, warmup),
             stage,
         ]
         return BuiltChain(Chain(stages), layout, period_s, mask, stage)
@@ -416,7 +434,8 @@ def build_chain(
         pick_columns(layout.to_output),
     ]
     if filtered:
-        stages += filter_stages(lowpass, period_s, features.coulomb_eps, mask, theta)
+        warmup = warmup_samples(causal, fill_velocity)
+        stages += filter_stages(lowpass, period_s, features.coulomb_eps, mask, theta, False, warmup)
     return BuiltChain(Chain(stages), layout, period_s, mask)
 
 
@@ -429,6 +448,7 @@ def _grid_stage(
     models: tuple[RobotModel | None, RobotModel | None, FittedModel | None],
     threads: int | None,
     nodes: bool,
+    warmup: int = 0,
 ) -> GridStage:
     """The grid's stage: on its nodes (joints in the output order) the twin's and the filter's
     stages as ``build_chain`` runs them per sample, at the grid's period, then the fitted
@@ -449,7 +469,7 @@ def _grid_stage(
         # one thread: a few hundred nodes a call, and the reader's thread has the other core
         *twin_stages(twin, step, lowpass.causal, False, 1, regressor, on_grid=True),
         pick_columns(layout.to_output),
-        *filter_stages(lowpass, step, eps if own is None else eps[:1], mask, theta, on_grid=True),
+        *filter_stages(lowpass, step, eps if own is None else eps[:1], mask, theta, True, warmup),
     ]
     interpolate = ["effort_f", "sim_effort_f"]
     if model is not None:

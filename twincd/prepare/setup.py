@@ -70,6 +70,11 @@ PEEK_SAMPLES = 1001
 MIN_SAMPLES = 20
 
 
+# a sample is near a segment's end (``warn_short``) where its filtered values carry this many
+# times the noise of the segment's middle
+SHORT_FACTOR = 1.5
+
+
 @dataclass(frozen=True)
 class PreparedLog:
     """One whole log ready for scoring: raw and filtered efforts in ``joint_names`` order.
@@ -97,8 +102,9 @@ class PreparedLog:
     # Ỹθ per joint, (N, D), instead of ``regressor_f`` when prepared to score a fitted
     # identified model (its ``ModelFeatures.theta``)
     regressor_effort_f: FloatArray | None = None
-    # True within the filter's edge span of a segment's ends (``edge_span``; None: unfiltered)
-    edge: BoolArray | None = None
+    # (N, bands) each sample's edge factor: the noise of its filtered values over the segment's
+    # middle (``twincd.signal.edges``; None: unfiltered)
+    edge_factor: FloatArray | None = None
 
     @property
     def source(self) -> str:
@@ -201,7 +207,7 @@ class PreparedStream:
         # (D, P): the regressor's entries the frames' ``regressor_f`` (N, kept) holds
         self.regressor_mask: BoolArray | None = None
         self.checks: SignalChecks | None = None
-        self.at_edges = 0  # samples within the filter's edge spans (never judged)
+        self.near_ends = 0  # samples whose filtered values are ≥ SHORT_FACTOR× the middle's noise
         self.nodes = nodes
         self.model = model
         self.grid: GridStage | None = None  # the coarse grid's stage, when there is one
@@ -429,8 +435,8 @@ class PreparedStream:
                 last_ns = int(out["stamp_ns"][-1])
             self.samples += out.n
             samples_done(out.n)
-            if "edge" in out:
-                self.at_edges += int(np.count_nonzero(out["edge"]))
+            if "edge_factor" in out:
+                self.near_ends += int(np.count_nonzero(out["edge_factor"][:, 0] >= SHORT_FACTOR))
             yield out
         if self.dropped_bad:
             log.warning(
@@ -443,7 +449,7 @@ class PreparedStream:
         checks.warn(self.source)
         if self.filtered:
             seconds = 0.0 if first_ns is None or last_ns is None else (last_ns - first_ns) * 1e-9
-            warn_short(self.source, self.samples, self.at_edges, seconds, self.setup.lowpass,
+            warn_short(self.source, self.samples, self.near_ends, seconds, self.setup.lowpass,
                        self.period_s)  # fmt: skip
 
     def read_whole(self) -> PreparedLog:
@@ -476,40 +482,43 @@ class PreparedStream:
             simulated=self.simulated,
             lowpass=self.setup.lowpass,
             period_s=self.period_s,
-            edge=None if "edge" not in whole else whole["edge"] > 0,
+            edge_factor=whole.get("edge_factor"),
         )
 
 
-def min_judged_s(lowpass: LowPass, period_s: float) -> float:
-    """The shortest stretch without a gap in which a sample lies outside the filter's edge
-    spans: its settling time at each end (zero-phase), or at the start only (causal)."""
-    from twincd.signal.filters import edge_span
+def edges_s(lowpass: LowPass, period_s: float) -> float:
+    """How far from a segment's ends the filter's start-up leaves its values noisier than the
+    middle's by ``SHORT_FACTOR`` or more (at its start only, causal): a log of twice this (once,
+    causal) is near an end throughout."""
+    from twincd.signal.edges import edge_profile
 
-    ends = 1 if lowpass.causal else 2
-    return ends * edge_span(lowpass, period_s) * period_s
+    profile = edge_profile(((1, lowpass),), period_s)
+    reach = max(_reach(profile.start), _reach(profile.end)) * period_s
+    return reach * (1 if lowpass.causal else 2)
+
+
+def _reach(factor: FloatArray) -> int:
+    above = np.flatnonzero(factor >= SHORT_FACTOR)
+    return int(above[-1]) + 1 if len(above) else 0
 
 
 def warn_short(
-    source: str, samples: int, at_edges: int, seconds: float, lowpass: LowPass, period_s: float
+    source: str, samples: int, near_ends: int, seconds: float, lowpass: LowPass, period_s: float
 ) -> None:
-    """A log whose samples all lie within the filter's edge spans cannot be judged: say so
-    (never a silent "no collision"); one mostly within them is said to be short."""
-    if samples and at_edges >= samples:
+    """A log most of whose samples lie near a segment's end is judged with the noise the
+    filter's start-up leaves there, less sensitively than a longer log: say so."""
+    if samples and 2 * near_ends > samples:
         log.warning(
-            "%s is too short to judge: %.3g s, at least %.3g s without a gap needed for this "
-            "filter (%g Hz); no sample was judged",
+            "%s is short (%.3g s): %d of its %d samples lie within %.3g s of a segment's end, "
+            "where this filter (%g Hz) leaves at least %g× the noise of a longer log's middle: "
+            "collisions there are judged less sensitively",
             source,
             seconds,
-            min_judged_s(lowpass, period_s),
-            lowpass.cutoff_hz,
-        )
-    elif 2 * at_edges > samples:
-        log.warning(
-            "%s is short: %d of its %d samples lie within the filter's edge spans, where "
-            "no collision is flagged",
-            source,
-            at_edges,
+            near_ends,
             samples,
+            edges_s(lowpass, period_s) / (1 if lowpass.causal else 2),
+            lowpass.cutoff_hz,
+            SHORT_FACTOR,
         )
 
 

@@ -106,9 +106,9 @@ class ThinnedPairs:
     def write(self, frame: Frame, events: list[Event]) -> None:
         if not frame.n:
             return
-        from twincd.calibration.affine import clean_rows
+        from twincd.calibration.affine import fit_rows
 
-        clean = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))  # what fit uses
+        clean = fit_rows(frame.get("labels"), frame.n, frame.get("edge_factor"))  # fit's
         twin = np.asarray(frame["sim_effort_f"])[clean]
         measured = np.asarray(frame["effort_f"])[clean]
         if not self.seen:

@@ -18,7 +18,6 @@ from twincd.signal.filters import (
     LowPass,
     StreamingLowPass,
     decay_margin,
-    edge_span,
     settling_samples,
 )
 from twincd.signal.stream import (
@@ -43,7 +42,6 @@ __all__ = [
     "StreamingLowPass",
     "decay_margin",
     "differentiate",
-    "edge_span",
     "nominal_period",
     "seconds_to_ns",
     "segment_bounds",

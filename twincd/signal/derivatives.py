@@ -242,11 +242,20 @@ class StreamingDerivative(SegmentedStage):
         parts = []
         for a, b in zip([0, *change.tolist()], [*change.tolist(), len(i)]):
             wa, ata = int(width[a]), int(at[a])
-            order = min(self.polyorder, wa - 1)
+            order = _order(self.polyorder, wa)
             rows = (int(i[a]) - self._base, int(i[b - 1]) + 1 - self._base)
             parts.append(_slopes(self._t, self._y, rows, wa, ata, order, self._scale_ns))
         self._next = stop
         return np.concatenate(parts)
+
+
+def _order(polyorder: int, width: int) -> int:
+    """The polynomial degree over ``width`` samples: ``polyorder``, but never more than half the
+    samples' count allows (at least a slope), so a window cut short at a segment's start (causal)
+    or by a short segment fits with twice the samples it needs, and a cubic through four noisy
+    samples does not amplify their noise into a spike of acceleration (and of the twin's effort)
+    at every segment's start."""
+    return min(polyorder, max(1, (width - 1) // 2))
 
 
 def differentiate(

@@ -12,12 +12,10 @@ becomes an offset of the filtered value at the segment's end, where it decays ov
 settling time; at 1 kHz the filtered noise is far below the raw noise and that offset alone
 crossed the threshold on clean logs. Here the extension pivots on the end value of a quadratic
 least-squares fit through the samples it reflects (``end_value``): exact for a line or a
-parabola, and with a fraction of one sample's noise. What is left of a start-up transient —
-the pivot's remaining error, the causal filter's start at rest on one sample, the
-differentiator's shorter windows at a segment's ends — is gone within the filter's settling
-time (its step response within ``SETTLING_TOLERANCE`` of its final value, ``settling_samples``):
-those samples at each end of a segment (at its start only, for the causal filter, which has no
-end transient) are filtered but never judged (``edge_span``, ``EdgeMarker``).
+parabola, and with a fraction of one sample's noise. What is left — the pivot's remaining error,
+the causal filter's start at rest on one sample — is noise of a known size: every sample is
+judged, with the noise scale its distance from the segment's ends implies
+(``twincd.signal.edges``).
 
 ``StreamingLowPass`` is the one implementation; ``LowPass.apply`` runs it on a whole log.
 Streamed zero-phase filtering runs the forward pass exactly (state carried between pushes) and
@@ -67,11 +65,9 @@ __all__ = [
     "FILTER_KINDS",
     "PIVOT_DEGREE",
     "SETTLING_TOLERANCE",
-    "EdgeMarker",
     "LowPass",
     "StreamingLowPass",
     "decay_margin",
-    "edge_span",
     "end_value",
     "settling_samples",
 ]
@@ -79,8 +75,8 @@ __all__ = [
 # the streamed backward pass starts where its start-up transient will have decayed below this
 # (relative to the size of the state error, itself of the order of the signal's range)
 DECAY_TOLERANCE = 1e-12
-# a segment's samples are judged once the filter's step response stays within this of its final
-# value: any start-up error has then shrunk below 1e-3 of itself (``settling_samples``)
+# a filter has settled once its step response stays within this of its final value: any start-up
+# error has then shrunk below 1e-3 of itself (``settling_samples``; how far edges reach)
 SETTLING_TOLERANCE = 1e-3
 # the zero-phase extension's pivot: a least-squares polynomial of this degree through the samples
 # the extension reflects, taken at the end sample (``end_value``)
@@ -288,8 +284,11 @@ class StreamingLowPass(SegmentedStage):
     returns the filtered values of the oldest samples not emitted yet, in order; ``finish()``
     returns the rest.
 
-    Causal: ``lookahead`` = 0; every sample is emitted at once and chunked runs equal one run
-    exactly (the final state of a push is the initial state of the next). Zero-phase:
+    Causal: every sample is emitted at once and chunked runs equal one run exactly (the final
+    state of a push is the initial state of the next), but for a segment's first ``warmup``
+    samples: the filter starts at rest on the sample after them (what feeds it before is not
+    trusted: a causal derivative's first samples have no window), they wait for it and come out
+    as that rest value (``lookahead`` = ``warmup``). Zero-phase:
     ``lookahead`` = ``margin`` samples; a sample is emitted once ``margin`` later samples of its
     segment are known, or its segment has ended; the result equals the forward-backward pass
     over each segment with ``padlen`` samples of odd extension pivoted on ``end_value`` at both
@@ -298,16 +297,22 @@ class StreamingLowPass(SegmentedStage):
     """
 
     def __init__(
-        self, lowpass: LowPass, period_s: float, gap_factor: float = DEFAULT_GAP_FACTOR
+        self,
+        lowpass: LowPass,
+        period_s: float,
+        gap_factor: float = DEFAULT_GAP_FACTOR,
+        warmup: int = 0,
     ) -> None:
         super().__init__(period_s, gap_factor)
         self.lowpass = lowpass
         self.causal = lowpass.causal
+        # causal: the segment's first ``warmup`` samples wait for the one the filter starts on
+        self.warmup = int(warmup) if self.causal else 0
         fs = 1.0 / self.period_s
         self.sos = lowpass.sos(fs)
         self.padlen = lowpass.padlen(fs)
         self.margin = 0 if self.causal else max(decay_margin(self.sos), self.padlen)
-        self.lookahead = self.margin
+        self.lookahead = self.margin or self.warmup
         self._block = max(_BLOCK, self.margin)
         self._reset()
 
@@ -352,12 +357,15 @@ class StreamingLowPass(SegmentedStage):
 
     def _extend(self, t: IntArray, y: FloatArray) -> FloatArray:
         if self.causal:
-            if self._n == 0:
-                self._zf = self._steady(y[0])
-            assert self._zf is not None
             self._n += len(y)
-            out, self._zf = self._filter(y, self._zf)
-            return out
+            if self._zf is not None:
+                out, self._zf = self._filter(y, self._zf)
+                return out
+            # the warm-up: samples wait for the one the filter starts at rest on
+            self._x = np.concatenate((self._x, y)) if len(self._x) else y.copy()
+            if self._n <= self.warmup:
+                return np.zeros((0, y.shape[1]))
+            return self._start_causal(self.warmup)
         # a copy either way: the buffer must not alias the caller's array; once the forward
         # pass runs, only the last padlen + 1 raw values are kept (the end extension's)
         tail = y if self._zf is None else y[-(self.padlen + 1) :]
@@ -418,8 +426,22 @@ class StreamingLowPass(SegmentedStage):
         self._yf = self._yf[keep - self._base :].copy()
         self._base = keep
 
+    def _start_causal(self, at: int) -> FloatArray:
+        """Start at rest on buffered sample ``at``: the samples before it come out as the rest
+        value (what the filter holds before its start), the rest filtered from there."""
+        x = self._x
+        self._zf = self._steady(x[at])
+        head = np.repeat(self._filter(x[at : at + 1], self._zf)[0], at, axis=0)
+        out, self._zf = self._filter(x[at:], self._zf)
+        self._x = np.zeros((0, x.shape[1]))
+        return np.concatenate((head, out))
+
     def _end_segment(self) -> FloatArray:
         width = self._x.shape[1]
+        if self.causal and self._zf is None and len(self._x):  # ended during the warm-up
+            warm = self._start_causal(len(self._x) - 1)
+            self._reset()
+            return warm
         if self.causal or self._n == 0:
             self._reset()
             return np.zeros((0, max(self._width, 1)))
@@ -439,49 +461,3 @@ class StreamingLowPass(SegmentedStage):
         out: FloatArray = yb[::-1][: self._n - self._next]
         self._reset()
         return out if len(out) else np.zeros((0, width))
-
-
-def edge_span(lowpass: LowPass, period_s: float) -> int:
-    """Samples at a segment's ends that are filtered but never judged: the filter's settling
-    time at this rate (``settling_samples`` of its sections), where what is left of a start-up
-    transient (see the module's docstring) may still show. They never flag a collision and never
-    enter a fit or μ, σ. At both ends of a segment for the zero-phase filter, at its start only
-    for the causal one (it has no end transient)."""
-    return settling_samples(lowpass.sos(1.0 / period_s))
-
-
-class EdgeMarker(SegmentedStage):
-    """1.0 for samples within ``span`` samples of their segment's start or (``ends``) its end,
-    else 0.0 (the values pushed are ignored; segments cut at gaps as every stage does). With
-    ``ends``, a sample is emitted once ``span`` later samples of its segment are known, or its
-    segment has ended; without (the causal filter's edges), at once."""
-
-    def __init__(
-        self,
-        span: int,
-        period_s: float,
-        gap_factor: float = DEFAULT_GAP_FACTOR,
-        ends: bool = True,
-    ):
-        super().__init__(period_s, gap_factor)
-        self.span = span
-        self.ends = ends
-        self.lookahead = span if ends else 0
-        self._n = 0  # samples of the current segment seen
-        self._next = 0  # segment index of the next sample to emit
-
-    def _marks(self, stop: int, end: bool) -> FloatArray:
-        index = np.arange(self._next, stop)
-        near = (index < self.span) | (end and self.ends)
-        self._next = stop
-        out: FloatArray = near.astype(np.float64)[:, None]
-        return out
-
-    def _extend(self, t: IntArray, y: FloatArray) -> FloatArray:
-        self._n += len(t)
-        return self._marks(max(self._next, self._n - self.lookahead), end=False)
-
-    def _end_segment(self) -> FloatArray:
-        out = self._marks(self._n, end=True)
-        self._n = self._next = 0
-        return out

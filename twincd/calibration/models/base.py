@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
 
-from twincd.calibration.affine import clean_mask, solve
+from twincd.calibration.affine import fit_mask, solve
 from twincd.calibration.excitation import Held, check_motion
 from twincd.calibration.models.constants import (
     AFFINE,
@@ -135,7 +135,7 @@ class ResidualModel:
         parts = []
         for log_ in logs:
             start = time.perf_counter()
-            parts.append(self.stats(model_inputs(log_), clean_mask(log_)))
+            parts.append(self.stats(model_inputs(log_), fit_mask(log_)))
             self.joint_names_ = log_.joint_names
             elapsed += time.perf_counter() - start
         if not parts:
@@ -290,10 +290,13 @@ class ResidualModel:
         out: FloatArray = residual / np.maximum(np.asarray(scale, np.float64), MIN_SCALE)
         return out
 
-    def scores(self, inputs: ModelInputs) -> FloatArray:
+    def scores(self, inputs: ModelInputs, edge_factor: FloatArray | None = None) -> FloatArray:
         """Per-sample scores of prepared samples (``predict``'s inputs, ``effort_f``, and the raw
-        ``velocity`` for the depth statistic)."""
-        return self.score(self.residual(inputs), inputs.velocity)
+        ``velocity`` for the depth statistic), each judged with the noise of its distance from
+        its segment's ends (``edge_factor``, the chain's: ``twincd.signal.edges``)."""
+        from twincd.signal.edges import edge_scaled
+
+        return self.score(edge_scaled(self.residual(inputs), edge_factor), inputs.velocity)
 
     @property
     def joint_scale(self) -> FloatArray | None:
