@@ -233,7 +233,8 @@ def threshold_line(th: Threshold) -> str:
         tail = th.tail
         high = "∞" if tail.high is None else f"{tail.high:.4g}"
         rule = (
-            f"budget {tail.per_hour:g} false alarm/h, {100 * tail.confidence:.0f} % interval "
+            f"budget {th.budget_per_hour or tail.per_hour:g} false alarm/h, "
+            f"{100 * tail.confidence:.0f} % interval "
             f"{tail.low:.4g}–{high}"
         )
     else:

@@ -24,6 +24,7 @@ from twincd.commands import fit_calibration
 from twincd.errors import CalibrationError, DataError, NotFittedError
 from twincd.io.logs import expand_logs
 from twincd.io.options import LogOptions
+from twincd.signal.bands import slow_band
 from twincd.signal.edges import edge_profile
 from twincd.signal.filters import LowPass
 
@@ -209,7 +210,7 @@ def test_fit_calibration_over_logs_recovers_the_gains(twin_dataset):
     assert cal.robot is None and not cal.simulated  # the logs carry their own twin effort
     # the samples next to each end whose filtered values are noisier than the middle's by more
     # than FIT_EDGE_FACTOR are not fitted (judged, not fitted: twincd.signal.edges)
-    profile = edge_profile(((1, LowPass(5.0)),), 0.01)
+    profile = edge_profile(slow_band(LowPass(5.0)), 0.01)
     start = int((profile.start > FIT_EDGE_FACTOR).sum())
     end = int((profile.end > FIT_EDGE_FACTOR).sum())
     assert 0 < start < 10 and 0 < end < 10  # a few samples, not the settling time (33)

@@ -265,15 +265,20 @@ def test_online_detector_equals_batch_with_an_identified_model(
 def test_detect_log_on_a_whole_log_equals_the_stream(
     identified_cal: Path, xarm_dataset: Path
 ) -> None:
-    """The library's whole-log path (``detect_log`` on ``Setup.prepare``) scores a fitted
-    identified model as ``detect`` streams it: the prepared log carries Ỹθ, not Ỹ's entries."""
+    """The library's whole-log path (``detect_log`` on ``Calibration.prepare``) scores a fitted
+    identified model as ``detect`` streams it, both bands; a log prepared for a fit (its
+    inputs filtered, no fast band) is refused with what to do."""
     cal = Calibration.load(identified_cal)
     setup = Setup.from_calibration(cal)
     log = xarm_dataset / "test" / "test_000.mcap"
     streamed, frames = detect_frames(log, cal, setup)
-    whole = detect_log(setup.prepare(log, cal.model.features), cal)
+    prepared = cal.prepare(log)
+    assert prepared.residual_fast is not None and cal.score.fast is not None
+    whole = detect_log(prepared, cal)
     np.testing.assert_allclose(whole.scores, frames.column("score"), rtol=1e-9, atol=1e-12)
     assert whole.events == streamed.events and whole.events
+    with pytest.raises(DataError, match="prepared for a fit"):
+        detect_log(setup.prepare(log, cal.model.features), cal)
 
 
 def test_filter_kind_is_a_choice_and_the_calibration_keeps_it(

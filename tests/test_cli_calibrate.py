@@ -161,7 +161,11 @@ def test_fit_without_a_model_fits_the_best_the_logs_allow(
     budget = th["false_alarm_budget"]
     assert th["estimator"] == "median-mad" and budget["method"] == "bulk-exponential"
     assert budget["firm_after_minutes"] > 0  # minutes of clean data cannot measure the tail
-    assert th["value"] == pytest.approx(budget["estimate"], rel=1e-12)
+    # the estimate, or above it where the clean data themselves pass it too often, and said
+    raised = "raised to" in threshold.stderr
+    assert th["value"] == pytest.approx(budget["estimate"], rel=1e-12) or (
+        raised and th["value"] > budget["estimate"]
+    )
     assert budget["interval"][0] <= budget["estimate"] <= budget["interval"][1]
     # the clean scores' mean and sd are kept too: evaluate's F1 over μ + iσ is on them
     assert th["mean"] != th["mu"] and th["sd"] > 0

@@ -80,12 +80,18 @@ def test_train_val_and_methods(twin_dataset):
 
 
 def test_a_calibration_without_threshold_evaluates_with_train_and_val(twin_dataset, tmp_path):
-    # the fitted model is refitted on --train and judged at μ + 4σ of --val: the calibration
-    # brings the settings, and its missing threshold is never asked for
+    # the fitted model is refitted on --train and judged at μ + 4σ of --val (each band's own μ
+    # and σ): the calibration brings the settings, and its missing threshold is never asked for
     bare = tmp_path / "bare.json"
     assert run("fit", twin_dataset / "train", "-o", bare, "-q").exit_code == 0
     (row,) = evaluate_methods(twin_dataset, "-c", bare, "-q").values()
-    assert row["threshold"] == pytest.approx(row["mu"] + 4.0 * row["sigma"])
+    assert row["threshold"] == pytest.approx(row["mu"] + row["k_sigma"] * row["sigma"])
+    thresholded = tmp_path / "thresholded.json"
+    refit = run("fit", twin_dataset / "train", "-o", thresholded, "-q")
+    assert refit.exit_code == 0
+    assert run("threshold", twin_dataset / "val", "-c", thresholded, "-k", "4", "-q").exit_code == 0
+    expected = json.loads(thresholded.read_text())["threshold"]["value"]
+    assert row["threshold"] == pytest.approx(expected)  # evaluate -m … --train --val = fit, -k 4
 
 
 def test_errors(cal, twin_dataset, tmp_path, twin_log):

@@ -203,7 +203,7 @@ def test_metrics_equal_the_whole_arrays(calibration, split, k_sigma):
     at = calibration
     if k_sigma is not None:  # at μ + kσ of the clean scores' mean and sd
         at = replace(calibration, threshold=Threshold(k_sigma, mu, sigma))
-    logs = sorted((setup.prepare(p) for p in split["test"]), key=lambda lg: lg.source)
+    logs = sorted((calibration.prepare(p) for p in split["test"]), key=lambda lg: lg.source)
     found = [detect_log(lg, at) for lg in logs]
     y = np.concatenate([lg.labels for lg in logs])
     s = np.concatenate([d.scores for d in found])
@@ -233,7 +233,7 @@ def test_a_judged_log_keeps_a_score_per_sample_filed_by_label(calibration, split
     arrays = [v for v in vars(judged.units).values() if isinstance(v, np.ndarray)]
     assert not [f for f in fields(judged) if isinstance(getattr(judged, f.name), np.ndarray)]
     assert [a.dtype for a in arrays] == [np.float64, np.float64] and len(arrays) == 2
-    whole = setup.prepare(path)
+    whole = calibration.prepare(path)  # prepared for its model: scored as detect scores
     assert judged.samples == len(whole) and judged.positives == int(whole.labels.sum())
     assert judged.judged == len(whole)  # every sample, the ends too
     scores = detect_log(whole, calibration).scores
@@ -260,6 +260,7 @@ def test_logs_are_judged_one_at_a_time(calibration, split):
     # the calibration's model: every log streamed, none prepared whole
     assert calls == [
         ("score_log", "val logs", 2),
+        ("tally_false_alarms", "counting", 2),  # its rule's threshold, as `threshold` sets it
         ("judge_log", "test logs", 2),
         ("judge_log", "val false alarms", 2),
     ]

@@ -89,7 +89,7 @@ def causal_cal(xarm_1khz: Path) -> Calibration:
 def _detected(log: Path, cal: Calibration) -> dict[str, Any]:
     """Every frame ``detect`` scores, concatenated, and the events."""
     summary, frames = detect_frames(log, cal)
-    keys = ("stamp_ns", "score", "flag", "residual", "velocity")
+    keys = ("stamp_ns", "score", "flag", "residual", "velocity", "residual_fast")
     out: dict[str, Any] = {k: frames.column(k) for k in keys}
     out["events"] = summary.events
     return out
@@ -112,7 +112,15 @@ def _agree(cal: Calibration, a: dict[str, Any], b: dict[str, Any]) -> None:
     d = (wa - wb)[inside]
     assert np.sqrt(np.mean(d**2)) <= WHITENED_RMS
     assert np.abs(d).max() <= WHITENED_MAX
-    assert np.abs(a["score"] - b["score"])[inside].max() <= SCORE_MAX
+    # the filter's band: its own score within the tolerance
+    slow_a = model.score(a["residual"], a["velocity"])
+    slow_b = model.score(b["residual"], b["velocity"])
+    assert np.abs(slow_a - slow_b)[inside].max() <= SCORE_MAX
+    # the fast band (up to 10 Hz): on the grid's nodes (100 Hz) as noisy as per sample, each
+    # joint within 5 % (measured: within 3.2 %); its few largest differences are where it is
+    # steepest, a sample early or late
+    fast_a, fast_b = (np.sqrt(np.mean(x["residual_fast"][inside] ** 2, axis=0)) for x in (a, b))
+    np.testing.assert_allclose(fast_a, fast_b, rtol=0.05)
 
 
 # ------------------------------------------------------------------ the rule

@@ -20,7 +20,7 @@ from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
 from twincd.detection import detect_log
-from twincd.prepare.setup import Setup, read_log
+from twincd.prepare.setup import read_log
 
 # an extra joint before, after and among the arm's (j1..j3)
 SUPERSETS = {
@@ -321,14 +321,11 @@ def test_a_panda_with_its_fingers_through_every_command(tmp_path):
 )
 def test_joint_order_and_extra_joints_never_change_scores(plain, order, extras, at):
     calibration = Calibration.load(plain["cal"])
-    setup = Setup.from_calibration(calibration)
-    reference = detect_log(
-        setup.prepare(plain["logs"]["test"], calibration.model.features), calibration
-    ).scores
+    reference = detect_log(calibration.prepare(plain["logs"]["test"]), calibration).scores
     names = [*order[:at], *extras, *order[at:]]
     with tempfile.TemporaryDirectory() as tmp:
         path = build_twin_log(
             Path(tmp) / "t.mcap", seed=200, bumps=DEFAULT_BUMPS, state_joints=names
         )
-        scores = detect_log(setup.prepare(path, calibration.model.features), calibration).scores
+        scores = detect_log(calibration.prepare(path), calibration).scores
     np.testing.assert_array_equal(scores, reference)

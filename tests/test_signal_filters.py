@@ -24,6 +24,7 @@ from twincd.signal import (
     nominal_period,
     settling_samples,
 )
+from twincd.signal.bands import slow_band
 from twincd.signal.edges import EdgeFactors, edge_profile
 from twincd.signal.filters import PIVOT_DEGREE, end_value
 from twincd.signal.iir import critical_max_cutoff, rest_state, sosfilt
@@ -354,7 +355,7 @@ def test_edge_factors_follow_each_segments_ends_in_any_chunking(seed, n, how):
     stamps = np.cumsum(steps).astype(np.int64)
     starts = [0, *np.flatnonzero(np.diff(stamps) > 50_000_000) + 1, n]
     for lowpass in (LowPass(1.5, 2, kind="critical"), LowPass(3.0, 2, causal=True)):
-        profile = edge_profile(((1, lowpass),), 0.01)
+        profile = edge_profile(slow_band(lowpass), 0.01)
         stage = EdgeFactors([profile], 0.01)
         got = chunked(stage, stamps, np.zeros((n, 1)), split_points(n, how, rng))
         want = np.ones(n)
@@ -381,7 +382,7 @@ def test_the_edge_factor_is_the_noise_the_filter_leaves_near_each_end(lowpass):
     y = lowpass.apply((stamps - T0_NS) * 1e-9, x, period_s=0.01)
     spread = np.sqrt(np.mean(y * y, axis=1))
     measured = spread / spread[n // 2]
-    profile = edge_profile(((1, lowpass),), 0.01)
+    profile = edge_profile(slow_band(lowpass), 0.01)
     k = np.arange(n) * 0.01
     expected = profile.factors(k, None if lowpass.causal else k[::-1])
     near = expected > 1.05

@@ -19,6 +19,7 @@ from scipy import stats
 from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration, clean_mask
+from twincd.calibration.clean import BandStats
 from twincd.calibration.models import model_inputs
 from twincd.calibration.tail import (
     DECLUSTER_GAP_S,
@@ -99,14 +100,8 @@ def test_any_order_and_split_of_the_logs_give_the_same_threshold(
     for i in range(logs):
         scores = _smooth_scores(rng, int(rng.integers(500, 4000)))
         usable = np.ones(len(scores), dtype=bool)
-        parts.append(
-            LogScores(
-                f"log{i}",
-                ScoreStats.from_scores(scores),
-                len(scores),
-                _excursions(scores, usable, 0.01),
-            )
-        )
+        band = BandStats(ScoreStats.from_scores(scores), _excursions(scores, usable, 0.01))
+        parts.append(LogScores(f"log{i}", (band,), len(scores)))
     cal = _calibration()
     first = threshold_from_parts(parts, cal, false_alarms_per_hour=1.0).require_threshold()
     shuffled = parts[:]

@@ -136,8 +136,7 @@ def test_evaluate_says_it_and_judges(calibrations, validation, caplog):
     """``evaluate --val`` sets a method's threshold as ``threshold`` would: logs that do not
     fit are said in a warning, and the run still judges (its figures show the misfit)."""
     calibration = Calibration.load(calibrations["default"])
-    setup = Setup.from_calibration(calibration)
-    logs = [setup.prepare(p, calibration.model.features) for p in validation["x3"]["mcap"]]
+    logs = [calibration.prepare(p) for p in validation["x3"]["mcap"]]
     with caplog.at_level(logging.WARNING, logger="twincd"):
         done = threshold_prepared_logs(logs, calibration, 4.0)
     assert "not collision-free data the calibration fits" in caplog.text

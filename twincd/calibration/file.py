@@ -8,9 +8,11 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from twincd.calibration.clean import BandStats, read_band_stats
 from twincd.calibration.models import ResidualModel, depth_order, read_model
+from twincd.calibration.score import Score, read_score
 from twincd.calibration.tail import TAIL_METHODS, TailFit
 from twincd.calibration.values import finite_array, finite_number
 from twincd.errors import CalibrationError, NotFittedError, UsageError
@@ -18,6 +20,9 @@ from twincd.io.options import LogOptions
 from twincd.signal.filters import LowPass
 from twincd.types import FloatArray
 from twincd.version import __version__
+
+if TYPE_CHECKING:
+    from twincd.prepare.setup import PreparedLog, Setup
 
 SCHEMA = "twincd.calibration/2"
 SCHEMA_V1 = "twincd.calibration/1"  # still read, through ``upgrade_v1``
@@ -93,6 +98,9 @@ class FitInfo:
     # per joint, the coefficients the fit logs' motion did not determine, held at their prior
     # (``twincd.calibration.excitation``); None when no joint has any, or not recorded
     held: tuple[tuple[str, ...], ...] | None = None
+    # each band's score on the fit's own logs, each scored by a model fitted without it
+    # (``twincd.calibration.crossfit``): clean data ``threshold`` sets its budget on too
+    clean: tuple[BandStats, ...] = field(default=(), compare=False)
 
 
 @dataclass(frozen=True)
@@ -117,9 +125,26 @@ class Calibration:
     depths: tuple[int, ...] | None = None  # each joint's depth in the kinematic tree
     fit: FitInfo = field(default_factory=FitInfo)
     threshold: Threshold | None = None
+    # how the residual of every band becomes one score (the model's own band only: Score())
+    score: Score = field(default_factory=Score, compare=False)
     created: str = ""
     twincd_version: str = __version__
     source: str = ""  # the file it was loaded from, for messages
+
+    @property
+    def fast_hz(self) -> float | None:
+        """The fast band's upper cut-off (None: the filter's band only)."""
+        fast = self.score.fast
+        return None if fast is None else fast.band.high.cutoff_hz
+
+    def prepare(self, path: str | Path, setup: Setup | None = None) -> PreparedLog:
+        """One whole log read, twinned and filtered for this calibration's model (its residual
+        in each band: what ``twincd.detect`` scores), the calibration's way (``setup``: another
+        way of reading it, e.g. ``SetupOptions(topic=…).resolve(calibration)``)."""
+        from twincd.prepare.setup import Setup
+
+        setup = Setup.from_calibration(self) if setup is None else setup
+        return setup.prepare(path, model=self.model, jump=self.score.jump)
 
     def require_threshold(self) -> Threshold:
         if self.threshold is None:
@@ -148,6 +173,8 @@ class Calibration:
                 for i, n in enumerate(names)
             },
         }
+        if self.fit.clean:
+            fit["clean"] = [band.to_dict() for band in self.fit.clean]
         return {
             "schema": SCHEMA,
             "twincd_version": self.twincd_version,
@@ -171,6 +198,7 @@ class Calibration:
                 "sample_rate_hz": None if self.period_s is None else 1.0 / self.period_s,
             },
             "model": self.model.to_dict(names),
+            "score": self.score.to_dict(names),
             "fit": fit,
             "threshold": None if self.threshold is None else self.threshold.to_dict(),
         }
@@ -344,8 +372,13 @@ def _read(d: Mapping[str, Any], source: str, where: str) -> Calibration:
             samples=_count(fit["samples"], "fit.samples", where),
             seconds=finite_number(fit["seconds"], "fit.seconds", where),
             held=_held(per_joint, names),
+            clean=tuple(
+                read_band_stats(band, f"fit.clean[{i}]", where)
+                for i, band in enumerate(fit.get("clean") or ())
+            ),
         ),
         threshold=_threshold(d["threshold"], where),
+        score=read_score(d.get("score"), names, where),
         created=str(d["created"]),
         twincd_version=str(d["twincd_version"]),
         source=source,

@@ -6,14 +6,17 @@ import logging
 import math
 import statistics
 import time
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from twincd.calibration.affine import fit_rows, solve, warn_ill_conditioned
+from twincd.calibration.crossfit import FOLD_BLOCK_S, MAX_FOLDS, Each, Folds, VelocitySteps
+from twincd.calibration.crossfit import time_folds as crossfit_folds
 from twincd.calibration.excitation import check_motion
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.calibration.models import (
@@ -33,7 +36,7 @@ from twincd.errors import DataError
 from twincd.prepare.frames import Frame
 from twincd.prepare.setup import PreparedStream, Setup, agreed_joints
 from twincd.signal.features import ModelFeatures, ModelInputs
-from twincd.types import BoolArray, FloatArray
+from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.prepare.frames import FrameSink
@@ -55,6 +58,12 @@ class LogFit:
     seconds: float  # time spent in the regression sums, as the paper times training
     samples: int = 0  # every sample read (labelled ones too): what progress counts
     labelled: bool = True  # the log has collision labels (else every sample is taken as clean)
+    # with time folds (a one-log fit, ``twincd.calibration.crossfit``): the statistics of each
+    # fold's samples (``stats`` is their sum), and the log's first stamp the folds start at
+    folds: tuple[FitStats | None, ...] = ()
+    first_ns: int = 0
+    # one-period velocity changes: the jump threshold
+    steps: VelocitySteps = field(default_factory=VelocitySteps)
 
 
 def fit_log(
@@ -62,15 +71,20 @@ def fit_log(
     setup: Setup,
     sinks: Sequence[FrameSink] = (),
     features: ModelFeatures | None = None,
+    time_folds: bool = False,
 ) -> LogFit:
     """Stream one log through read → twin → filter into the statistics of the model kinds
     ``features`` prepares for (``fit_features``; None: the best model's, every kind's);
     every frame also goes to ``sinks`` (e.g. what a report's figure draws). On a coarse grid
     (``twincd.prepare.grid``: a 1 kHz log) the sums run over the grid's nodes, each standing for the
-    samples of its cell (``FitStats.from_cells``)."""
-    stats: FitStats | None = None
+    samples of its cell (``FitStats.from_cells``). ``time_folds``: the statistics of each of
+    the log's time folds apart (a one-log fit's cross-fitting, ``twincd.calibration.crossfit``).
+    """
+    folds: list[FitStats | None] = [None] * (MAX_FOLDS if time_folds else 1)
     seconds = 0.0
     labelled = False
+    steps = VelocitySteps()
+    first_ns: int | None = None
     features = fit_features(None) if features is None else features
     speed = features.speed_stats
     with setup.open(path, nodes=True, features=features) as stream:
@@ -78,19 +92,25 @@ def fit_log(
         for frame in stream:
             labelled |= "labels" in frame
             start = time.perf_counter()
+            first_ns = int(frame["stamp_ns"][0]) if first_ns is None else first_ns
             clean = fit_rows(frame.get("labels"), frame.n, frame.get("edge_factor"))
+            steps = steps + VelocitySteps.of(
+                frame["velocity"][clean], frame["stamp_ns"][clean], stream.period_s
+            )
+            fold = crossfit_folds(frame["stamp_ns"], first_ns) if time_folds else None
             # the stream knows its regressor's entries once its first block is read
             eps, mask = stream.coulomb_eps, stream.regressor_mask
             if "node" in frame:
-                nodes = stream.take_nodes()
-                part = cells.stats(frame, clean, nodes, eps, mask, speed)
+                parts = cells.stats(frame, clean, stream.take_nodes(), eps, mask, speed, fold)
             else:
-                part = FitStats.from_inputs(ModelInputs.of(frame, eps, mask), clean, speed)
-            stats = part if stats is None else stats + part
+                parts = _per_fold(clean, fold, partial(_sample_stats, frame, eps, mask, speed))
+            folds = [_add(mine, theirs) for mine, theirs in zip(folds, parts, strict=True)]
             seconds += time.perf_counter() - start
             for sink in sinks:
                 sink.write(frame, [])
-        assert stats is not None  # the stream raises on logs without samples
+        kept = [f for f in folds if f is not None]
+        assert kept  # the stream raises on logs without samples
+        stats = ResidualModel.merge(kept)
         return LogFit(
             source=stream.source,
             stats=stats,
@@ -101,7 +121,41 @@ def fit_log(
             seconds=seconds,
             samples=stream.samples,
             labelled=labelled,
+            folds=tuple(folds) if time_folds else (),
+            first_ns=first_ns or 0,
+            steps=steps,
         )
+
+
+def _per_fold(
+    clean: BoolArray, fold: IntArray | None, stats: Callable[[BoolArray], FitStats]
+) -> list[FitStats | None]:
+    """``stats`` of the clean rows, or of each time fold's (``fold``: each row's) apart (None:
+    a fold without clean rows in this frame)."""
+    if fold is None:
+        return [stats(clean)]
+    out: list[FitStats | None] = []
+    for k in range(MAX_FOLDS):
+        rows = clean & (fold == k)
+        out.append(stats(rows) if rows.any() else None)
+    return out
+
+
+def _sample_stats(
+    frame: Frame,
+    eps: tuple[float, ...],
+    mask: BoolArray | None,
+    speed: bool,
+    rows: BoolArray,
+) -> FitStats:
+    """The statistics of a frame's samples at ``rows`` (no grid)."""
+    return FitStats.from_inputs(ModelInputs.of(frame, eps, mask), rows, speed)
+
+
+def _add(mine: FitStats | None, theirs: FitStats | None) -> FitStats | None:
+    if mine is None:
+        return theirs
+    return mine if theirs is None else mine + theirs
 
 
 class _Cells:
@@ -118,23 +172,35 @@ class _Cells:
         coulomb_eps: tuple[float, ...],
         regressor_mask: BoolArray | None,
         speed: bool,
-    ) -> FitStats:
+        fold: IntArray | None = None,
+    ) -> list[FitStats | None]:
         """The statistics of ``frame``'s clean samples, each counted at its cell's node
         (``nodes``: the grid's filtered nodes since the last call, ``ModelInputs.of``'s
-        columns)."""
+        columns); with each sample's time ``fold``, each fold's apart (``_per_fold``)."""
         table = self.table = Frame.concat([self.table, nodes])
         first = int(table["node"][0])
-        at = np.asarray(frame["node"], dtype=np.int64)[clean] - first
-        count = np.bincount(at, minlength=table.n)
-        bins = speed_bin(np.asarray(frame["velocity"], dtype=np.float64)[clean])
-        joints, width = bins.shape[1], len(SPEED_BINS) + 1
-        cell = (at[:, None] * joints + np.arange(joints)) * width + bins
-        by_speed = np.bincount(cell.ravel(), minlength=table.n * joints * width)
+        node = np.asarray(frame["node"], dtype=np.int64) - first
         inputs = ModelInputs.of(table, coulomb_eps, regressor_mask)
-        part = FitStats.from_cells(inputs, count, by_speed.reshape(table.n, joints, width), speed)
+        velocity = np.asarray(frame["velocity"], dtype=np.float64)
+
+        def stats(rows: BoolArray) -> FitStats:
+            at = node[rows]
+            count = np.bincount(at, minlength=table.n)
+            bins = speed_bin(velocity[rows])
+            joints, width = bins.shape[1], len(SPEED_BINS) + 1
+            cell = (at[:, None] * joints + np.arange(joints)) * width + bins
+            by_speed = np.bincount(cell.ravel(), minlength=table.n * joints * width)
+            by_speed = by_speed.reshape(table.n, joints, width)
+            used = np.flatnonzero(count)  # a fold's nodes only (the others weigh nothing)
+            if len(used) < table.n:
+                picked = inputs.take(used)
+                return FitStats.from_cells(picked, count[used], by_speed[used], speed)
+            return FitStats.from_cells(inputs, count, by_speed, speed)
+
+        parts = _per_fold(clean, fold, stats)
         # the last sample's cell may go on in the next frame
         self.table = table.tail(int(frame["node"][-1]) - first)
-        return part
+        return parts
 
 
 def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:
@@ -154,6 +220,12 @@ def filter_kind_for(model: str | None) -> str:
     it, so it (and the best model, which is identified when it can be) filters without
     overshoot."""
     return "critical" if model is None or model_class(model)[0].needs_regressor else "butterworth"
+
+
+def scored_by_depth(model: str | None) -> bool:
+    """Whether a fit of ``model`` (None: the best the logs allow, whitened) scores by the depth
+    statistic: its noise is then cross-fitted and it judges the fast band too."""
+    return model is None or model_class(model)[1]
 
 
 def best_model(stats: FitStats) -> str:
@@ -314,3 +386,71 @@ def _warn_about_fit(
             len(unlabelled),
             unlabelled[0] + (", ..." if len(unlabelled) > 1 else ""),
         )
+
+
+def crossfit_plan(parts: Sequence[LogFit]) -> Folds:
+    """How the fit's logs are cross-fitted (``twincd.calibration.crossfit``): several logs in
+    folds of logs, one log in folds of its time blocks (``fit_log(time_folds=True)``)."""
+    if len(parts) == 1 and parts[0].folds:
+        return Folds(MAX_FOLDS, first_ns=parts[0].first_ns)
+    return Folds.of_logs([p.source for p in parts])  # (one log left of several: in-sample)
+
+
+def fold_models(
+    calibration: Calibration, parts: Sequence[LogFit], folds: Folds
+) -> list[ResidualModel]:
+    """For each fold, the calibration's model (kind and joints) fitted without that fold's
+    data. A fold whose others cannot fit a model (the log is shorter than two time blocks, or
+    they do not move) is scored by the calibration's own model, and said: its scores are then
+    in-sample."""
+    model = calibration.model
+    names = calibration.joint_names
+    out: list[ResidualModel] = []
+    in_sample: list[int] = []
+    for k in range(folds.count):
+        if folds.by_time:
+            others = [f for j, f in enumerate(parts[0].folds) if j != k and f is not None]
+        else:
+            others = [p.stats for p in parts if folds.groups[p.source] != k]
+        try:
+            if not others:
+                raise DataError("no other fold", "cross-fit", "")
+            fold = make_model(model.kind, model.order)
+            fold.joint_names_ = names
+            out.append(fold.solve(ResidualModel.merge(others)))
+        except DataError:
+            out.append(model)
+            in_sample.append(k)
+    used = {k for k in range(folds.count) if not folds.by_time or parts[0].folds[k] is not None}
+    if used & set(in_sample):
+        if folds.by_time:
+            why = f"it holds a single {FOLD_BLOCK_S:g} s time block"
+        elif folds.count == 1:
+            why = "no other log is left to fit a model on"
+        else:
+            why = "the other logs hold too little motion"
+        log.warning(
+            "fit: %s cannot be scored by a model fitted without it (%s): the noise and the "
+            "clean scores the calibration keeps of it are its own model's, optimistic; fit on "
+            "two logs or more, or on a log of %g s or more",
+            parts[0].source if len(parts) == 1 else "some of the logs",
+            why,
+            2 * FOLD_BLOCK_S,
+        )
+    return out
+
+
+def fit_logs(paths: Sequence[Path], setup: Setup, model: str | None, each: Each) -> Calibration:
+    """What ``fit`` makes of ``paths`` (``each`` maps a per-log step over them): every log's
+    statistics (``fit_log``), the model solved from them (``merge_fits``), and for a model
+    scored by depth its noise cross-fitted, with the fast band (``crossfit_calibration``)."""
+    from twincd.calibration.crossfit import crossfit_calibration
+    from twincd.executors.local import Bound
+
+    crossfit = scored_by_depth(model)
+    features = replace(fit_features(model), speed_stats=not crossfit)
+    single = crossfit and len(paths) == 1
+    work: Bound[Path, LogFit] = Bound(fit_log, setup, (), features, single)
+    parts: list[LogFit] = each(work, paths, "train logs")
+    calibration = merge_fits(parts, setup, model)
+    return crossfit_calibration(calibration, parts, setup, each) if crossfit else calibration

@@ -117,7 +117,7 @@ class Score:
         velocity: FloatArray | None,
         fast_residual: FloatArray | None = None,
         edge_factor: FloatArray | None = None,
-        fast_off: BoolArray | None = None,
+        fast_off: FloatArray | BoolArray | None = None,
     ) -> tuple[list[FloatArray], list[FloatArray]]:
         """Each band's score and the evidence events weigh joints by (``ResidualModel.weigh``):
         the slow band's from the model, the fast band's (when there is one) of its own, each
@@ -144,18 +144,29 @@ class Score:
             fast = np.where(np.asarray(fast_off, dtype=bool).reshape(-1), -np.inf, fast)
         return [scores, fast], [evidence, whitened]
 
+    def carried(self, band: int, z: Any) -> Any:
+        """Band ``band``'s score ``z`` on the slow band's scale (as is before ``levels``)."""
+        if band == 0 or len(self.levels) <= band:
+            return z
+        slow, level = self.levels[0], self.levels[band]
+        return slow.mu + (z - level.mu) * self._gain(band)
+
+    def band_level(self, band: int, x: float) -> float:
+        """The score of band ``band`` that ``carried`` puts at ``x`` on the slow band's scale."""
+        if band == 0 or len(self.levels) <= band:
+            return x
+        return self.levels[band].mu + (x - self.levels[0].mu) / self._gain(band)
+
+    def _gain(self, band: int) -> float:
+        slow, level = self.levels[0], self.levels[band]
+        return (slow.value - slow.mu) / max(level.value - level.mu, 1e-12)
+
     def combine(self, scores: Sequence[FloatArray]) -> FloatArray:
         """One score from the bands' (the fast band's on the slow band's scale, ``levels``)."""
         if len(scores) == 1:
             return scores[0]
-        if len(self.levels) == len(scores):
-            slow = self.levels[0]
-            carried = [scores[0]]
-            for z, level in zip(scores[1:], self.levels[1:], strict=True):
-                gain = (slow.value - slow.mu) / max(level.value - level.mu, 1e-12)
-                carried.append(slow.mu + (z - level.mu) * gain)
-            scores = carried
-        out: FloatArray = np.max(np.stack(scores), axis=0)
+        carried = [self.carried(b, z) for b, z in enumerate(scores)]
+        out: FloatArray = np.max(np.stack(carried), axis=0)
         return out
 
     def weigh(
@@ -165,7 +176,7 @@ class Score:
         velocity: FloatArray | None,
         fast_residual: FloatArray | None = None,
         edge_factor: FloatArray | None = None,
-        fast_off: BoolArray | None = None,
+        fast_off: FloatArray | BoolArray | None = None,
     ) -> tuple[FloatArray, FloatArray]:
         """(N,) the score and (N, D) the evidence of the band that gave it, per sample."""
         scores, evidence = self.band_scores(

@@ -13,13 +13,23 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from twincd.calibration import Calibration, Threshold, clean_mask, clean_rows
+from twincd.calibration.clean import (
+    HISTOGRAM_BINS,
+    HISTOGRAM_LOW,
+    HISTOGRAM_STEP,
+    BandStats,
+    LabelMargin,
+)
+from twincd.calibration.clean import ScoreStats as ScoreStats
 from twincd.calibration.models import depth_noise_median, model_inputs
+from twincd.calibration.score import BandLevel
 from twincd.calibration.tail import (
     MIN_PEAKS,
     MISFIT_STUDIED,
@@ -30,101 +40,12 @@ from twincd.calibration.tail import (
 )
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
+from twincd.prepare.frames import Derived, Frame
 from twincd.prepare.setup import PreparedLog, Setup
 from twincd.signal.edges import edge_scaled
-from twincd.signal.features import ModelInputs
-from twincd.signal.moments import Moments
 from twincd.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger("twincd")
-
-
-# The robust estimator's histogram of scores: bins of ``HISTOGRAM_STEP`` from ``HISTOGRAM_LOW``
-# (a depth statistic's z lies above −3); scores beyond count in the end bins, which moves the
-# median and the MAD only once half the samples lie there. 80 kB per log, merged exactly.
-HISTOGRAM_LOW, HISTOGRAM_STEP, HISTOGRAM_BINS = -10.0, 0.01, 10_000
-MAD_TO_SIGMA = 1.4826  # σ of a normal distribution per median absolute deviation
-
-
-@dataclass(frozen=True)
-class ScoreStats:
-    """Mergeable count, mean and centred sum of squares of scores (Chan et al.'s update, so
-    merges are exact in any order), and their histogram: μ and σ (population), or the median
-    and MAD, of everything merged."""
-
-    n: int = 0
-    mean: float = 0.0
-    m2: float = 0.0  # Σ (s − mean)²
-    histogram: IntArray | None = None  # counts per bin (None: no score yet)
-
-    @classmethod
-    def from_scores(cls, scores: FloatArray, mask: BoolArray | None = None) -> ScoreStats:
-        x = np.asarray(scores, dtype=np.float64)
-        if mask is not None:
-            x = x[mask]
-        if len(x) == 0:
-            return cls()
-        mean = float(x.mean())
-        at = np.clip((x - HISTOGRAM_LOW) / HISTOGRAM_STEP, 0, HISTOGRAM_BINS - 1).astype(np.intp)
-        histogram = np.bincount(at, minlength=HISTOGRAM_BINS).astype(np.int64)
-        return cls(len(x), mean, float(((x - mean) ** 2).sum()), histogram)
-
-    def __add__(self, other: ScoreStats) -> ScoreStats:
-        if other.n == 0:
-            return self
-        if self.n == 0:
-            return other
-        histogram = None
-        if self.histogram is not None and other.histogram is not None:
-            histogram = self.histogram + other.histogram
-        mine, theirs = (Moments(s.n, np.float64(s.mean), np.float64(s.m2)) for s in (self, other))
-        merged = mine + theirs
-        return ScoreStats(int(merged.n), float(merged.mean), float(merged.m2), histogram)
-
-    @property
-    def mu(self) -> float:
-        self._check()
-        return self.mean
-
-    @property
-    def sigma(self) -> float:
-        self._check()
-        return float(np.sqrt(self.m2 / self.n))
-
-    def robust(self) -> tuple[float, float]:
-        """(median, 1.4826 × median absolute deviation), to the histogram's step."""
-        self._check()
-        if self.histogram is None:
-            raise DataError(
-                "these score statistics carry no histogram for a robust threshold",
-                "threshold",
-                "score the logs with ScoreStats.from_scores",
-            )
-        centres = HISTOGRAM_LOW + HISTOGRAM_STEP * (
-            np.arange(HISTOGRAM_BINS, dtype=np.float64) + 0.5
-        )
-        median = _weighted_median(centres, self.histogram)
-        mad = _weighted_median(np.abs(centres - median, dtype=np.float64), self.histogram)
-        return median, MAD_TO_SIGMA * mad
-
-    def _check(self) -> None:
-        if self.n == 0:
-            raise DataError(
-                "no collision-free samples to set a threshold",
-                "threshold",
-                "give validation logs without collisions (or with labels)",
-            )
-
-    def threshold(self, k_sigma: float = DEFAULT_K_SIGMA, logs: Sequence[str] = ()) -> Threshold:
-        """μ + kσ with the mean and standard deviation (the paper's)."""
-        return Threshold(k_sigma, self.mu, self.sigma, tuple(logs), self.n)
-
-
-def _weighted_median(values: FloatArray, counts: IntArray) -> float:
-    order = np.argsort(values, kind="stable")
-    cumulative = np.cumsum(counts[order])
-    at = int(np.searchsorted(cumulative, cumulative[-1] / 2.0))
-    return float(values[order][at])
 
 
 def check_threshold_choice(k_sigma: float | None, per_hour: float | None) -> None:
@@ -267,42 +188,93 @@ class NoiseRatio:
 
 @dataclass(frozen=True)
 class LogScores:
-    """What one validation log contributes to a threshold (the per-log step)."""
+    """What one validation log contributes to a threshold (the per-log step): each band's score
+    on its collision-free samples (``BandStats``: the slow band's first)."""
 
     source: str
-    stats: ScoreStats
+    bands: tuple[BandStats, ...]
     samples: int = 0  # every sample read (labelled ones too): what progress counts
-    excursions: Excursions | None = None
     noise: NoiseRatio = NoiseRatio()  # each joint's residual over the fit's noise
+    # the score itself (the bands combined as the calibration combines them now): what μ + iσ
+    # means in evaluate's metrics
+    combined: ScoreStats = field(default_factory=ScoreStats)
+
+    @property
+    def stats(self) -> ScoreStats:
+        """The slow band's (the calibration model's own) score statistics."""
+        return self.bands[0].stats
+
+    @property
+    def excursions(self) -> Excursions:
+        return self.bands[0].excursions
+
+
+class BandCounter:
+    """Each band's ``BandStats`` of scored frames, block by block: collision-free samples only,
+    and none within ``LABEL_MARGIN_S`` of a labelled one (``LabelMargin``; a sample waits for the
+    margin after it)."""
+
+    def __init__(self, period_s: float, bands: int) -> None:
+        self.period_s = period_s
+        self.margin = Derived(LabelMargin(period_s), "labels", "near_label")
+        self.counters = [ExcursionCounter(period_s) for _ in range(bands)]
+        self.stats = [ScoreStats() for _ in range(bands)]
+        self.combined = ScoreStats()
+
+    def push(
+        self, stamp_ns: IntArray, scores: Sequence[FloatArray], combined: FloatArray, labels: Any
+    ) -> None:
+        n = len(stamp_ns)
+        columns = {f"band{i}": s for i, s in enumerate(scores)} | {"combined": combined}
+        lab = np.zeros(n) if labels is None else np.asarray(labels, dtype=np.float64)
+        self._count(self.margin.push(Frame({"stamp_ns": stamp_ns, "labels": lab, **columns})))
+
+    def finish(self) -> tuple[BandStats, ...]:
+        self._count(self.margin.finish())
+        return tuple(
+            BandStats(st, c.excursions) for st, c in zip(self.stats, self.counters, strict=True)
+        )
+
+    def _count(self, frame: Frame) -> None:
+        if not frame.n:
+            return
+        usable = np.asarray(frame["near_label"], dtype=np.float64).reshape(-1) == 0
+        self.combined = self.combined + ScoreStats.from_scores(frame["combined"], usable)
+        for i, counter in enumerate(self.counters):
+            scores = frame[f"band{i}"]
+            self.stats[i] = self.stats[i] + ScoreStats.from_scores(scores, usable)
+            counter.push(scores, usable)
 
 
 def score_log(path: str | Path, calibration: Calibration, setup: Setup) -> LogScores:
-    """Stream one log into statistics of its calibrated score on collision-free samples, its
-    excursions and each joint's residual over the noise the fit left it (``setup``: the
-    calibration's way of reading logs, ``Setup.check_against``)."""
+    """Stream one log into each band's statistics of its score on collision-free samples and
+    their excursions (``BandCounter``), and each joint's residual over the noise the fit left it
+    (``setup``: the calibration's way of reading logs, ``Setup.check_against``)."""
     setup.check_against(calibration)
-    stats = ScoreStats()
     noise = NoiseRatio()
-    model = calibration.model
-    with setup.open(path, model=model) as stream:
-        peaks: ExcursionCounter | None = None
+    model, score = calibration.model, calibration.score
+    with setup.open(path, model=model, jump=score.jump) as stream:
+        counter: BandCounter | None = None
         for frame in stream:
-            peaks = peaks or ExcursionCounter(stream.period_s)
-            inputs = ModelInputs.of(
-                frame, stream.coulomb_eps, stream.regressor_mask, stream.features.theta
+            counter = counter or BandCounter(stream.period_s, score.bands)
+            velocity = np.asarray(frame["velocity"], dtype=np.float64)
+            residual = frame["residual"]
+            bands, _ = score.band_scores(
+                model,
+                residual,
+                velocity,
+                frame.get("residual_fast"),
+                frame.get("edge_factor"),
+                frame.get("fast_off"),
             )
-            # a grid's frames carry the prediction, made on its nodes (twincd.prepare.chain)
-            residual = model.residual(inputs, frame.get("predicted"))
-            velocity = inputs.velocity
-            speed = None if velocity is None else np.asarray(velocity, dtype=np.float64)
+            combined = score.combine(bands)
+            counter.push(frame["stamp_ns"], bands, combined, frame.get("labels"))
             judged = edge_scaled(residual, frame.get("edge_factor"))
-            scores = model.score(judged, speed)
             usable = clean_rows(frame.get("labels"), frame.n)
-            stats = stats + ScoreStats.from_scores(scores, usable)
-            noise = noise + NoiseRatio.from_residual(model.in_noise_units(judged, speed), usable)
-            peaks.push(scores, usable)
-    excursions = None if peaks is None else peaks.excursions
-    return LogScores(str(path), stats, stream.samples, excursions, noise)
+            noise = noise + NoiseRatio.from_residual(model.in_noise_units(judged, velocity), usable)
+        bands_stats = (BandStats(),) * score.bands if counter is None else counter.finish()
+        whole = ScoreStats() if counter is None else counter.combined
+    return LogScores(str(path), bands_stats, stream.samples, noise, whole)
 
 
 # threshold logs whose residual is this many times the noise the fit left it are refused: for
@@ -392,12 +364,16 @@ def threshold_from_parts(
     refuse: bool = True,
 ) -> Calibration:
     """The calibration with a threshold from per-log parts merged in any order: μ + kσ (mean
-    and standard deviation) when ``k_sigma`` is given; else the threshold of a false-alarm
-    budget (``false_alarms_per_hour``, by default ``DEFAULT_FALSE_ALARMS_PER_HOUR``) for a model
-    scored by the depth statistic (median and MAD, an exponential tail above the bulk:
-    ``budget_threshold``), or when a budget is asked for; else the paper's μ + 4σ (the affine
-    and unwhitened models). Logs that are not collision-free data the calibration fits
-    (``check_fit``) are refused (``refuse``; else said in a warning).
+    and standard deviation) of these logs when ``k_sigma`` is given (the paper's); else the
+    threshold of a false-alarm budget (``false_alarms_per_hour``, by default
+    ``DEFAULT_FALSE_ALARMS_PER_HOUR``) for a model scored by the depth statistic (median and
+    MAD, an exponential tail above the bulk: ``budget_threshold``), or when a budget is asked
+    for; else the paper's μ + 4σ (the affine and unwhitened models). A budget is set on every
+    clean sample there is: these logs' and the fit's own, each scored by a model fitted without
+    it (``FitInfo.clean``; files fitted before hold none: these logs alone, said once). A score
+    of two bands gives each band its share of the budget, and of μ + kσ its own μ and σ
+    (``twincd.calibration.score``: ``Score.levels``). Logs that are not collision-free data the
+    calibration fits (``check_fit``) are refused (``refuse``; else said in a warning).
 
     Robust μ and σ because a validation log may hold unlabelled contact: on the real arm's six
     rotations (threshold on one log, test on another) one with 23 s of it put the paper's
@@ -405,14 +381,18 @@ def threshold_from_parts(
     (120/169 found); the bulk's rate with the assumed tail does not see such contact
     (studies/choose_budget.py)."""
     parts = sorted(parts, key=lambda p: p.source)
-    total = ScoreStats()
-    excursions = Excursions()
+    score = calibration.score
+    bands = [BandStats() for _ in range(score.bands)]
     noise = NoiseRatio()
     for p in parts:
-        total = total + p.stats
+        if len(p.bands) != score.bands:
+            raise DataError(
+                f"{len(p.bands)} band(s) scored for a calibration of {score.bands}",
+                p.source,
+                "score the logs with this calibration",
+            )
+        bands = [mine + theirs for mine, theirs in zip(bands, p.bands, strict=True)]
         noise = noise + p.noise
-        if p.excursions is not None:
-            excursions = excursions + p.excursions
     seen = [p.source for p in parts]
     reused = sorted(set(seen) & set(calibration.fit.logs))
     if reused:
@@ -423,19 +403,39 @@ def threshold_from_parts(
             reused[0],
         )
     check_threshold_choice(k_sigma, false_alarms_per_hour)
-    check_fit(total, noise, calibration, seen, refuse)
-    if k_sigma is not None:
-        return replace(calibration, threshold=total.threshold(k_sigma, seen))
+    check_fit(bands[0].stats, noise, calibration, seen, refuse)
     depth = calibration.model.statistic == "depth"
-    if false_alarms_per_hour is None and not depth:
-        # the paper's model and its sum-of-squares scores: the paper's μ + 4σ
-        return replace(calibration, threshold=total.threshold(DEFAULT_K_SIGMA, seen))
+    if k_sigma is None and false_alarms_per_hour is None and not depth:
+        k_sigma = DEFAULT_K_SIGMA  # the paper's model and its sum-of-squares scores: μ + 4σ
+    if k_sigma is not None:
+        return _with_levels(calibration, [b.stats.threshold(k_sigma, seen) for b in bands])
     budget = (
         DEFAULT_FALSE_ALARMS_PER_HOUR if false_alarms_per_hour is None else false_alarms_per_hour
     )
+    fitted = calibration.fit.clean
+    if len(fitted) == len(bands):
+        bands = [mine + theirs for mine, theirs in zip(bands, fitted, strict=True)]
+    elif depth:  # a fit cross-fits the models scored by depth (twincd.calibration.crossfit)
+        log.warning(
+            "the calibration holds no scores of its fit's own logs (written by an earlier "
+            "twincd, or fitted without them): the threshold comes from these validation logs "
+            "alone; re-fit it for a threshold from all the clean data there is"
+        )
     clean = depth_noise_median(len(calibration.joint_names)) if depth else 0.0
-    threshold = budget_threshold(excursions, total, budget, seen, depth, clean)
-    return replace(calibration, threshold=threshold)
+    share = budget / len(bands)
+    per_band = [budget_threshold(b.excursions, b.stats, share, seen, depth, clean) for b in bands]
+    per_band[0] = replace(per_band[0], budget_per_hour=budget)
+    return _with_levels(calibration, per_band)
+
+
+def _with_levels(calibration: Calibration, per_band: Sequence[Threshold]) -> Calibration:
+    """The calibration judging at the slow band's threshold, and with several bands each
+    band's level (its median or mean, and its own threshold: ``Score.levels``)."""
+    score = calibration.score
+    if len(per_band) > 1:
+        levels = tuple(BandLevel(th.mu, th.value) for th in per_band)
+        score = replace(score, levels=levels)
+    return replace(calibration, threshold=per_band[0], score=score)
 
 
 def threshold_prepared_logs(
@@ -444,21 +444,23 @@ def threshold_prepared_logs(
     k_sigma: float | None = None,
     false_alarms_per_hour: float | None = None,
 ) -> Calibration:
-    """The threshold from logs already prepared in memory (as evaluate uses), by the rules of
-    ``threshold_from_parts``."""
+    """The threshold from logs already prepared in memory (a fit's filtered inputs, or prepared
+    for the calibration's model), by the rules of ``threshold_from_parts``."""
     parts = []
-    model = calibration.model
+    model, score = calibration.model, calibration.score
     for lg in logs:
-        inputs = model_inputs(lg)
-        residual = edge_scaled(model.residual(inputs), lg.edge_factor)
-        scores = model.score(residual, lg.states.velocity)
-        usable = clean_mask(lg)
+        velocity = lg.states.velocity
+        residual = lg.residual if lg.residual is not None else model.residual(model_inputs(lg))
+        bands, _ = score.band_scores(
+            model, residual, velocity, lg.residual_fast, lg.edge_factor, lg.fast_off
+        )
         period = lg.period_s or float(np.median(np.diff(lg.states.stamp_ns))) * 1e-9
-        peaks = ExcursionCounter(period)
-        peaks.push(scores, usable)
-        stats = ScoreStats.from_scores(scores, usable)
-        noise = NoiseRatio.from_residual(model.in_noise_units(residual, lg.states.velocity), usable)
-        parts.append(LogScores(lg.source, stats, len(lg), peaks.excursions, noise))
+        counter = BandCounter(period, score.bands)
+        counter.push(lg.states.stamp_ns, bands, score.combine(bands), lg.labels)
+        judged = edge_scaled(residual, lg.edge_factor)
+        noise = NoiseRatio.from_residual(model.in_noise_units(judged, velocity), clean_mask(lg))
+        stats = counter.finish()
+        parts.append(LogScores(lg.source, stats, len(lg), noise, counter.combined))
     # evaluate's thresholds: logs the calibration does not fit are said, and judged all the same
     return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour, refuse=False)
 

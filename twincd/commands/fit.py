@@ -4,7 +4,7 @@ filter that model fits best with, written with its report (both or neither)."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -53,6 +53,8 @@ def fit_calibration(
     to write; ``report``: a Markdown or HTML report, written first (both or neither). Neither may
     replace a file that is not twincd's own of its kind unless ``force``."""
     from twincd.calibration import fit_log, merge_fits
+    from twincd.calibration.crossfit import crossfit_calibration
+    from twincd.calibration.fitting import scored_by_depth
     from twincd.calibration.models import fit_features
     from twincd.commands.settings import fit_setup
     from twincd.executors.local import Bound, gathered_warnings
@@ -70,15 +72,26 @@ def fit_calibration(
         setup, model = fit_setup(setup_options(settings), model)
         setup = setup.for_logs(paths)  # a named option no log has: refused before any work
         figure = report_path is not None and report_path.suffix.lower() == ".html"
-        features = fit_features(model)
-        work: Bound[Path, Any] = Bound(fit_log, setup, (), features)
+        crossfit = scored_by_depth(model)  # its noise from a second pass (below)
+        features = replace(fit_features(model), speed_stats=not crossfit)
+        single = crossfit and len(paths) == 1  # cross-fitted by time folds
+        work: Bound[Path, Any] = Bound(fit_log, setup, (), features, single)
         if figure:
             from twincd.reports.traces import fit_log_with_pairs
 
-            work = Bound(fit_log_with_pairs, setup, features)
+            work = Bound(fit_log_with_pairs, setup, features, single)
         done = running.each(work, paths, "fitting")
         parts = [part for part, _ in done.results] if figure else done.results
         cal = merge_fits(parts, setup, model)
+        failures = list(done.failures)
+        if crossfit:
+
+            def each(func: Callable[[Path], Any], paths: Sequence[Path], what: str) -> list[Any]:
+                again = running.each(func, paths, what)
+                failures.extend(again.failures)
+                return list(again.results)
+
+            cal = crossfit_calibration(cal, parts, setup, each)
         with all_or_nothing() as written:  # the report, then the calibration: both or neither
             if report_path is not None:
                 from twincd.reports import ThinnedPairs, fit_report
@@ -98,4 +111,4 @@ def fit_calibration(
                 cal.fit.samples,
                 len(cal.fit.logs),
             )
-    return FitRun(calibration=cal, warnings=tuple(warnings), failures=tuple(done.failures))
+    return FitRun(calibration=cal, warnings=tuple(warnings), failures=tuple(failures))

@@ -138,14 +138,18 @@ def fit_setup(options: SetupOptions, model: str | None = None) -> tuple[Setup, s
     can be) filter without overshoot (``critical``) at ``DEFAULT_CRITICAL_CUTOFF_HZ``: their
     residual is at the noise floor, where a Butterworth filter's ringing around a push shows
     as alarms before and after it (``filter_kind_for``)."""
-    from twincd.calibration.fitting import filter_kind_for
+    from twincd.calibration.fitting import filter_kind_for, scored_by_depth
+    from twincd.signal.bands import FAST_CUTOFF_HZ
 
     if options.filter_kind is None:
         kind = filter_kind_for(model)
         options = replace(options, filter_kind=kind)
         if kind == "critical" and options.cutoff_hz is None and not options.causal:
             options = replace(options, cutoff_hz=DEFAULT_CRITICAL_CUTOFF_HZ)
-    return options.resolve(), model
+    setup = options.resolve()
+    if scored_by_depth(model):  # a strike's band too (twincd.signal.bands)
+        setup = replace(setup, fast_hz=FAST_CUTOFF_HZ)
+    return setup, model
 
 
 def _contradiction(option: str, given: str, recorded: object, calibration: Calibration) -> None:

@@ -4,10 +4,10 @@ alarms it gives on them counted as ``evaluate`` counts them."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from twincd.commands.runs import (
     CommandRun,
@@ -70,14 +70,10 @@ def threshold_calibration(
     default, and one that contradicts it is an error. ``output``: where to write the
     calibration (None: nowhere)."""
     from twincd.calibration import Calibration
-    from twincd.calibration.threshold import (
-        LogScores,
-        check_threshold_choice,
-        score_log,
-        threshold_from_parts,
-    )
-    from twincd.detection.files import AlarmTally, record_false_alarms, tally_false_alarms
+    from twincd.calibration.threshold import LogScores, check_threshold_choice, score_log
+    from twincd.detection.files import threshold_logs
     from twincd.executors.local import Bound, gathered_warnings
+    from twincd.executors.run import LogFailure
     from twincd.io.atomic import check_target
     from twincd.io.logs import expand_logs
 
@@ -92,18 +88,21 @@ def threshold_calibration(
         setup = setup_options(settings).resolve(cal).for_logs(paths)
         scoring: Bound[Path, LogScores] = Bound(score_log, cal, setup)
         done = running.each(scoring, paths, "scoring")
-        cal = threshold_from_parts(done.results, cal, k_sigma, false_alarms_per_hour)
-        # the false alarms the threshold gives on these logs: detect's events, counted as
-        # evaluate counts them (a second pass: the events need the threshold)
-        scored = [Path(p.source) for p in done.results]
-        counting: Bound[Path, AlarmTally] = Bound(tally_false_alarms, cal, setup)
-        tallied = running.each(counting, scored, "counting")
-        cal = record_false_alarms(cal, tallied.results)
+        counted: list[LogFailure] = []
+
+        def each(func: Callable[[Path], Any], logs: Sequence[Path], what: str) -> list[Any]:
+            again = running.each(func, logs, what)
+            counted.extend(again.failures)
+            return list(again.results)
+
+        # the threshold, and the false alarms it gives on these logs: detect's events, counted
+        # as evaluate counts them (a second pass: the events need the threshold)
+        cal = threshold_logs(done.results, cal, setup, each, k_sigma, false_alarms_per_hour)
         if target is not None:
             cal.save(target)
             log.info("wrote %s", target)
     # a log that failed in either pass is the run's failure (exit 2, --json's errors)
-    failures = (*done.failures, *tallied.failures)
+    failures = (*done.failures, *counted)
     return ThresholdRun(
         calibration=cal, written=target, warnings=tuple(warnings), failures=failures
     )

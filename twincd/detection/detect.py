@@ -14,8 +14,8 @@ import numpy as np
 from twincd.calibration.models import model_inputs
 from twincd.detection.events import Event, EventRules, EventTracker, LabelSpans, false_alarms
 from twincd.detection.isolation import isolator_for
+from twincd.errors import DataError
 from twincd.prepare.frames import Frame, FrameSink
-from twincd.signal.edges import edge_scaled
 from twincd.signal.features import ModelInputs
 from twincd.types import BoolArray, FloatArray
 
@@ -83,6 +83,7 @@ class ScoringStage:
         self.rules = EventRules() if rules is None else rules
         self.release = self.rules.release_level(threshold.value, threshold.mu)
         self.model = calibration.model
+        self.score = calibration.score
         eps = self.model.features.coulomb_eps if coulomb_eps is None else coulomb_eps
         self.coulomb_eps = tuple(float(e) for e in eps)
         isolator = isolator_for(calibration.links, calibration.depths, self.model.joint_scale)
@@ -94,17 +95,27 @@ class ScoringStage:
         self.regressor_theta: FloatArray | None = None
 
     def push(self, frame: Frame) -> tuple[Frame, list[Event]]:
-        """``frame`` (with ``effort_f``, ``sim_effort_f``, ``stamp_ns``, and ``velocity_f`` and
-        ``coulomb_f`` for friction models) plus ``predicted`` (the model's effort), ``residual``,
-        ``score`` and ``flag`` columns, and the events that closed in it."""
-        inputs = ModelInputs.of(frame, self.coulomb_eps, self.regressor_mask, self.regressor_theta)
-        # a grid's frames carry the prediction, made on its nodes (twincd.prepare.chain.build_chain)
-        predicted = frame["predicted"] if "predicted" in frame else self.model.predict(inputs)
-        r = self.model.residual(inputs, predicted)
+        """``frame`` plus ``predicted`` (the model's effort), ``residual``, ``score`` and ``flag``
+        columns, and the events that closed in it. ``frame``: the scoring chain's (its
+        ``residual`` in each band: ``twincd.prepare.chain.build_chain`` with a model), or a
+        fit's filtered inputs (``effort_f``, ``sim_effort_f``, … of the model's features: the
+        filter's band only)."""
+        if "residual" in frame:
+            r, predicted = frame["residual"], frame["predicted"]
+        else:
+            eps, mask, theta = self.coulomb_eps, self.regressor_mask, self.regressor_theta
+            inputs = ModelInputs.of(frame, eps, mask, theta)
+            predicted = self.model.predict(inputs)
+            r = self.model.residual(inputs, predicted)
         # the events weigh joints as the score does: by their noise at their speed, if known,
-        # and near a segment's end by the noise its filtering leaves there
-        scores, evidence = self.model.weigh(
-            edge_scaled(r, frame.get("edge_factor")), inputs.velocity
+        # near a segment's end by the noise its filtering leaves there, in the band that scored
+        scores, evidence = self.score.weigh(
+            self.model,
+            r,
+            frame.get("velocity"),
+            frame.get("residual_fast"),
+            frame.get("edge_factor"),
+            frame.get("fast_off"),
         )
         flags = scores >= self.threshold
         hold = scores >= self.release
@@ -149,11 +160,26 @@ def detect_log(
     log: PreparedLog, calibration: Calibration, rules: EventRules | None = None
 ) -> LogDetection:
     """Score and flag every sample of ``log`` with a calibration that has a threshold."""
+    if log.residual is None and calibration.score.fast is not None:
+        raise DataError(
+            "this log was prepared for a fit (its inputs filtered), and the calibration judges "
+            "a fast band too, which is scored from its model's residual",
+            log.source,
+            "prepare the log for the calibration's model: calibration.prepare(path)",
+        )
     stage = ScoringStage(calibration, log.joint_names, log.coulomb_eps, rules)
     stage.regressor_theta = log.features.theta
+    scored = {  # prepared for the model: its residual in each band
+        "residual": log.residual,
+        "predicted": log.predicted,
+        "residual_fast": log.residual_fast,
+        "fast_off": log.fast_off,
+        "velocity": log.states.velocity,
+    }
+    inputs = model_inputs(log).columns() if log.residual is None else scored
     frame = Frame(
         {
-            **model_inputs(log).columns(),
+            **inputs,
             "stamp_ns": log.states.stamp_ns,
             "edge_factor": log.edge_factor,
             "labels": log.labels,

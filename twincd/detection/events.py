@@ -71,11 +71,20 @@ def false_alarms(
     """The events that touch no labelled span (first and last labelled stamp, ns) widened by
     ``tolerance_ns`` both ways: the one definition of a false alarm (``evaluate``'s metrics,
     ``threshold``'s count on its own logs)."""
+    return len(false_alarm_events(events, labelled_ns, tolerance_ns))
+
+
+def false_alarm_events(
+    events: Sequence[Event],
+    labelled_ns: Sequence[tuple[int, int]],
+    tolerance_ns: int = EVENT_TOLERANCE_NS,
+) -> list[Event]:
+    """The events of ``false_alarms``: those that touch no labelled span."""
     if not labelled_ns:
-        return len(events)
+        return list(events)
     spans = np.asarray(labelled_ns, dtype=np.int64).reshape(-1, 2)
     starts, ends = spans[:, 0] - tolerance_ns, spans[:, 1] + tolerance_ns
-    return sum(not bool(np.any((starts <= e.end_ns) & (ends >= e.start_ns))) for e in events)
+    return [e for e in events if not bool(np.any((starts <= e.end_ns) & (ends >= e.start_ns)))]
 
 
 def allowed_false_alarms(per_hour: float, hours: float) -> int:

@@ -152,7 +152,8 @@ class OnlineDetector:
         the twin and the filter run on a coarse grid (``twincd.prepare.grid``), else 0."""
         from twincd.prepare.grid import grid_period_ns
 
-        grid = grid_period_ns(self.calibration.lowpass.cutoff_hz, self.period_s)
+        cal = self.calibration
+        grid = grid_period_ns(cal.lowpass.cutoff_hz, self.period_s, cal.fast_hz)
         return 0.0 if grid is None else grid * 1e-9
 
     @property
@@ -189,6 +190,8 @@ class OnlineDetector:
             regressor,
             self._threads,
             model=model,
+            fast_hz=self.calibration.fast_hz,
+            jump=self.calibration.score.jump,
         )
         self._scoring.regressor_mask = built.regressor_mask
         self._scoring.regressor_theta = model.features.theta

@@ -29,17 +29,17 @@ from typing import Any, TypeVar
 import numpy as np
 
 from twincd.calibration import Calibration, Threshold
+from twincd.calibration.clean import ScoreStats
 from twincd.calibration.models import EPSILON_GRID, MODEL_KINDS, model_class
 from twincd.calibration.threshold import (
     LogScores,
-    ScoreStats,
     same_rule,
     score_log,
-    threshold_from_parts,
 )
 from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
 from twincd.detection.detect import FlagCount
 from twincd.detection.events import EventRules
+from twincd.detection.files import threshold_logs
 from twincd.errors import DataError, UsageError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, available, make_method
 from twincd.evaluation.metrics import EventCounts, ScoredUnits, best_of, event_counts
@@ -377,10 +377,13 @@ def _skipped(name: str, unit: str, exc: MethodSkipped) -> MethodResult:
 
 def _plan(
     name: str, calibration: Calibration | None, train: bool, val: bool
-) -> tuple[ScoringMethod, bool]:
-    """The method to run and whether it is the calibration's own model (read from the file,
-    judged streamed); MethodSkipped when it cannot run with the logs and file given (whatever
-    the logs hold: ``check`` judges that once they are read)."""
+) -> tuple[ScoringMethod, str]:
+    """The method to run and how: ``"own"`` the calibration's own model (read from the file,
+    judged streamed), ``"fitted"`` a calibration model fitted on the training logs and
+    thresholded on the validation logs as ``fit`` and ``threshold -k`` make one (then judged
+    as its own), ``"whole"`` the others on whole prepared logs; MethodSkipped when it cannot
+    run with the logs and file given (whatever the logs hold: ``check`` judges that once they
+    are read)."""
     probe = make_method(name)
     # a calibrated method without training logs is the calibration's own model
     own = probe.calibrated and not train
@@ -393,12 +396,12 @@ def _plan(
                 f"the calibration holds the {calibration.model.kind} model, not "
                 f"{probe.model_kind}; give training and validation logs to fit it"
             )
-        return probe.from_calibration(calibration), True
+        return probe.from_calibration(calibration), "own"
     if probe.learns and not train:
         raise MethodSkipped("needs collision-free training logs")
     if not val:
         raise MethodSkipped("needs collision-free validation logs to set its threshold")
-    return probe, False
+    return probe, "fitted" if probe.calibrated else "whole"
 
 
 def _source(item: PreparedLog | JudgedLog | LogScores) -> str:
@@ -466,10 +469,11 @@ def _evaluate_own(
         parts = _by_source(run(scoring, val_paths, "val logs"))
         stats = ScoreStats()
         for part in parts:
-            stats = stats + part.stats
+            stats = stats + part.combined  # the score itself (its bands combined)
         mu, sigma = stats.mu, stats.sigma
         if own_rule:  # the calibration's own model on other validation logs: its rule there
-            judge = threshold_from_parts(parts, calibration, *same_rule(calibration))
+            k, budget = same_rule(calibration)
+            judge = threshold_logs(parts, calibration, setup, run, k, budget, refuse=False)
         sources.val = [part.source for part in parts]
     else:
         # μ + iσ of the metrics is the clean scores' mean and standard deviation, whatever
@@ -506,13 +510,55 @@ def _evaluate_own(
         if val_paths
         else f"the calibration's threshold, {threshold:.4g}"
     )
-    if own_rule and th.estimator != "mean-sd" and result.sigma:
-        # judged by the calibration's threshold rule, on other μ and σ: its k over the metrics'
+    other_scale = th.estimator != "mean-sd" or judge.score.bands > 1
+    if own_rule and other_scale and result.sigma:
+        # judged by the calibration's threshold rule, on other μ and σ (the median and MAD, or
+        # each band's own): its k over the metrics' (the score's mean and sd)
         result.k_sigma = ((result.threshold or 0.0) - (result.mu or 0.0)) / result.sigma
     sources.samples = sum(lg.samples for lg in tests)
     sources.positives = sum(lg.positives for lg in tests)
     sources.test = [lg.source for lg in tests]
     return result, sources
+
+
+def _fitted(
+    method: ScoringMethod,
+    setup: Setup,
+    train: Sequence[Path],
+    val: Sequence[Path],
+    k_sigma: float,
+    run: Mapper,
+) -> Calibration:
+    """The calibration a calibrated ``method`` (one of our models, or the paper's) makes of the
+    training logs, as ``fit --model`` makes it with this evaluation's filter (``fit_logs``: its
+    noise cross-fitted and its fast band for a model scored by depth), thresholded at μ + kσ of
+    the validation logs (each band's, ``threshold -k``): so ``evaluate -m KIND --train --val``
+    scores as ``evaluate -c`` with that calibration."""
+    from twincd.calibration.fitting import fit_logs, scored_by_depth
+    from twincd.signal.bands import FAST_CUTOFF_HZ
+
+    kind = method.model_kind
+    reading = replace(setup, fast_hz=FAST_CUTOFF_HZ if scored_by_depth(kind) else None)
+    try:
+        calibration = fit_logs(train, reading, kind, run)
+    except DataError as exc:  # the logs this method cannot fit on (no robot model, …)
+        raise MethodSkipped(str(exc)) from exc
+    scoring: Bound[Path, LogScores] = Bound(score_log, calibration, setup_for(calibration, setup))
+    parts = _by_source(run(scoring, val, "val logs"))
+    reading = setup_for(calibration, setup)
+    return threshold_logs(parts, calibration, reading, run, k_sigma, refuse=False)
+
+
+def setup_for(calibration: Calibration, setup: Setup) -> Setup:
+    """How a calibration fitted in this evaluation reads logs: its own settings (joints,
+    sampling period, bands, …), read with this evaluation's options."""
+    return replace(
+        Setup.from_calibration(calibration),
+        options=setup.options,
+        strict=setup.strict,
+        allow_urdf_change=setup.allow_urdf_change,
+        twin_threads=setup.twin_threads,
+    )
 
 
 @dataclass
@@ -738,11 +784,26 @@ def evaluate(
     tested: _Sources | None = None
     for name in methods:
         try:
-            method, own = _plan(name, calibration, bool(train), bool(val))
-            if own:
+            method, how = _plan(name, calibration, bool(train), bool(val))
+            if how == "own":
                 assert calibration is not None
                 args = (calibration, setup, tests, val, k_sigma, own_rule, link_topic, run)
                 results[name], tested = _evaluate_own(name, method, *args)
+            elif how == "fitted":
+                fitted = _fitted(method, setup, train, val, k_sigma, run)
+                args = (
+                    fitted,
+                    setup_for(fitted, setup),
+                    tests,
+                    val,
+                    k_sigma,
+                    True,
+                    link_topic,
+                    run,
+                )
+                results[name], own_tested = _evaluate_own(name, method, *args)
+                results[name].judged_at = f"μ + {k_sigma:g}σ of the validation logs"
+                tested = tested or replace(own_tested, train=[str(p) for p in train])
             else:
                 whole[name] = method
         except MethodSkipped as exc:

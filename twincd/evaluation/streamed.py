@@ -99,7 +99,7 @@ def judge_log(
     positives = 0
     labelled = False
     score_s = 0.0
-    with setup.open(path, model=stage.model) as stream:
+    with setup.open(path, model=stage.model, jump=stage.score.jump) as stream:
         for frame in stream:
             stage.regressor_mask = stream.regressor_mask
             stage.regressor_theta = stream.features.theta

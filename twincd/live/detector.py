@@ -73,9 +73,10 @@ class LiveDetector:
         """What the first push would import and compute (the filter's edge factors, its
         delay; a few hundred ms), done before the session starts instead of on the first
         sample's time."""
+        from twincd.signal.bands import slow_band
         from twincd.signal.edges import edge_profile
 
-        edge_profile(((1, self.calibration.lowpass),), self._detector.period_s)
+        edge_profile(slow_band(self.calibration.lowpass), self._detector.period_s)
         self.filter_delay_s = float(self._detector.latency_s)  # the causal filter's group delay
 
     @property

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING
 
@@ -261,20 +261,29 @@ def filter_stages(
         Mapped(stack),
         Derived(StreamingLowPass(lowpass, period_s, warmup=warmup), "both", "both_f", keep=False),
         Mapped(split),
-        *(() if on_grid else edge_stages(lowpass, period_s, warmup=warmup)),
+        *(() if on_grid else edge_stages(lowpass, period_s, None, warmup)),
     ]
 
 
 def edge_stages(
-    lowpass: LowPass, period_s: float, run_period_s: float | None = None, warmup: int = 0
+    lowpass: LowPass,
+    period_s: float,
+    run_period_s: float | None = None,
+    warmup: int = 0,
+    fast: LowPass | None = None,
 ) -> list[Stage]:
-    """An ``edge_factor`` column, (N, 1): each sample's edge factor (``twincd.signal.edges``) for
-    ``lowpass`` run every ``run_period_s`` (a coarse grid's period; default the samples') after
-    ``warmup`` of them, by its time from its segment's ends."""
+    """An ``edge_factor`` column, (N, bands): each sample's edge factor
+    (``twincd.signal.edges``) for ``lowpass`` and, with a ``fast`` upper filter, for the band
+    between them, run every ``run_period_s`` (a coarse grid's period; default the samples')
+    after ``warmup`` of them, by its time from its segment's ends."""
+    from twincd.signal.bands import Band, slow_band
     from twincd.signal.edges import EdgeFactors, edge_profile
 
-    profile = edge_profile(((1, lowpass),), run_period_s or period_s, warmup)
-    return [Derived(EdgeFactors([profile], period_s), "stamp_ns", "edge_factor")]
+    run = run_period_s or period_s
+    profiles = [edge_profile(slow_band(lowpass), run, warmup)]
+    if fast is not None:
+        profiles.append(edge_profile(Band("fast", fast, lowpass), run, warmup))
+    return [Derived(EdgeFactors(profiles, period_s), "stamp_ns", "edge_factor")]
 
 
 def warmup_samples(causal: bool, fill_velocity: bool) -> int:
@@ -387,6 +396,9 @@ def build_chain(
     filtered: bool = True,
     nodes: bool = False,
     model: FittedModel | None = None,
+    *,
+    fast_hz: float | None = None,
+    jump: FloatArray | None = None,
 ) -> BuiltChain:
     """The one chain for ``lowpass`` (zero-phase or causal) and a model's ``features`` (the
     friction models' ε, the identified models' θ: ``FittedModel.features`` of a fitted
@@ -396,15 +408,20 @@ def build_chain(
     joints in the output order, and with ``filtered`` low-pass filter (``filtered=False`` stops
     after the twin: what ``simulate`` writes).
 
-    Where the log is sampled far faster than the filter keeps
-    (``twincd.prepare.grid.grid_period_ns``: a 1 kHz log), the twin and the filter run on a coarse
-    grid's cell means and come back on the samples by interpolation
-    (``twincd.prepare.grid.GridStage``). What comes back on the samples: every filtered column by
-    default (what a ``PreparedLog`` holds); with ``nodes``, all but the regressor's hundreds of
-    entries, the grid keeping its filtered nodes for ``fit`` (``BuiltChain.grid.take_nodes``); with
-    a fitted ``model`` (scoring), its prediction ``predicted``, computed on the nodes (every model
-    is linear in its filtered inputs, so it commutes with the interpolation), with ``effort_f`` and
-    ``sim_effort_f`` only."""
+    Fitting (no ``model``): every input the features name through the filter (what a
+    ``PreparedLog`` holds; ``fit`` sums them). Scoring (a fitted ``model``): its residual of
+    the raw samples through each band's filter (``scoring_stages``): ``effort_f``,
+    ``residual`` and ``predicted`` (= ``effort_f`` − ``residual``) in the filter's band and, with
+    a fast band up to ``fast_hz`` (``twincd.signal.bands``), ``residual_fast``; ``edge_factor``
+    (N, bands); with a ``jump`` threshold (the score's), ``fast_off`` where the fast band is
+    not judged.
+
+    Where the log is sampled far faster than the filters keep
+    (``twincd.prepare.grid.grid_period_ns``: a 1 kHz log), the twin and the filters run on a
+    coarse grid's cell means and come back on the samples by interpolation
+    (``twincd.prepare.grid.GridStage``); with ``nodes`` (fit) the grid keeps its filtered nodes
+    (``BuiltChain.grid.take_nodes``) and the samples come back without the regressor's hundreds
+    of entries."""
     causal = lowpass.causal
     mask = None
     if filtered and regressor is not None:
@@ -413,18 +430,26 @@ def build_chain(
         assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
         mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
     theta = None if mask is None else features.theta
-    grid = grid_period_ns(lowpass.cutoff_hz, period_s) if filtered else None
+    fast = None if fast_hz is None else _fast_high(lowpass, fast_hz, period_s)
+    scoring = filtered and model is not None and not nodes
+    warmup = warmup_samples(causal, fill_velocity)  # on a grid: as many nodes as samples
+    grid = (
+        grid_period_ns(lowpass.cutoff_hz, period_s, None if fast is None else fast.cutoff_hz)
+        if filtered
+        else None
+    )
     if grid is not None:
-        models = (twin, regressor, None if nodes else model)
-        warmup = warmup_samples(causal, fill_velocity)  # in nodes: as many as samples
+        models = (twin, regressor, model if scoring else None)
         stage = _grid_stage(
-            lowpass, features, layout, grid, period_s, models, threads, nodes, warmup
+            lowpass, features, layout, grid, period_s, models, threads, nodes, warmup, fast
         )
+        run = grid * 1e-9
         stages: list[Stage] = [
             pick_columns(layout.to_twin),
             *twin_stages(None, period_s, causal, fill_velocity),  # the velocity, if missing
             pick_columns(layout.to_output),
-            *edge_stages(lowpass, period_s, grid * 1e-9, warmup),
+            *edge_stages(lowpass, period_s, run, warmup, fast if scoring else None),
+            *(jump_stages(jump, fast, period_s) if scoring else ()),
             stage,
         ]
         return BuiltChain(Chain(stages), layout, period_s, mask, stage)
@@ -433,10 +458,26 @@ def build_chain(
         *twin_stages(twin, period_s, causal, fill_velocity, threads, regressor),
         pick_columns(layout.to_output),
     ]
-    if filtered:
-        warmup = warmup_samples(causal, fill_velocity)
+    if scoring:
+        assert model is not None
+        stages += [
+            _raw_residual(model, features.coulomb_eps, mask, theta, None),
+            *_band_stages(lowpass, fast, period_s, warmup),
+            *edge_stages(lowpass, period_s, None, warmup, fast),
+            *jump_stages(jump, fast, period_s),
+        ]
+    elif filtered:
         stages += filter_stages(lowpass, period_s, features.coulomb_eps, mask, theta, False, warmup)
     return BuiltChain(Chain(stages), layout, period_s, mask)
+
+
+def _fast_high(lowpass: LowPass, fast_hz: float, period_s: float) -> LowPass | None:
+    """The fast band's upper filter, at ``fast_hz`` as far as the sampling rate allows (None:
+    it has no room for one, ``twincd.signal.bands.fast_band_at``)."""
+    from twincd.signal.bands import fast_band_at
+
+    band = fast_band_at(lowpass, fast_hz, period_s)
+    return None if band is None else band.high
 
 
 def _grid_stage(
@@ -449,11 +490,12 @@ def _grid_stage(
     threads: int | None,
     nodes: bool,
     warmup: int = 0,
+    fast: LowPass | None = None,
 ) -> GridStage:
     """The grid's stage: on its nodes (joints in the output order) the twin's and the filter's
-    stages as ``build_chain`` runs them per sample, at the grid's period, then the fitted
-    model's prediction when there is one (``models``: the twin's robot model, the regressor's
-    and the fitted model, as ``build_chain`` takes them)."""
+    stages as ``build_chain`` runs them per sample, at the grid's period: fitting, every
+    filtered input; scoring (``models``: the twin's robot model, the regressor's and the fitted
+    model, as ``build_chain`` takes them), the model's residual in each band."""
     from twincd.twin.dynamics import regressor_mask
 
     twin, regressor, model = models
@@ -462,20 +504,23 @@ def _grid_stage(
     mask = None if regressor is None else regressor_mask(regressor)[layout.to_output]
     theta = None if mask is None else features.theta
     # a fitted model reads one Coulomb feature per joint, at the joint's own ε: only those are
-    # averaged and filtered, and set among the others (zeros) before the model reads them
+    # averaged, and set among the others (zeros) before the model reads them
     own = None if model is None else joint_epsilon(model, eps, len(layout.output))
     node_stages: list[Stage] = [
         pick_columns(np.argsort(layout.to_output).astype(np.intp)),  # output → twin order
         # one thread: a few hundred nodes a call, and the reader's thread has the other core
         *twin_stages(twin, step, lowpass.causal, False, 1, regressor, on_grid=True),
         pick_columns(layout.to_output),
-        *filter_stages(lowpass, step, eps if own is None else eps[:1], mask, theta, True, warmup),
     ]
-    interpolate = ["effort_f", "sim_effort_f"]
     if model is not None:
-        node_stages.append(_predicting(model, eps, mask, theta, own))
-        interpolate.append("predicted")
+        node_stages += [
+            _raw_residual(model, eps, mask, theta, own, on_grid=True),
+            *_band_stages(lowpass, fast, step, warmup),
+        ]
+        interpolate = ["effort_f", "residual", "predicted", "residual_fast"]
     else:
+        node_stages += filter_stages(lowpass, step, eps, mask, theta, True, warmup)
+        interpolate = ["effort_f", "sim_effort_f"]
         if eps:
             interpolate += ["velocity_f", "coulomb_f"]
         if mask is not None and theta is not None:
@@ -497,27 +542,119 @@ def _grid_stage(
     )
 
 
-def _predicting(
+def _raw_residual(
     model: FittedModel,
     eps: tuple[float, ...],
     mask: BoolArray | None,
     theta: FloatArray | None,
     own: FloatArray | None,
+    on_grid: bool = False,
 ) -> Mapped:
-    """The fitted model's prediction (``predicted``) of filtered frames (``theta``: the θ of
-    their Ỹθ); ``own``: the frames carry one Coulomb feature per joint, at its ε, set into
-    ``eps``' features for the model."""
+    """``residual_raw``: the measured effort minus the fitted model's prediction of the raw
+    (unfiltered) samples, τ − f(τ̂, q̇, tanh(q̇/ε), Yθ). Every model is linear in its inputs
+    and every band is a linear filter, so a band's residual is this through the band: what the
+    model predicts of inputs filtered alike (``fit``'s), to rounding, for a third of the
+    columns filtered. ``theta``: the θ of the frames' Yθ (None: the model reads the regressor's
+    masked entries, ``regressor_f``, e.g. the cross-fit's models of several θ); ``own``: the
+    frames carry one Coulomb feature per joint at its ε (a grid's cell means, ``coulomb``),
+    set among ``eps``' others (zeros) for the model."""
     at = None if own is None else [eps.index(float(e)) for e in own]
 
-    def predict(frame: Frame) -> Frame:
-        inputs = ModelInputs.of(frame, eps, mask, theta)
-        if at is not None:
-            coulomb = np.zeros((frame.n, len(eps), len(at)))
-            coulomb[:, at, np.arange(len(at))] = frame["coulomb_f"][:, 0, :]
-            inputs = replace(inputs, coulomb_f=coulomb)
-        return frame.with_columns(predicted=model.predict(inputs))
+    def residual(frame: Frame) -> Frame:
+        velocity = np.asarray(frame["velocity"], dtype=np.float64)
+        coulomb = frame.get("coulomb")  # a grid's cell means of tanh(q̇/ε)
+        if at is not None and coulomb is not None:
+            spread = np.zeros((frame.n, len(eps), len(at)))
+            spread[:, at, np.arange(len(at))] = coulomb[:, 0, :]
+            coulomb = spread
+        elif eps and coulomb is None:
+            coulomb = np.stack([np.tanh(velocity / e) for e in eps], axis=1)
+        inputs = ModelInputs(
+            sim_effort_f=np.asarray(frame["sim_effort"], dtype=np.float64),
+            effort_f=np.asarray(frame["effort"], dtype=np.float64),
+            velocity_f=velocity,
+            coulomb_f=coulomb,
+            coulomb_eps=eps,
+            regressor_mask=mask,
+            regressor_theta=theta,
+            stamp_ns=frame.get("stamp_ns"),
+            **_regressor_inputs(frame.get("regressor"), mask, theta, on_grid),
+        )
+        raw = inputs.measured - model.predict(inputs)
+        rest = {k: v for k, v in frame.items() if k not in ("regressor", "coulomb")}
+        return Frame(rest, frame.n).with_columns(residual_raw=raw)
 
-    return Mapped(predict)
+    return Mapped(residual)
+
+
+def _regressor_inputs(
+    regressor: FloatArray | None, mask: BoolArray | None, theta: FloatArray | None, on_grid: bool
+) -> dict[str, FloatArray | None]:
+    """A model's raw regressor inputs: Yθ per joint with the model's θ (summed in a fixed order
+    per sample, as ``filter_stages``), else the regressor's masked entries."""
+    if regressor is None or mask is None:
+        return {}
+    from twincd.twin.dynamics import inertial_effort, regressor_effort
+
+    if theta is not None:
+        effort = (
+            inertial_effort(regressor, theta)
+            if on_grid
+            else regressor_effort(regressor[:, mask], theta, mask)
+        )
+        return {"regressor_effort_f": effort}
+    return {"regressor_f": regressor[:, mask]}
+
+
+def _band_stages(
+    lowpass: LowPass, fast: LowPass | None, period_s: float, warmup: int
+) -> list[Stage]:
+    """``effort_f``, ``residual`` and ``predicted`` in the filter's band (measured effort and
+    ``residual_raw`` through it in one pass), and with a ``fast`` upper filter the fast band's
+    ``residual_fast``: what the slow band leaves of ``residual_raw`` through it
+    (``twincd.signal.bands.Band.apply``)."""
+    from twincd.signal.filters import StreamingLowPass
+
+    def stack(frame: Frame) -> Frame:
+        both = np.hstack([frame["effort"], frame["residual_raw"]])
+        return frame.with_columns(both=both)
+
+    def split(frame: Frame) -> Frame:
+        both = frame["both_f"]
+        d = both.shape[1] // 2
+        rest = {k: v for k, v in frame.items() if k != "both_f"}
+        if fast is None:
+            rest.pop("residual_raw", None)
+        effort_f, residual = both[:, :d], both[:, d:]
+        return Frame(rest, frame.n).with_columns(
+            effort_f=effort_f, residual=residual, predicted=effort_f - residual
+        )
+
+    stages: list[Stage] = [
+        Mapped(stack),
+        Derived(StreamingLowPass(lowpass, period_s, warmup=warmup), "both", "both_f", keep=False),
+        Mapped(split),
+    ]
+    if fast is not None:
+
+        def left(frame: Frame) -> Frame:
+            rest = {k: v for k, v in frame.items() if k != "residual_raw"}
+            return Frame(rest, frame.n).with_columns(left=frame["residual_raw"] - frame["residual"])
+
+        high = StreamingLowPass(fast, period_s, warmup=warmup)
+        stages += [Mapped(left), Derived(high, "left", "residual_fast", keep=False)]
+    return stages
+
+
+def jump_stages(jump: FloatArray | None, fast: LowPass | None, period_s: float) -> list[Stage]:
+    """``fast_off``: samples near a jump of the logged velocity (a one-period change of some
+    joint's above ``jump``, ``twincd.calibration.score``), where the fast band is not judged;
+    none without a fast band or a jump threshold."""
+    if jump is None or fast is None:
+        return []
+    from twincd.signal.bands import JumpMask
+
+    return [Derived(JumpMask(jump, fast, period_s), "velocity", "fast_off")]
 
 
 def joint_epsilon(model: FittedModel, eps: Sequence[float], joints: int) -> FloatArray | None:

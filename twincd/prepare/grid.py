@@ -18,8 +18,8 @@ filter would run on every sample. ``GridStage`` runs them on cells instead:
    the averaging, the noise folded in lands where a derivative is small), τ̂ = RNEA, the
    regressor, then the same low-pass filter designed for the grid's period.
 4. Back on the samples: every filtered column linearly interpolated between the nodes around
-   each sample's stamp (zero-phase; a segment's first and last samples extrapolated from its
-   first or last two nodes), or, causal, between the node of its cell and the one before
+   each sample's stamp (zero-phase; a segment's samples before its first node or after its
+   last hold that node), or, causal, between the node of its cell and the one before
    (extrapolated by less than a cell past the node's stamp; a segment's first cell held at its
    node), so that a sample waits for its own cell to end and never longer: a causal chain or a
    live detector holds a sample at most one grid period.
@@ -45,12 +45,22 @@ from twincd.prepare.frames import Chain, Frame
 from twincd.signal.stream import DEFAULT_GAP_FACTOR, Segmenter
 from twincd.types import FloatArray, IntArray
 
-__all__ = ["GRID_MIN_PERIODS", "GRID_OVERSAMPLING", "GridStage", "grid_period_ns"]
+__all__ = [
+    "FAST_OVERSAMPLING",
+    "GRID_MIN_PERIODS",
+    "GRID_OVERSAMPLING",
+    "GridStage",
+    "grid_period_ns",
+]
 
 # the grid's rate in multiples of the filter's cut-off: 96 Hz under 1.5 Hz, where the nodes'
 # interpolation and the grid's filter differ from the per-sample filter by ~1 % of the
 # identified model's residual noise (docs/models-and-results.md)
 GRID_OVERSAMPLING = 64
+# with a fast band (twincd.signal.bands), at least this many nodes per period of its upper
+# cut-off: 100 Hz nodes under 10 Hz, the rate the fast band was chosen at on 100 Hz arms (at
+# 1 kHz under 1.5 Hz, the slow band's grid already: 10 ms)
+FAST_OVERSAMPLING = 10
 # the grid is used only when a cell holds at least this many sample periods: a 100 Hz log
 # under any cut-off above 0.39 Hz is filtered sample by sample, bit for bit as before
 GRID_MIN_PERIODS = 4
@@ -58,13 +68,18 @@ GRID_MIN_PERIODS = 4
 _AVERAGED = ("position", "velocity", "effort")
 
 
-def grid_period_ns(cutoff_hz: float, period_s: float) -> int | None:
+def grid_period_ns(cutoff_hz: float, period_s: float, fast_hz: float | None = None) -> int | None:
     """The grid's period in ns for a low-pass ``cutoff_hz`` on samples every ``period_s``: a
-    whole number of sample periods, the most that stays at or below 1/(64 × cut-off); None when
-    that is fewer than ``GRID_MIN_PERIODS`` (the filter then runs on every sample)."""
+    whole number of sample periods, the most that stays at or below 1/(64 × cut-off) and, with
+    a fast band up to ``fast_hz`` (``twincd.signal.bands``), at or below 1/(``FAST_OVERSAMPLING``
+    × ``fast_hz``): the grid follows the fastest band. None when that is fewer than
+    ``GRID_MIN_PERIODS`` (the filters then run on every sample)."""
     if not (period_s > 0 and cutoff_hz > 0):
         return None
-    periods = math.floor(1.0 / (GRID_OVERSAMPLING * cutoff_hz * period_s) + 1e-9)
+    longest = 1.0 / (GRID_OVERSAMPLING * cutoff_hz)
+    if fast_hz:
+        longest = min(longest, 1.0 / (FAST_OVERSAMPLING * fast_hz))
+    periods = math.floor(longest / period_s + 1e-9)
     if periods < GRID_MIN_PERIODS:
         return None
     return round(periods * period_s * 1e9)
@@ -136,6 +151,17 @@ class _Pending:
             return k + int(np.searchsorted(nodes, serial, side="right"))
         return k
 
+    def relabel(self, serial: int, to: int) -> None:
+        """The rows of node ``serial`` (the newest) counted at node ``to`` instead."""
+        for i in range(len(self.frames) - 1, -1, -1):
+            frame = self.frames[i]
+            nodes = np.asarray(frame["node"], dtype=np.int64)
+            if nodes[-1] != serial:
+                return
+            self.frames[i] = frame.with_columns(node=np.where(nodes == serial, to, nodes))
+            if nodes[0] != serial:
+                return
+
     def take(self, k: int) -> Frame:
         parts: list[Frame] = []
         while k > 0:
@@ -191,8 +217,10 @@ class GridStage:
         self.joint_eps = None if joint_eps is None else np.asarray(joint_eps, dtype=np.float64)
         self.keep_nodes = keep_nodes
         self._segmenter = Segmenter(period_s, gap_factor)
+        self._sample_ns = period_s * 1e9
         self._pending = _Pending()
         self._serial = 0  # serial of the next node
+        self._first = 0  # serial of the segment's first node
         self._open: _Cell | None = None  # the last cell of the segment, still filling
         self._done: Frame = Frame()  # filtered nodes of this segment still needed
         self._kept: list[Frame] = []
@@ -238,6 +266,8 @@ class GridStage:
         t = np.asarray(piece["stamp_ns"], dtype=np.int64)
         cell = t // self.grid_ns
         open_ = self._open
+        if open_ is None:
+            self._first = self._serial
         new = np.empty(len(t), dtype=bool)
         new[0] = open_ is None or int(cell[0]) != open_.cell
         new[1:] = cell[1:] != cell[:-1]
@@ -264,7 +294,13 @@ class GridStage:
 
     def _end_segment(self) -> Frame:
         open_ = self._open
-        if open_ is not None:
+        if open_ is not None and self._short_tail(open_):
+            # zero-phase, a last cell of a few samples is no node: its mean stamp sits closer
+            # to the one before than the grid's period, and the derivative on that uneven
+            # spacing turns its samples' noise into q̈ error (0.4 of a joint's clean spread at
+            # 1 kHz); its samples hold the node before instead
+            self._pending.relabel(self._serial - 1, self._serial - 2)
+        elif open_ is not None:
             counts, first = np.array([open_.count]), np.array([open_.first], dtype=np.int64)
             offsets = np.array([open_.offsets], dtype=np.int64)
             self._feed(self._node_frame(open_.sums[None], counts, first, offsets, self._serial - 1))
@@ -273,6 +309,12 @@ class GridStage:
         self._open = None
         self._done = Frame()
         return out
+
+    def _short_tail(self, open_: _Cell) -> bool:
+        """Whether the segment's open last cell holds under half a cell's samples (and a node
+        before it), zero-phase."""
+        half = 0.5 * self.grid_ns / self._sample_ns
+        return not self.causal and open_.count < half and self._serial - 1 > self._first
 
     def _values(self, frame: Frame) -> FloatArray:
         """The per-sample values the nodes average, side by side."""
@@ -396,4 +438,9 @@ class GridStage:
         weight = np.divide(
             (t - times[lo]).astype(np.float64), span, out=np.zeros(len(t)), where=span > 0
         )
+        if not self.causal:
+            # a segment's samples before its first node's stamp or after its last one's hold
+            # that node: extrapolated, a band's end error (the fast band's, up to 10 Hz) grew
+            # past what its edge factor allows for
+            weight = np.clip(weight, 0.0, 1.0)
         return lo, hi, weight

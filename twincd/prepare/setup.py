@@ -17,6 +17,7 @@ interval longer than 5 periods; stages restart after it.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import re
 from collections.abc import Iterable, Iterator, Sequence
@@ -77,16 +78,21 @@ SHORT_FACTOR = 1.5
 
 @dataclass(frozen=True)
 class PreparedLog:
-    """One whole log ready for scoring: raw and filtered efforts in ``joint_names`` order.
+    """One whole log ready for fitting or scoring: raw and filtered efforts in ``joint_names``
+    order.
 
-    ``effort_f`` is the paper's τ̃ and ``sim_effort_f`` its τ̂̃. ``robot`` is None when the
-    twin's effort came from the log itself and no model was asked for.
+    ``effort_f`` is the paper's τ̃ and ``sim_effort_f`` its τ̂̃ (prepared for a fit: every input
+    of the features through the filter). Prepared for a fitted model (scoring) it carries the
+    model's residual in each band instead (``residual``, ``residual_fast``, ``predicted``,
+    ``fast_off``: ``twincd.prepare.chain.build_chain``), and no ``sim_effort_f``. ``robot`` is
+    None when the twin's effort came from the log itself and no model was asked for.
     """
 
     states: JointStates  # restricted to joint_names
-    sim_effort: FloatArray
+    # τ̂ of every sample (None: prepared for scoring on a coarse grid, which has it on its nodes)
+    sim_effort: FloatArray | None
     effort_f: FloatArray
-    sim_effort_f: FloatArray
+    sim_effort_f: FloatArray | None
     robot: RobotModel | None
     simulated: bool  # False: the log carried /twincd/sim_effort
     # the filter behind effort_f: methods that filter other inputs do it alike
@@ -105,6 +111,12 @@ class PreparedLog:
     # (N, bands) each sample's edge factor: the noise of its filtered values over the segment's
     # middle (``twincd.signal.edges``; None: unfiltered)
     edge_factor: FloatArray | None = None
+    # prepared for a fitted model: its residual in the filter's band and in the fast band, its
+    # prediction (τ̃ − residual) and where the fast band is not judged (a velocity jump)
+    residual: FloatArray | None = None
+    residual_fast: FloatArray | None = None
+    predicted: FloatArray | None = None
+    fast_off: FloatArray | None = None
 
     @property
     def source(self) -> str:
@@ -126,6 +138,19 @@ class PreparedLog:
     def effort(self) -> FloatArray:
         assert self.states.effort is not None  # prepare() refuses logs without effort
         return self.states.effort
+
+    @property
+    def twin_f(self) -> FloatArray:
+        """τ̂̃, the twin's filtered effort (a log prepared with a fit's features; a
+        ``DataError`` for one prepared for scoring, which holds its model's residual)."""
+        if self.sim_effort_f is None:
+            raise DataError(
+                "this log was prepared for scoring: it holds its model's residual, not the "
+                "filtered twin effort",
+                self.source,
+                "prepare it with the features to fit (Setup.prepare(path, features))",
+            )
+        return self.sim_effort_f
 
     def __len__(self) -> int:
         return len(self.states)
@@ -159,15 +184,15 @@ class PreparedStream:
 
     ``filtered=False`` stops after the twin (what ``simulate`` writes); ``need_effort=False``
     accepts logs without measured effort. ``features``: what the chain computes for a model
-    (``twincd.signal.features.ModelFeatures``: a fit's); with a fitted ``model``, its own
-    (``FittedModel.features``), never another's.
+    (``twincd.signal.features.ModelFeatures``: a fit's: every input filtered); with a fitted
+    ``model`` (scoring), its residual in each band instead (``residual``, ``residual_fast``
+    with the setup's fast band, ``predicted``, ``edge_factor``, and ``fast_off`` near a jump of
+    the velocity above ``jump``: ``twincd.prepare.chain.build_chain``).
 
     On logs sampled far faster than the filter keeps, the twin and the filter run on a coarse
     grid (``twincd.prepare.grid``; ``grid`` is then its stage): ``nodes=True`` keeps its filtered
     nodes (``take_nodes``) for ``fit``, and the frames then carry each sample's ``node`` instead of
-    the regressor's entries; with a fitted ``model`` (scoring) the frames carry its prediction
-    ``predicted`` and of the filtered columns only ``effort_f`` and ``sim_effort_f``
-    (``twincd.prepare.chain.build_chain``). Without a grid both change nothing.
+    the regressor's entries.
     """
 
     def __init__(
@@ -180,6 +205,7 @@ class PreparedStream:
         nodes: bool = False,
         model: FittedModel | None = None,
         features: ModelFeatures | None = None,
+        jump: FloatArray | None = None,
     ) -> None:
         if model is not None and features is not None:
             raise UsageError(
@@ -210,6 +236,7 @@ class PreparedStream:
         self.near_ends = 0  # samples whose filtered values are ≥ SHORT_FACTOR× the middle's noise
         self.nodes = nodes
         self.model = model
+        self.jump = jump  # a score's jump threshold: the fast band is not judged around one
         self.grid: GridStage | None = None  # the coarse grid's stage, when there is one
         self._log: LogStream | None = None
 
@@ -295,6 +322,8 @@ class PreparedStream:
             self.filtered,
             self.nodes,
             self.model,
+            fast_hz=setup.fast_hz,
+            jump=self.jump,
         )
         self.regressor_mask = built.regressor_mask
         self.grid = built.grid
@@ -470,9 +499,9 @@ class PreparedStream:
         )
         return PreparedLog(
             states=states,
-            sim_effort=whole["sim_effort"],
+            sim_effort=whole.get("sim_effort"),
             effort_f=whole["effort_f"],
-            sim_effort_f=whole["sim_effort_f"],
+            sim_effort_f=whole.get("sim_effort_f"),
             velocity_f=whole.get("velocity_f"),
             coulomb_f=whole.get("coulomb_f"),
             features=self.features,
@@ -483,16 +512,33 @@ class PreparedStream:
             lowpass=self.setup.lowpass,
             period_s=self.period_s,
             edge_factor=whole.get("edge_factor"),
+            residual=whole.get("residual"),
+            residual_fast=whole.get("residual_fast"),
+            predicted=whole.get("predicted"),
+            fast_off=whole.get("fast_off"),
         )
+
+
+@contextlib.contextmanager
+def said_already() -> Iterator[None]:
+    """Warnings off: a second pass over logs whose warnings the first pass gave (``threshold``
+    counting its false alarms, ``fit`` cross-fitting)."""
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
 
 
 def edges_s(lowpass: LowPass, period_s: float) -> float:
     """How far from a segment's ends the filter's start-up leaves its values noisier than the
     middle's by ``SHORT_FACTOR`` or more (at its start only, causal): a log of twice this (once,
     causal) is near an end throughout."""
+    from twincd.signal.bands import slow_band
     from twincd.signal.edges import edge_profile
 
-    profile = edge_profile(((1, lowpass),), period_s)
+    profile = edge_profile(slow_band(lowpass), period_s)
     reach = max(_reach(profile.start), _reach(profile.end)) * period_s
     return reach * (1 if lowpass.causal else 2)
 
@@ -590,6 +636,8 @@ class CalibrationSettings(Protocol):
     @property
     def period_s(self) -> float | None: ...
     @property
+    def fast_hz(self) -> float | None: ...
+    @property
     def source(self) -> str: ...
 
 
@@ -615,6 +663,9 @@ class Setup:
     # False: a truncated log is read up to the damage, with one warning (contract: Inputs)
     strict: bool = False
     twin_threads: int | None = None  # None: every core this process may use
+    # the fast band's upper cut-off (None: the filter's band only; twincd.signal.bands): as far
+    # as the sampling rate allows (a calibration records the one it was fitted with)
+    fast_hz: float | None = None
 
     def block_size_for(self, regressor: bool) -> int:
         """Samples per block read: fewer when the regressor is filtered (``REGRESSOR_BLOCK``)."""
@@ -629,6 +680,7 @@ class Setup:
             joint_names=calibration.joint_names,
             urdf_sha256=calibration.urdf_sha256,
             period_s=calibration.period_s,
+            fast_hz=calibration.fast_hz,
         )
 
     def check_against(self, calibration: CalibrationSettings) -> None:
@@ -643,6 +695,7 @@ class Setup:
                 ("filter", self.lowpass, recorded.lowpass),
                 ("joint_names", self.joint_names, recorded.joint_names),
                 ("period_s", self.period_s, recorded.period_s),
+                ("fast band", self.fast_hz, recorded.fast_hz),
                 ("urdf_sha256", self.urdf_sha256, recorded.urdf_sha256),
                 ("log options", self.options, recorded.options),  # named or not alike
             )
@@ -672,10 +725,17 @@ class Setup:
         """Stream one log (a context manager; iterate it for Frames)."""
         return PreparedStream(path, self, **kwargs)
 
-    def prepare(self, path: str | Path, features: ModelFeatures | None = None) -> PreparedLog:
+    def prepare(
+        self,
+        path: str | Path,
+        features: ModelFeatures | None = None,
+        model: FittedModel | None = None,
+        jump: FloatArray | None = None,
+    ) -> PreparedLog:
         """One whole log in memory (for the baselines, evaluate's fitted methods, studies),
-        with ``features`` (a model's: ``FittedModel.features``, or a fit's)."""
-        with self.open(path, features=features) as stream:
+        with ``features`` filtered (a fit's), or prepared for scoring with a fitted ``model``
+        (its residual in each band; ``jump``: the score's, ``PreparedStream``)."""
+        with self.open(path, features=features, model=model, jump=jump) as stream:
             return stream.read_whole()
 
     def prepare_all(

@@ -137,10 +137,13 @@ class ThinnedPairs:
 
 
 def fit_log_with_pairs(
-    path: str | Path, setup: Setup, features: ModelFeatures | None = None
+    path: str | Path,
+    setup: Setup,
+    features: ModelFeatures | None = None,
+    time_folds: bool = False,
 ) -> tuple[LogFit, ThinnedPairs]:
     """``fit``'s per-log step, also keeping the thinned pairs a report's figure draws."""
     from twincd.calibration.fitting import fit_log
 
     pairs = ThinnedPairs()
-    return fit_log(path, setup, [pairs], features), pairs
+    return fit_log(path, setup, [pairs], features, time_folds), pairs

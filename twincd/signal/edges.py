@@ -29,20 +29,17 @@ from functools import lru_cache
 
 import numpy as np
 
-from twincd.signal.filters import LowPass, StreamingLowPass, decay_margin, settling_samples
-from twincd.signal.stream import DEFAULT_GAP_FACTOR, SegmentedStage, run_whole
+from twincd.signal.bands import Band
+from twincd.signal.filters import decay_margin, settling_samples
+from twincd.signal.stream import DEFAULT_GAP_FACTOR, SegmentedStage
 from twincd.types import FloatArray, IntArray
 
-__all__ = ["FACTOR_TOLERANCE", "EdgeFactors", "EdgeProfile", "Terms", "edge_profile"]
+__all__ = ["FACTOR_TOLERANCE", "EdgeFactors", "EdgeProfile", "edge_profile"]
 
 # beyond the last position where the factor is above 1 + this, it is 1
 FACTOR_TOLERANCE = 1e-3
 # impulses filtered per pass when measuring a profile (memory: this × the probe's length)
 _IMPULSES = 512
-
-# a linear operator on a signal: a sum of low-pass filters, each with its sign (a low-pass is
-# ((1, lowpass),); a band between two cut-offs ((1, high), (-1, low)))
-Terms = tuple[tuple[int, LowPass], ...]
 
 
 @dataclass(frozen=True)
@@ -81,17 +78,17 @@ def _excess(profile: FloatArray, position: FloatArray) -> FloatArray:
     return out
 
 
-def edge_profile(terms: Terms, period_s: float, warmup: int = 0) -> EdgeProfile:
-    """The edge factors of the operator ``terms`` on samples every ``period_s``, its causal
-    filters started after ``warmup`` samples (``StreamingLowPass``; cached)."""
-    return _profile(terms, float(period_s), int(warmup))
+def edge_profile(band: Band, period_s: float, warmup: int = 0) -> EdgeProfile:
+    """The edge factors of ``band`` on samples every ``period_s``, its causal filters started
+    after ``warmup`` samples (``StreamingLowPass``; cached)."""
+    return _profile(band, float(period_s), int(warmup))
 
 
 @lru_cache(maxsize=64)
-def _profile(terms: Terms, period_s: float, warmup: int) -> EdgeProfile:
+def _profile(band: Band, period_s: float, warmup: int) -> EdgeProfile:
     fs = 1.0 / period_s
-    settle = max(settling_samples(lp.sos(fs)) for _, lp in terms)
-    reach = max(max(decay_margin(lp.sos(fs)), lp.padlen(fs)) for _, lp in terms)
+    settle = max(settling_samples(lp.sos(fs)) for lp in band.filters)
+    reach = max(max(decay_margin(lp.sos(fs)), lp.padlen(fs)) for lp in band.filters)
     # long enough that its middle sees neither end: both ends' settling and reach, and more
     length = 2 * (settle + reach + warmup) + 64
     energy = np.zeros(length)
@@ -100,13 +97,10 @@ def _profile(terms: Terms, period_s: float, warmup: int) -> EdgeProfile:
         at = np.arange(first, min(length, first + _IMPULSES))
         impulses = np.zeros((length, len(at)))
         impulses[at, np.arange(len(at))] = 1.0
-        out = sum(
-            sign * run_whole(StreamingLowPass(lp, period_s, warmup=warmup), stamps, impulses)
-            for sign, lp in terms
-        )
+        out = band.apply(stamps, impulses, period_s, warmup)
         energy += np.einsum("ij,ij->i", out, out)
     factor = np.sqrt(np.maximum(energy / energy[length // 2], 1.0))
-    causal = all(lp.causal for _, lp in terms)
+    causal = all(lp.causal for lp in band.filters)
     half = length // 2
     return EdgeProfile(
         _trimmed(factor[:half]),

@@ -10,12 +10,12 @@ every candidate (``twincd.calibration.models.fit_features``)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from dataclasses import dataclass, field, replace
+from typing import Any, Protocol, cast
 
 import numpy as np
 
-from twincd.types import BoolArray, FloatArray
+from twincd.types import BoolArray, FloatArray, IntArray
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,9 @@ class ModelInputs:
     regressor_theta: FloatArray | None = None  # the θ ``regressor_effort_f`` was filtered with
     velocity: FloatArray | None = None
     position: FloatArray | None = None
+    # (N,) int ns: the samples' stamps, for a model whose map depends on time (the cross-fit's
+    # models of time folds, ``twincd.calibration.crossfit``)
+    stamp_ns: IntArray | None = None
 
     @classmethod
     def of(
@@ -86,7 +89,22 @@ class ModelInputs:
             regressor_theta=regressor_theta,
             velocity=get("velocity"),
             position=get("position"),
+            stamp_ns=get("stamp_ns"),
         )
+
+    def take(self, rows: BoolArray | IntArray) -> ModelInputs:
+        """These inputs at ``rows`` only (a mask or indices of the samples): every per-sample
+        array, the masks and θ as they are."""
+        n = len(self.sim_effort_f)
+        per_sample = {
+            name: value[rows]
+            for name, value in vars(self).items()
+            if isinstance(value, np.ndarray)
+            and name not in ("regressor_mask", "regressor_theta")
+            and value.ndim >= 1
+            and len(value) == n
+        }
+        return replace(self, **cast(Any, per_sample))
 
     def columns(self) -> dict[str, FloatArray]:
         """The per-sample arrays by name (those present), as ``of`` reads them back."""

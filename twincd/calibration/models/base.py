@@ -312,7 +312,7 @@ def model_inputs(log: PreparedLog) -> ModelInputs:
     """What a ``ResidualModel`` reads, from a whole prepared log."""
     return ModelInputs(
         effort_f=log.effort_f,
-        sim_effort_f=log.sim_effort_f,
+        sim_effort_f=log.twin_f,
         velocity_f=log.velocity_f,
         coulomb_f=log.coulomb_f,
         coulomb_eps=log.coulomb_eps,

@@ -29,4 +29,4 @@ class NaiveDiff(ScoringMethod):
 
     def score(self, log: PreparedLog) -> FloatArray:
         dof = log.effort_f.shape[1]
-        return affine_score(log.effort_f, log.sim_effort_f, np.ones(dof), np.zeros(dof))
+        return affine_score(log.effort_f, log.twin_f, np.ones(dof), np.zeros(dof))
