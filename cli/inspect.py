@@ -86,6 +86,17 @@ def render(found: Inspection) -> None:
             f"jitter {s.jitter_ms:.3g} ms, {s.gaps} gap(s)"
             + (f" (largest {s.largest_gap_s:.3g} s)" if s.gaps else "")
         )
+    bad = found.absurd
+    if bad.samples:
+        times = ", ".join(f"{t:.3f}" for t in bad.times_s) + (
+            ", …" if bad.samples > len(bad.times_s) else ""
+        )
+        joints = "; ".join(f"{kind} on {', '.join(names)}" for kind, names in bad.joints.items())
+        say(
+            f"  absurd samples: {bad.samples} dropped, at {times} s ({joints})",
+            soft_wrap=True,
+            markup=False,
+        )
     labels = (
         f"{found.label_messages} message(s)"
         if found.label_messages

@@ -7,7 +7,7 @@ stores it as a bare MCAP, a rosbag2 MCAP or sqlite3 folder, or a ROS 1 bag.
 from __future__ import annotations
 
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -264,3 +264,25 @@ def write_with_twincd(path: Path, msgs: Sequence[Message]) -> Path:
 def write_by(writer: str, path: Path, msgs: Sequence[Message]) -> Path:
     """A bare MCAP of ``msgs`` by ``writer``: ``"rosbags"`` or ``"twincd"``."""
     return write(path, "mcap", msgs) if writer == "rosbags" else write_with_twincd(path, msgs)
+
+
+def rewrite(
+    src: Path,
+    dst: Path,
+    edit: Callable[[Any], object] = lambda m: None,
+    form: str = "mcap",
+    writer: str = "rosbags",
+) -> Path:
+    """``src`` written again, by rosbags' writer in ``form`` or (``writer="twincd"``) as a bare
+    MCAP by twincd's; ``edit`` changes each JointState message in place, in log order (one for
+    which it returns False is left out)."""
+    from rosbags.highlevel import AnyReader
+
+    msgs = []
+    with AnyReader([src], default_typestore=TS) as reader:
+        for conn, log_time, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.msgtype == "sensor_msgs/msg/JointState" and edit(msg) is False:
+                continue
+            msgs.append(Message(conn.topic, conn.msgtype, log_time, msg))
+    return write(dst, form, msgs) if writer == "rosbags" else write_with_twincd(dst, msgs)

@@ -185,6 +185,21 @@ class RobotModel:
         return np.atleast_2d(tangent)[:, [j.idx_v for j in self.joints]]
 
     @cached_property
+    def velocity_limits(self) -> dict[str, float]:
+        """Velocity limits by joint name (the URDF's ``velocity``); joints without one (not
+        finite or not positive) are left out."""
+        return self._per_joint(self.model.velocityLimit)
+
+    @cached_property
+    def effort_limits(self) -> dict[str, float]:
+        """Effort limits by joint name (the URDF's ``effort``), as ``velocity_limits``."""
+        return self._per_joint(self.model.effortLimit)
+
+    def _per_joint(self, values: Any) -> dict[str, float]:
+        out = {j.name: float(values[j.idx_v]) for j in self.joints}
+        return {n: v for n, v in out.items() if np.isfinite(v) and v > 0}
+
+    @cached_property
     def position_limits(self) -> dict[str, tuple[float, float]]:
         """(lower, upper) position limits by joint name; joints without any are left out (a
         continuous joint, stored as cos/sin, or limits absent: not finite, or lower ≥ upper)."""
