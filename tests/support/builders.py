@@ -266,6 +266,17 @@ def write_by(writer: str, path: Path, msgs: Sequence[Message]) -> Path:
     return write(path, "mcap", msgs) if writer == "rosbags" else write_with_twincd(path, msgs)
 
 
+def messages_of(src: Path) -> list[Message]:
+    """Every message of the log ``src``, decoded by rosbags, in log order."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([src], default_typestore=TS) as reader:
+        return [
+            Message(conn.topic, conn.msgtype, log_time, reader.deserialize(raw, conn.msgtype))
+            for conn, log_time, raw in reader.messages()
+        ]
+
+
 def rewrite(
     src: Path,
     dst: Path,
@@ -276,13 +287,9 @@ def rewrite(
     """``src`` written again, by rosbags' writer in ``form`` or (``writer="twincd"``) as a bare
     MCAP by twincd's; ``edit`` changes each JointState message in place, in log order (one for
     which it returns False is left out)."""
-    from rosbags.highlevel import AnyReader
-
-    msgs = []
-    with AnyReader([src], default_typestore=TS) as reader:
-        for conn, log_time, raw in reader.messages():
-            msg = reader.deserialize(raw, conn.msgtype)
-            if conn.msgtype == "sensor_msgs/msg/JointState" and edit(msg) is False:
-                continue
-            msgs.append(Message(conn.topic, conn.msgtype, log_time, msg))
+    msgs = [
+        m
+        for m in messages_of(src)
+        if m.msgtype != "sensor_msgs/msg/JointState" or edit(m.msg) is not False
+    ]
     return write(dst, form, msgs) if writer == "rosbags" else write_with_twincd(dst, msgs)

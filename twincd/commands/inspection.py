@@ -98,6 +98,8 @@ class Inspection:
     twin_source: str | None = None
     # samples dropped as absurd (twincd.signal.bounds), with their times and joints
     absurd: Dropped = field(default_factory=Dropped)
+    # messages of a second publisher on the arm's joints (zeros between the live samples)
+    other_publisher: int = 0
     warnings: list[str] = field(default_factory=list)
     problem: str | None = None
     # the error behind ``problem`` (its traceback is what ``--debug`` shows); not in to_dict
@@ -405,6 +407,7 @@ def _read_samples(
                     ok &= np.isfinite(block.sim_effort).all(axis=1)
                 usable += int(np.count_nonzero(ok))
         found.absurd = bounds.dropped
+        found.other_publisher = stream.counts.other_publisher
         bounds.warn(found.path)
     if acc.first is None:
         return usable, has_effort
