@@ -139,3 +139,64 @@ def test_motors_off_zeros_in_place_of_samples_are_kept(tmp_path: Path) -> None:
     got = detect(log)
     assert got["logs"][0]["samples"] == detect(CLEAN)["logs"][0]["samples"]
     assert not [w for w in got["warnings"] if "second publisher" in w]
+
+
+# ---------------------------------------------------------------- ros2_control's DynamicJointState
+
+DYNAMIC = "control_msgs/msg/DynamicJointState"
+
+
+def split_to_dynamic(
+    tmp_path: Path,
+    name: str,
+    interfaces: tuple[str, ...],
+    keep_joint_states: bool = True,
+    form: str = "mcap",
+) -> Path:
+    """The clean log as ros2_control records it: /joint_states without effort (or none at
+    all), and /dynamic_joint_states with ``interfaces`` per joint, at the same stamps; written
+    by rosbags' writer with control_msgs registered from its .msg text."""
+    from support.builders import TS, Message, messages_of, write
+
+    value_type = TS.types["control_msgs/msg/InterfaceValue"]
+    out = []
+    for m in messages_of(CLEAN):
+        if m.msgtype != "sensor_msgs/msg/JointState":
+            out.append(m)
+            continue
+        arrays = {"position": m.msg.position, "velocity": m.msg.velocity, "effort": m.msg.effort}
+        values = [
+            value_type(interface_names=list(interfaces),
+                       values=np.array([arrays[i][j] for i in interfaces]))
+            for j in range(len(m.msg.name))
+        ]  # fmt: skip
+        dyn = TS.types[DYNAMIC](header=m.msg.header, joint_names=list(m.msg.name),
+                                interface_values=values)  # fmt: skip
+        out.append(Message("/dynamic_joint_states", DYNAMIC, m.log_time, dyn))
+        if keep_joint_states:
+            m.msg.effort = np.zeros(0)
+            out.append(m)
+    return write(tmp_path / (f"{name}.mcap" if form == "mcap" else name), form, out)
+
+
+@pytest.mark.parametrize("form", ["mcap", "rosbag2-sqlite3"])
+@pytest.mark.parametrize("keep_joint_states", [True, False])
+def test_dynamic_joint_states_stand_in_when_no_joint_state_carries_effort(
+    tmp_path: Path, keep_joint_states: bool, form: str
+) -> None:
+    log = split_to_dynamic(tmp_path, "ros2_control", ("position", "velocity", "effort"),
+                           keep_joint_states, form)  # fmt: skip
+    got, want = detect(log), detect(CLEAN)
+    assert got["logs"][0] == {**want["logs"][0], "path": str(log)}
+    if keep_joint_states:
+        (line,) = [w for w in got["warnings"] if "/dynamic_joint_states" in w]
+        assert "/joint_states carries no effort" in line and DYNAMIC in line
+    found = json.loads(run("inspect", log, "--json").stdout)["logs"][0]
+    assert found["usable"] and found["joint_topic"] == "/dynamic_joint_states"
+
+
+def test_dynamic_joint_states_without_effort_are_named_in_the_error(tmp_path: Path) -> None:
+    log = split_to_dynamic(tmp_path, "no_effort", ("position", "velocity"))
+    result = run("detect", log, "-c", CALIBRATION)
+    assert_one_line_error(result, "no measured effort")
+    assert "/dynamic_joint_states" in result.stderr and "no effort interface" in result.stderr

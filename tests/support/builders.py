@@ -16,9 +16,21 @@ import numpy as np
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 TS = get_typestore(Stores.LATEST)
+# ros2_control's control_msgs, which rosbags' stores lack: registered from its .msg text
+TS.register(
+    {
+        **get_types_from_msg("string[] interface_names\nfloat64[] values\n",
+                             "control_msgs/msg/InterfaceValue"),
+        **get_types_from_msg(
+            "std_msgs/Header header\nstring[] joint_names\n"
+            "control_msgs/InterfaceValue[] interface_values\n",
+            "control_msgs/msg/DynamicJointState",
+        ),
+    }
+)  # fmt: skip
 TS1 = get_typestore(Stores.ROS1_NOETIC)
 JointState = TS.types["sensor_msgs/msg/JointState"]
 Header = TS.types["std_msgs/msg/Header"]

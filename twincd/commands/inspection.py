@@ -219,7 +219,7 @@ def _inspect(
             str(path),
             "use a calibration or robot model made for this robot, or a joint map",
         )
-    usable, has_effort = _read_samples(
+    usable, has_effort, why = _read_samples(
         path, options, tuple(joints), strict, model, calibration, found, has_sim
     )
     if found.sampling is not None:
@@ -227,7 +227,7 @@ def _inspect(
     # what fit and detect refuse, refused here alike (the same checks, the same words)
     from twincd.prepare.setup import require_effort, require_enough_samples
 
-    require_effort(has_effort, found.path, found.joint_topic or options.topic)
+    require_effort(has_effort, found.path, found.joint_topic or options.topic, why)
     require_enough_samples(usable, found.path)
 
 
@@ -356,7 +356,7 @@ def _read_samples(
     calibration: Calibration | None,
     found: Inspection,
     has_sim: bool = False,
-) -> tuple[int, bool]:
+) -> tuple[int, bool, str | None]:
     """Ranges, sampling and the signal checks into ``found``; the samples fit and detect would
     use (finite position and effort, and the log's twin effort where it has one), and whether
     the log has measured effort (as the stream decides it)."""
@@ -383,7 +383,8 @@ def _read_samples(
     usable = 0
     unwrap: StreamingUnwrap | None = None  # what the derivative of position would see
     with opened as stream:
-        has_effort = stream.has_effort
+        has_effort, why = stream.has_effort, stream.no_effort_why
+        found.joint_topic = stream.topic  # ros2_control's DynamicJointState may stand in
         joints = tuple(stream.joint_names)
         acc = _Ranges(len(joints))
         checks = SignalChecks(joints, limits)
@@ -410,7 +411,7 @@ def _read_samples(
         found.other_publisher = stream.counts.other_publisher
         bounds.warn(found.path)
     if acc.first is None:
-        return usable, has_effort
+        return usable, has_effort, why
     found.sampling = acc.sampling()
     checks.warn(found.path)
     if not has_velocity.all():
@@ -434,7 +435,7 @@ def _read_samples(
         )
         for i, name in enumerate(joints)
     ]
-    return usable, has_effort
+    return usable, has_effort, why
 
 
 def _within_bounds(

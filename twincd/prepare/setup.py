@@ -287,7 +287,7 @@ class PreparedStream:
         assert self._log is not None
         names = tuple(self._log.joint_names)
         if self.need_effort:
-            require_effort("effort" in first, self.source, self.topic)
+            require_effort("effort" in first, self.source, self.topic, self._log.no_effort_why)
         twin_names, model = self._twin_source(first.get("sim_effort"), names)
         regressor = self._regressor(twin_names)
         self.joint_names = self._output_joints(twin_names)
@@ -553,14 +553,16 @@ def warn_velocity_from_position(
     )
 
 
-def require_effort(has_effort: bool, source: str, topic: str) -> None:
+def require_effort(has_effort: bool, source: str, topic: str, why: str | None = None) -> None:
     """A log without measured effort is refused by every command that compares it with the
-    twin (and by ``inspect``, which says what those would do)."""
+    twin (and by ``inspect``, which says what those would do); ``why``: what the log has that
+    cannot stand in (its DynamicJointState topic without an effort interface)."""
     if not has_effort:
         raise DataError(
-            "the log has no measured effort",
+            "the log has no measured effort" + (f", and {why}" if why else ""),
             f"{source}, {topic}",
-            "record JointState.effort; twincd compares it with the twin",
+            "record JointState.effort (or ros2_control's effort state interface); twincd "
+            "compares it with the twin",
         )
 
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from twincd.errors import LogReadError
-from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
+from twincd.io.cdr import BOOL, DYNAMIC_JOINT_STATE, JOINT_STATE, CdrStats
 from twincd.io.mcap import MAGIC, McapDamage, McapFile
 from twincd.io.sources import first_line, open_reader, refuse_non_logs, storage_of
 from twincd.io.sqlite3 import FETCH, Sqlite3Storage, SqliteDamage
@@ -28,6 +28,7 @@ from twincd.io.stream.batch import (
     JointStateBatch,
     RawTopic,
     StringBatch,
+    dynamic_batches,
 )
 from twincd.types import FloatArray
 
@@ -230,6 +231,8 @@ class _Pending:
             times = np.array([t for t, _ in items], dtype=np.int64)
             if msgtype == BOOL:
                 out.append((topic, BoolBatch(times, np.array([bool(m.data) for _, m in items]))))
+            elif msgtype == DYNAMIC_JOINT_STATE:
+                out.extend((topic, b) for b in dynamic_batches(times, [m for _, m in items]))
             else:
                 out.append((topic, StringBatch(times, [str(m.data) for _, m in items])))
         self.joint, self.other, self.count = {}, {}, 0

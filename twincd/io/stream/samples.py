@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.errors import JointMismatchError, LogReadError, SplitJointsError, TopicError
-from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
+from twincd.io.cdr import BOOL, DYNAMIC_JOINT_STATE, JOINT_STATE, CdrStats
 from twincd.io.stream.batch import DEFAULT_BATCH, END, Batch, BoolBatch, JointStateBatch
 from twincd.io.stream.parts import (
     Clock,
@@ -75,6 +75,7 @@ log = logging.getLogger("twincd")
 
 
 OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's joint states
+DYNAMIC_TOPIC = "/dynamic_joint_states"  # ros2_control's joint_state_broadcaster publishes here
 DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
 
@@ -147,9 +148,10 @@ def warn_ignored_joints(source: str, names: Sequence[str], used: Sequence[str], 
 
 
 def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
-    """The JointState topic to read (contract: Inputs: fall back to the only JointState topic)."""
+    """The JointState topic to read (contract: Inputs: fall back to the only JointState topic,
+    or, without any, to the only DynamicJointState topic)."""
     if wanted in topics:
-        if topics[wanted] != JOINT_STATE:
+        if topics[wanted] not in (JOINT_STATE, DYNAMIC_JOINT_STATE):
             raise TopicError(
                 f"topic {wanted} is {topics[wanted]}, not {JOINT_STATE}",
                 source,
@@ -158,7 +160,7 @@ def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
         return wanted
     candidates = sorted(
         t for t, m in topics.items() if m == JOINT_STATE and not t.startswith(OWN_PREFIX)
-    )
+    ) or sorted(t for t, m in topics.items() if m == DYNAMIC_JOINT_STATE)
     if len(candidates) == 1:
         log.warning(
             "topic %s not in %s; using its only JointState topic %s", wanted, source, candidates[0]
@@ -236,7 +238,14 @@ class LogStream:
             )
         self.sim_topic = options.sim_topic
         self.has_sim = topics.get(self.sim_topic) == JOINT_STATE
-        wanted = [self.topic]
+        # ros2_control's DynamicJointState: read when no JointState carries effort
+        self.no_effort_why: str | None = None  # why it cannot stand in, when it cannot
+        dynamic = [t for t, m in topics.items() if m == DYNAMIC_JOINT_STATE]
+        if topics[self.topic] == DYNAMIC_JOINT_STATE or not dynamic:
+            self._dynamic: str | None = None
+        else:
+            self._dynamic = DYNAMIC_TOPIC if DYNAMIC_TOPIC in dynamic else sorted(dynamic)[0]
+        wanted = [self.topic] + ([self._dynamic] if self._dynamic else [])
         wanted += [self.label_topic] if self.has_labels else []
         wanted += [self.sim_topic] if self.has_sim else []
         self._items = self._reader.batches(wanted)
@@ -249,7 +258,9 @@ class LogStream:
                 seen += len(batch)
                 if seen >= max(self.reorder, 1):
                     break
-        first = [b for t, b, _ in self._head if t == self.topic and isinstance(b, JointStateBatch)]
+        first = self._read_ahead(self.topic)
+        if self._dynamic is not None:
+            first = self._effort_source(first, self._dynamic)
         if not first:
             damage = self._reader.damage
             if damage is not None:  # the damage came before any joint state
@@ -300,6 +311,35 @@ class LogStream:
         self._labels_out: list[BoolArray] = []
         self._sim_out: list[FloatArray] = []
         self._used = False
+
+    def _read_ahead(self, topic: str) -> list[JointStateBatch]:
+        return [b for t, b, _ in self._head if t == topic and isinstance(b, JointStateBatch)]
+
+    def _effort_source(self, first: list[JointStateBatch], dynamic: str) -> list[JointStateBatch]:
+        """The JointState messages read ahead, or, when none carries effort, those of the
+        DynamicJointState topic ``dynamic`` (which becomes the stream's topic); the topic not
+        read is no longer decoded."""
+        if any(b.effort.shape[1] for b in first):
+            self._reader.ignore(dynamic)
+            return first
+        other = self._read_ahead(dynamic)
+        names = {n for b in first for n in self._mapped(b.names)}
+        shared = [b for b in other if names & set(self._mapped(b.names)) or not names]
+        if not any(b.effort.shape[1] for b in shared):
+            what = "no effort interface" if shared else "none of its joints"
+            self.no_effort_why = f"{dynamic} ({DYNAMIC_JOINT_STATE}) carries {what}"
+            self._reader.ignore(dynamic)
+            return first
+        log.warning(
+            "%s: %s carries no effort; reading the joint states from %s (%s) instead",
+            self.source,
+            self.topic,
+            dynamic,
+            DYNAMIC_JOINT_STATE,
+        )
+        self._reader.ignore(self.topic)
+        self.topic = dynamic
+        return other
 
     def _measuring_period(self, first: list[JointStateBatch]) -> float | None:
         """The nominal period (ns) of the messages read ahead that measure effort on the
