@@ -5,6 +5,8 @@ xArm 7 sample logs written again by rosbags' writer and by twincd's, edited on t
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -200,3 +202,60 @@ def test_dynamic_joint_states_without_effort_are_named_in_the_error(tmp_path: Pa
     result = run("detect", log, "-c", CALIBRATION)
     assert_one_line_error(result, "no measured effort")
     assert "/dynamic_joint_states" in result.stderr and "no effort interface" in result.stderr
+
+
+# ---------------------------------------------------------------- what cannot be read
+
+
+def denied(monkeypatch: pytest.MonkeyPatch, target: Path) -> None:
+    """The operating system refuses ``target`` (a folder's listing, a file's opening) as it
+    does for a user without the right (these tests run as root, who may read everything)."""
+    import builtins
+
+    def refuse(path: object) -> None:
+        if Path(str(path)).resolve() == target.resolve():
+            raise PermissionError(13, "Permission denied", str(path))
+
+    listing = Path.iterdir
+    opening = builtins.open
+
+    def iterdir(self: Path) -> Any:
+        refuse(self)
+        return listing(self)
+
+    def open_(file: Any, *args: Any, **kwargs: Any) -> Any:
+        if isinstance(file, str | Path):
+            refuse(file)
+        return opening(file, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "iterdir", iterdir)
+    monkeypatch.setattr(builtins, "open", open_)
+
+
+@pytest.mark.parametrize("what", ["folder", "file"])
+def test_an_unreadable_log_is_exit_2_with_its_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, what: str
+) -> None:
+    folder = tmp_path / "train"
+    folder.mkdir()
+    log = Path(shutil.copy(CLEAN, folder / "a.mcap"))
+    target = folder if what == "folder" else log
+    denied(monkeypatch, target)
+    for command in (("fit", folder, "-o", tmp_path / "c.json"), ("inspect", folder)):
+        result = run(*command)
+        assert_one_line_error(result, "Permission denied")
+        assert str(target) in result.stderr
+
+
+def test_an_unreadable_log_is_refused_for_real(tmp_path: Path) -> None:
+    """Without a stand-in: a folder without read permission, where this user may not read it."""
+    folder = tmp_path / "train"
+    folder.mkdir()
+    shutil.copy(CLEAN, folder / "a.mcap")
+    folder.chmod(0)
+    try:
+        if os.access(folder, os.R_OK):
+            pytest.skip("this user (root) may read a folder without read permission")
+        assert_one_line_error(run("fit", folder, "-o", tmp_path / "c.json"), "Permission denied")
+    finally:
+        folder.chmod(0o755)
