@@ -162,7 +162,10 @@ class SampleBounds:
         n = len(stamp_ns)
         ok = np.ones(n, dtype=bool)
         steady = np.zeros(n, dtype=bool)  # within a jump of the previous row on every bound
-        steady[1:] = ~self._jumped(stamp_ns, columns, beyond)
+        dt = np.maximum(np.diff(stamp_ns), 0).astype(np.float64)[:, None] * 1e-9
+        for c, v in columns.items():
+            steady[1:] |= (beyond[c][1:] & self._far(c, v[1:], v[:-1], dt)).any(axis=1)
+        steady[1:] = ~steady[1:]
         visit = [int(i) for i in suspects if not steady[i]]
         heapq.heapify(visit)
         popped, last_kept = -1, -1  # the last row judged, and the last row kept up to it
@@ -172,18 +175,15 @@ class SampleBounds:
                 continue
             # rows between the last one judged and this one were kept
             before = i - 1 if i - 1 > popped else last_kept
-            if before >= 0:
-                ref = {c: v[before] for c, v in columns.items()}
-                ref_ns = int(stamp_ns[before])
-            elif self._kept is not None:
-                ref, ref_ns = self._kept, self._kept_ns
-            elif i > 0:  # nothing kept yet: the last sample read
-                ref = {c: v[i - 1] for c, v in columns.items()}
-                ref_ns = int(stamp_ns[i - 1])
-            else:
-                ref, ref_ns = self._read or {}, self._read_ns
-            bad = self._bad(int(stamp_ns[i]), {c: v[i] for c, v in columns.items()}, beyond, i,
-                            ref, ref_ns)  # fmt: skip
+            ref, ref_ns = self._reference(i, before, stamp_ns, columns)
+            bad: dict[str, list[int]] = {}
+            for c, out in beyond.items():
+                joints = out[i]
+                if c in ref and joints.any():
+                    dt_i = max(int(stamp_ns[i]) - ref_ns, 0) * 1e-9
+                    joints = joints & self._far(c, columns[c][i], ref[c], dt_i)
+                if joints.any():
+                    bad[c] = np.flatnonzero(joints).tolist()
             if bad:
                 ok[i] = False
                 self._note(int(stamp_ns[i]), bad)
@@ -192,43 +192,26 @@ class SampleBounds:
             popped, last_kept = i, i if ok[i] else before
         return ok
 
-    def _jumped(
-        self, stamp_ns: IntArray, columns: dict[str, FloatArray], beyond: dict[str, BoolArray]
-    ) -> BoolArray:
-        """Per row after the first: a value beyond its bound that jumped from the row before."""
-        out = np.zeros(len(stamp_ns) - 1, dtype=bool)
-        for c, v in columns.items():
-            jump: FloatArray | float = self._jump[c]
-            if c == "position":
-                dt = np.maximum(np.diff(stamp_ns), 0).astype(np.float64)[:, None] * 1e-9
-                jump = self._jump[c] + self._speed * dt
-            far = np.abs(v[1:] - v[:-1]) > jump
-            out |= (beyond[c][1:] & far).any(axis=1)
-        return out
+    def _reference(
+        self, i: int, before: int, stamp_ns: IntArray, columns: dict[str, FloatArray]
+    ) -> tuple[dict[str, FloatArray], int]:
+        """What row ``i`` is compared with: the last sample kept (``before`` in this block, else
+        an earlier block's); with none kept yet, the last sample read; with none read, nothing
+        (the bounds alone judge the very first sample)."""
+        if before < 0 and self._kept is not None:
+            return self._kept, self._kept_ns
+        row = before if before >= 0 else i - 1
+        if row >= 0:
+            return {c: v[row] for c, v in columns.items()}, int(stamp_ns[row])
+        return self._read or {}, self._read_ns
 
-    def _bad(
-        self,
-        stamp_ns: int,
-        row: dict[str, FloatArray],
-        beyond: dict[str, BoolArray],
-        i: int,
-        ref: dict[str, FloatArray],
-        ref_ns: int,
-    ) -> dict[str, list[int]]:
-        """The joints, per channel, on which row ``i`` is absurd against the reference row."""
-        bad: dict[str, list[int]] = {}
-        for c, out in beyond.items():
-            joints = out[i]
-            if not joints.any():
-                continue
-            if c in ref:
-                jump = self._jump[c]
-                if c == "position":
-                    jump = jump + self._speed * max(stamp_ns - ref_ns, 0) * 1e-9
-                joints = joints & (np.abs(row[c] - ref[c]) > jump)
-            if joints.any():
-                bad[c] = np.flatnonzero(joints).tolist()
-        return bad
+    def _far(
+        self, channel: str, values: FloatArray, ref: FloatArray, dt_s: FloatArray | float
+    ) -> BoolArray:
+        """Where ``values`` lie further from ``ref`` than a motor moves them in ``dt_s``."""
+        jump = self._jump[channel] + (self._speed * dt_s if channel == "position" else 0.0)
+        out: BoolArray = np.abs(values - ref) > jump
+        return out
 
     def _note(self, stamp_ns: int, bad: dict[str, list[int]]) -> None:
         d = self.dropped
