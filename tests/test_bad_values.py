@@ -105,6 +105,8 @@ def test_events_never_start_before_a_glitch(tmp_path: Path) -> None:
         for p in (log, same)
     ]
     assert events[0] and len(events[0]) == len(events[1])
+    result = run("evaluate", log, "-c", CALIBRATION, "--json", "--no-summary")
+    assert result.exit_code == 0 and strict_json(result.stdout)["methods"]
     for got, want in zip(*events, strict=True):
         assert got == {**want, "peak_score": pytest.approx(want["peak_score"], rel=1e-9)}
 
@@ -150,6 +152,7 @@ def test_corrupt_rows_do_not_move_a_threshold(tmp_path: Path) -> None:
         cal = shutil.copy(CALIBRATION, tmp_path / f"{folder.name}.json")
         result = run("threshold", folder, "-c", cal, "--json")
         assert result.exit_code == 0, result.output
+        strict_json(result.stdout)
         values.append(Calibration.load(cal).threshold.value)  # type: ignore[union-attr]
     assert abs(values[0] / values[1] - 1) < 0.05, values
 

@@ -20,7 +20,7 @@ keeps every real motion, push and strike. A sample with nothing kept before it i
 the last sample read; the very first sample of a stream, with nothing before it, by the bounds
 alone. Limits a URDF does not give (and every limit without a robot model) are taken as
 ``FALLBACK_VELOCITY`` and ``FALLBACK_EFFORT``. Rows within the bounds always pass, so the check
-costs a few comparisons per value; only rows beyond them are judged one by one.
+costs each block's column extremes; only rows beyond a bound are judged one by one.
 
 The dropped samples are counted with their times, and ``warning`` says so in one line.
 """
@@ -128,11 +128,13 @@ class SampleBounds:
         if self.first_ns is None:
             self.first_ns = int(stamp_ns[0])
         columns = {c: v for c, v in values.items() if v is not None and c in self._bound}
-        beyond = {c: self._beyond(c, v) for c, v in columns.items()}
-        suspects = np.zeros(n, dtype=bool)
-        for b in beyond.values():
-            suspects |= b.any(axis=1)
-        if suspects.any():
+        # each column's extremes first (a read of the block, no temporaries): the usual block
+        # lies within every bound, and no row needs a look of its own
+        beyond = {c: self._beyond(c, v) for c, v in columns.items() if self._outside(c, v)}
+        if beyond:
+            suspects = np.zeros(n, dtype=bool)
+            for b in beyond.values():
+                suspects |= b.any(axis=1)
             ok = self._judge(stamp_ns, columns, beyond, np.flatnonzero(suspects))
         kept = np.flatnonzero(ok)
         if len(kept):
@@ -142,6 +144,17 @@ class SampleBounds:
         self._read = {c: v[-1].copy() for c, v in columns.items()}
         self._read_ns = int(stamp_ns[-1])
         return ok
+
+    def _outside(self, channel: str, values: FloatArray) -> bool:
+        """Whether any value of the block lies beyond its joint's bound (NaN never does): the
+        block's extremes against the band every joint allows, then, only when they leave it,
+        each joint against its own."""
+        centre = self._center if channel == "position" else 0.0
+        low, high = centre - self._bound[channel], centre + self._bound[channel]
+        least, most = np.fmin.reduce(values, axis=None), np.fmax.reduce(values, axis=None)
+        if not (least < low.max() or most > high.min()):
+            return False
+        return bool(((values < low) | (values > high)).any())
 
     def _beyond(self, channel: str, values: FloatArray) -> BoolArray:
         centre = self._center if channel == "position" else 0.0
@@ -163,8 +176,9 @@ class SampleBounds:
         ok = np.ones(n, dtype=bool)
         steady = np.zeros(n, dtype=bool)  # within a jump of the previous row on every bound
         dt = np.maximum(np.diff(stamp_ns), 0).astype(np.float64)[:, None] * 1e-9
-        for c, v in columns.items():
-            steady[1:] |= (beyond[c][1:] & self._far(c, v[1:], v[:-1], dt)).any(axis=1)
+        for c, out in beyond.items():
+            v = columns[c]
+            steady[1:] |= (out[1:] & self._far(c, v[1:], v[:-1], dt)).any(axis=1)
         steady[1:] = ~steady[1:]
         visit = [int(i) for i in suspects if not steady[i]]
         heapq.heapify(visit)

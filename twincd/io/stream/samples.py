@@ -369,10 +369,11 @@ class LogStream:
         none = np.zeros(k, dtype=bool)
         if self._period_ns is None or effort is None or not k:
             return none
-        finite = np.isfinite(effort).all(axis=1)
-        zero = finite & (effort == 0).all(axis=1)
-        measuring = finite & ~zero
-        if zero[:k].any():
+        # a sample all of whose efforts are 0 has its first one 0: most blocks have none
+        if (effort[:k, 0] == 0).any():
+            finite = np.isfinite(effort).all(axis=1)
+            zero = finite & (effort == 0).all(axis=1)
+            measuring = finite & ~zero
             stamp = rows.stamp.astype(np.float64)
             prev = np.maximum.accumulate(np.where(measuring, stamp, -np.inf))
             prev = np.maximum(prev, self._last_measuring)
@@ -383,9 +384,14 @@ class LogStream:
                 late = np.isinf(following) & (stamp - prev < 0.5 * self._period_ns)
                 squeezed |= zero & late
             none = squeezed[:k]
-        done = np.flatnonzero(measuring[:k])
-        if len(done):
-            self._last_measuring = float(rows.stamp[done[-1]])
+        # the last sample emitted that measures effort: the last one, as a rule
+        last = effort[k - 1]
+        if np.isfinite(last).all() and last.any():
+            self._last_measuring = float(rows.stamp[k - 1])
+        else:
+            measures = np.flatnonzero(np.isfinite(effort[:k]).all(axis=1) & effort[:k].any(axis=1))
+            if len(measures):
+                self._last_measuring = float(rows.stamp[measures[-1]])
         return none
 
     def _mapped(self, names: Sequence[str]) -> tuple[str, ...]:
