@@ -67,7 +67,8 @@ def render(found: Inspection) -> None:
             if js.with_effort < js.messages:
                 parts.append(f"{js.messages - js.with_effort} without effort")
             if js.zero_stamps:
-                parts.append(f"{js.zero_stamps} unstamped (log time used)")
+                every = js.zero_stamps == js.messages
+                parts.append(f"{js.zero_stamps} stamped 0" + (" (log time used)" if every else ""))
             say(f"    [{', '.join(js.joints)}]: {'; '.join(parts)}", soft_wrap=True, markup=False)
     if found.robot:
         default = " (the default; pass --robot for another arm)"
@@ -85,6 +86,22 @@ def render(found: Inspection) -> None:
             f"  samples: {s.samples} over {s.duration_s:.3f} s at {_number(s.rate_hz)} Hz, "
             f"jitter {s.jitter_ms:.3g} ms, {s.gaps} gap(s)"
             + (f" (largest {s.largest_gap_s:.3g} s)" if s.gaps else "")
+        )
+    if found.other_publisher:
+        say(
+            f"  second publisher on the same joints: {found.other_publisher} message(s) of "
+            "zero efforts between the live samples, left out"
+        )
+    bad = found.absurd
+    if bad.samples:
+        times = ", ".join(f"{t:.3f}" for t in bad.times_s) + (
+            ", …" if bad.samples > len(bad.times_s) else ""
+        )
+        joints = "; ".join(f"{kind} on {', '.join(names)}" for kind, names in bad.joints.items())
+        say(
+            f"  absurd samples: {bad.samples} dropped, at {times} s ({joints})",
+            soft_wrap=True,
+            markup=False,
         )
     labels = (
         f"{found.label_messages} message(s)"

@@ -16,8 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import build_twin_log
-from rosbags.highlevel import AnyReader
-from support.builders import TS, Message, write
+from support.builders import rewrite
 from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration
@@ -28,20 +27,6 @@ SAMPLES = Path(__file__).resolve().parent.parent / "sample_logs"
 CALIBRATION = SAMPLES / "calibration.json"
 CLEAN = SAMPLES / "val" / "val_000.mcap"
 XARM = tuple(f"joint{i}" for i in range(1, 8))
-
-
-def rewrite(
-    src: Path, dst: Path, edit: Callable[[Any], None] = lambda m: None, form: str = "mcap"
-) -> Path:
-    """``src`` written again with rosbags' writer; ``edit`` changes each JointState in place."""
-    msgs = []
-    with AnyReader([src], default_typestore=TS) as reader:
-        for conn, log_time, raw in reader.messages():
-            msg = reader.deserialize(raw, conn.msgtype)
-            if conn.msgtype == "sensor_msgs/msg/JointState":
-                edit(msg)
-            msgs.append(Message(conn.topic, conn.msgtype, log_time, msg))
-    return write(dst, form, msgs)
 
 
 def detect_json(*args: Any) -> tuple[int, dict[str, Any], str]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -68,3 +69,28 @@ def test_unbounded_joints_use_cos_sin():
         angles[0],
         atol=1e-12,
     )
+
+
+XACRO = """<?xml version="1.0"?>
+<robot name="arm" xmlns:xacro="http://www.ros.org/wiki/xacro">
+  <xacro:property name="l" value="0.3"/>
+  <xacro:macro name="link" params="n"><link name="${n}"/></xacro:macro>
+  <xacro:link n="base"/>
+</robot>
+"""
+
+
+@pytest.mark.parametrize("name", ["model.urdf.xacro", "model.xacro", "model.urdf"])
+def test_a_xacro_file_is_named_with_what_to_run(tmp_path, name):
+    """A xacro file (even one called .urdf) was "does not contain a valid URDF model"."""
+    from support.clitools import assert_one_line_error, run
+
+    path = tmp_path / name
+    path.write_text(XACRO)
+    with pytest.raises(RobotModelError, match="xacro file, not a URDF") as raised:
+        load_robot(str(path))
+    assert f"xacro {name} > model.urdf" in raised.value.hint
+    result = run(
+        "inspect", Path(__file__).parent.parent / "sample_logs/val/val_000.mcap", "--robot", path
+    )
+    assert_one_line_error(result, "xacro file")

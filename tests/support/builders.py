@@ -7,7 +7,7 @@ stores it as a bare MCAP, a rosbag2 MCAP or sqlite3 folder, or a ROS 1 bag.
 from __future__ import annotations
 
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,9 +16,21 @@ import numpy as np
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 TS = get_typestore(Stores.LATEST)
+# ros2_control's control_msgs, which rosbags' stores lack: registered from its .msg text
+TS.register(
+    {
+        **get_types_from_msg("string[] interface_names\nfloat64[] values\n",
+                             "control_msgs/msg/InterfaceValue"),
+        **get_types_from_msg(
+            "std_msgs/Header header\nstring[] joint_names\n"
+            "control_msgs/InterfaceValue[] interface_values\n",
+            "control_msgs/msg/DynamicJointState",
+        ),
+    }
+)  # fmt: skip
 TS1 = get_typestore(Stores.ROS1_NOETIC)
 JointState = TS.types["sensor_msgs/msg/JointState"]
 Header = TS.types["std_msgs/msg/Header"]
@@ -264,3 +276,32 @@ def write_with_twincd(path: Path, msgs: Sequence[Message]) -> Path:
 def write_by(writer: str, path: Path, msgs: Sequence[Message]) -> Path:
     """A bare MCAP of ``msgs`` by ``writer``: ``"rosbags"`` or ``"twincd"``."""
     return write(path, "mcap", msgs) if writer == "rosbags" else write_with_twincd(path, msgs)
+
+
+def messages_of(src: Path) -> list[Message]:
+    """Every message of the log ``src``, decoded by rosbags, in log order."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([src], default_typestore=TS) as reader:
+        return [
+            Message(conn.topic, conn.msgtype, log_time, reader.deserialize(raw, conn.msgtype))
+            for conn, log_time, raw in reader.messages()
+        ]
+
+
+def rewrite(
+    src: Path,
+    dst: Path,
+    edit: Callable[[Any], object] = lambda m: None,
+    form: str = "mcap",
+    writer: str = "rosbags",
+) -> Path:
+    """``src`` written again, by rosbags' writer in ``form`` or (``writer="twincd"``) as a bare
+    MCAP by twincd's; ``edit`` changes each JointState message in place, in log order (one for
+    which it returns False is left out)."""
+    msgs = [
+        m
+        for m in messages_of(src)
+        if m.msgtype != "sensor_msgs/msg/JointState" or edit(m.msg) is not False
+    ]
+    return write(dst, form, msgs) if writer == "rosbags" else write_with_twincd(dst, msgs)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,12 +23,14 @@ import numpy as np
 from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_ROBOT
 from twincd.errors import TwincdError
 from twincd.io.options import LogOptions
+from twincd.signal.bounds import Dropped
 from twincd.signal.moments import Moments
 from twincd.types import FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.io.stream import TopicReader
+    from twincd.io.stream import SampleBlock, TopicReader
+    from twincd.signal.bounds import SampleBounds
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
@@ -94,6 +96,10 @@ class Inspection:
     labelled_fraction: float | None = None
     link_labels: tuple[str, ...] = ()
     twin_source: str | None = None
+    # samples dropped as absurd (twincd.signal.bounds), with their times and joints
+    absurd: Dropped = field(default_factory=Dropped)
+    # messages of a second publisher on the arm's joints (zeros between the live samples)
+    other_publisher: int = 0
     warnings: list[str] = field(default_factory=list)
     problem: str | None = None
     # the error behind ``problem`` (its traceback is what ``--debug`` shows); not in to_dict
@@ -213,7 +219,7 @@ def _inspect(
             str(path),
             "use a calibration or robot model made for this robot, or a joint map",
         )
-    usable, has_effort = _read_samples(
+    usable, has_effort, why = _read_samples(
         path, options, tuple(joints), strict, model, calibration, found, has_sim
     )
     if found.sampling is not None:
@@ -221,7 +227,7 @@ def _inspect(
     # what fit and detect refuse, refused here alike (the same checks, the same words)
     from twincd.prepare.setup import require_effort, require_enough_samples
 
-    require_effort(has_effort, found.path, found.joint_topic or options.topic)
+    require_effort(has_effort, found.path, found.joint_topic or options.topic, why)
     require_enough_samples(usable, found.path)
 
 
@@ -350,12 +356,12 @@ def _read_samples(
     calibration: Calibration | None,
     found: Inspection,
     has_sim: bool = False,
-) -> tuple[int, bool]:
+) -> tuple[int, bool, str | None]:
     """Ranges, sampling and the signal checks into ``found``; the samples fit and detect would
     use (finite position and effort, and the log's twin effort where it has one), and whether
     the log has measured effort (as the stream decides it)."""
     from twincd.io.stream import iter_blocks
-    from twincd.prepare.chain import warn_unwrapped
+    from twincd.prepare.chain import sample_bounds, warn_unwrapped
     from twincd.prepare.setup import warn_velocity_from_position
     from twincd.signal import nominal_period
     from twincd.signal.checks import SignalChecks
@@ -377,12 +383,18 @@ def _read_samples(
     usable = 0
     unwrap: StreamingUnwrap | None = None  # what the derivative of position would see
     with opened as stream:
-        has_effort = stream.has_effort
+        has_effort, why = stream.has_effort, stream.no_effort_why
+        found.joint_topic = stream.topic  # ros2_control's DynamicJointState may stand in
         joints = tuple(stream.joint_names)
         acc = _Ranges(len(joints))
         checks = SignalChecks(joints, limits)
+        bounds = sample_bounds(model, joints)
         has_velocity = np.ones(len(joints), dtype=bool)
+        from_position: bool | None = None  # decided on the first block, as detect does
         for block in stream:
+            if from_position is None:
+                from_position = not bool(np.isfinite(block.velocity).all())
+            block = _within_bounds(block, bounds, from_position, has_sim)
             if unwrap is None and len(block) > 1:
                 unwrap = StreamingUnwrap(nominal_period(block.stamp_ns))
             if unwrap is not None:
@@ -395,8 +407,11 @@ def _read_samples(
                 if has_sim and block.sim_effort is not None:
                     ok &= np.isfinite(block.sim_effort).all(axis=1)
                 usable += int(np.count_nonzero(ok))
+        found.absurd = bounds.dropped
+        found.other_publisher = stream.counts.other_publisher
+        bounds.warn(found.path)
     if acc.first is None:
-        return usable, has_effort
+        return usable, has_effort, why
     found.sampling = acc.sampling()
     checks.warn(found.path)
     if not has_velocity.all():
@@ -420,7 +435,36 @@ def _read_samples(
         )
         for i, name in enumerate(joints)
     ]
-    return usable, has_effort
+    return usable, has_effort, why
+
+
+def _within_bounds(
+    block: SampleBlock, bounds: SampleBounds, from_position: bool, has_sim: bool
+) -> SampleBlock:
+    """The block less its absurd samples, judged among the finite ones as detect judges them
+    (``twincd.signal.bounds``: a recorder glitch's values never reach the ranges or checks)."""
+    values = {"position": block.position, "effort": block.effort}
+    if not from_position:
+        values["velocity"] = block.velocity
+    if has_sim:
+        values["sim_effort"] = block.sim_effort
+    ok = np.ones(len(block), dtype=bool)
+    for v in values.values():
+        if v is not None:
+            ok &= np.isfinite(v).all(axis=1)
+    rows = np.flatnonzero(ok)
+    keep = bounds.keep(
+        block.stamp_ns[rows], **{c: v[rows] for c, v in values.items() if v is not None}
+    )
+    if keep.all():
+        return block
+    ok[:] = True
+    ok[rows[~keep]] = False
+    kept: dict[str, Any] = {}
+    for f in fields(block):
+        v = getattr(block, f.name)
+        kept[f.name] = None if v is None else v[ok]
+    return replace(block, **kept)
 
 
 def _warn_if_at_rest(source: str, spans: FloatArray) -> None:

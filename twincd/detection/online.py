@@ -42,7 +42,14 @@ from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
 from twincd.detection.events import Event, EventRules
 from twincd.errors import CalibrationError, DataError, JointMismatchError
-from twincd.prepare.chain import BuiltChain, JointLayout, build_chain, check_urdf, robot_for
+from twincd.prepare.chain import (
+    BuiltChain,
+    JointLayout,
+    build_chain,
+    check_urdf,
+    robot_for,
+    sample_bounds,
+)
 from twincd.prepare.frames import Frame
 from twincd.types import BoolArray, FloatArray, IntArray
 
@@ -70,8 +77,9 @@ class OnlineDetector:
     ``push(stamp_ns, position, velocity, effort)`` takes arrays of shape (N,) and (N, joints)
     (joints in the calibration's order; ``velocity`` may be None: it is then differentiated
     from position), returns an ``OnlineResult``; ``close()`` ends an open event. Samples with a
-    non-finite value or a stamp not after the previous one are skipped (score NaN, flag False)
-    and counted in ``skipped``.
+    non-finite value, an absurd one (``twincd.signal.bounds``: the rule batch detection applies,
+    from the same limits; said in one warning when the stream ends) or a stamp not after the
+    previous one are skipped (score NaN, flag False) and counted in ``skipped``.
 
     ``period_s`` overrides the calibration's sampling period (needed for calibration files that
     do not record it). ``sim_effort=True`` expects the twin's effort in every push (a log with
@@ -126,6 +134,14 @@ class OnlineDetector:
                     "fit the calibration on the arm's joints only (the robot model's), or "
                     "detect with the log's own twin effort",
                 )
+        # absurd samples are dropped by the rule batch detection applies, from the same limits
+        # (the calibration's robot model, when it names one)
+        limits = self.robot
+        if limits is None and calibration.robot is not None:
+            limits = robot_for(calibration.robot, tuple(self.joint_names))
+        self._limits = limits
+        self.bounds = sample_bounds(limits, self.joint_names)
+        self._source = source or where
         self._threads = threads
         self._chain: BuiltChain | None = None
         # pushed rows not released yet: their stamps and whether they went down the chain
@@ -135,6 +151,7 @@ class OnlineDetector:
         self._last_stamp: int | None = None
         self.samples = 0
         self.skipped = 0
+        self.taken = np.zeros(0, dtype=bool)  # which rows of the last push went down the chain
 
     @property
     def latency_s(self) -> float:
@@ -246,6 +263,16 @@ class OnlineDetector:
             ok &= np.isfinite(sim).all(axis=1)
         ok &= _increasing(stamps, self._last_stamp)
         rows = np.flatnonzero(ok)
+        values = {"position": pos[rows], "effort": eff[rows]}
+        if not self._fill:
+            values["velocity"] = vel[rows]
+        if sim is not None:
+            values["sim_effort"] = sim[rows]
+        keep = self.bounds.keep(stamps[rows], **values)
+        if not keep.all():
+            ok[rows[~keep]] = False
+            rows = rows[keep]
+        self.taken = ok
         frame = Frame(
             {
                 "stamp_ns": stamps[rows],
@@ -267,6 +294,8 @@ class OnlineDetector:
     def flush(self) -> OnlineResult:
         """End of the stream: the samples a coarse grid still holds, scored, and the events
         closed by them or still open. A later push starts a new stream."""
+        self.bounds.warn(self._source)
+        self.bounds = sample_bounds(self._limits, self.joint_names)  # a new stream's
         if self._chain is None:
             return self._release(Frame(), self._scoring.finish())
         out = self._release(self._chain.chain.finish(), final=True)

@@ -20,18 +20,37 @@ from numpy.typing import NDArray
 from twincd.types import BoolArray, ByteArray, FloatArray, IntArray
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
+# ros2_control's joint_state_broadcaster: every state interface of every joint
+DYNAMIC_JOINT_STATE = "control_msgs/msg/DynamicJointState"
 BOOL = "std_msgs/msg/Bool"
 STRING = "std_msgs/msg/String"
 FLOAT64 = "std_msgs/msg/Float64"
 
 
+# control_msgs is not in rosbags' stores: its two messages twincd reads, as control_msgs defines
+# them (a bag's own definitions take precedence where it stores them)
+CONTROL_MSGS = {
+    "control_msgs/msg/InterfaceValue": "string[] interface_names\nfloat64[] values\n",
+    DYNAMIC_JOINT_STATE: (
+        "std_msgs/Header header\nstring[] joint_names\n"
+        "control_msgs/InterfaceValue[] interface_values\n"
+    ),
+}
+
+
 @lru_cache(maxsize=1)
 def typestore() -> Any:
-    """rosbags' store of the latest ROS 2 message types, the reference for every byte (built
-    on first use: the fast paths never need it, and it costs 70 ms of start-up)."""
-    from rosbags.typesys import Stores, get_typestore
+    """rosbags' store of the latest ROS 2 message types, the reference for every byte, with
+    control_msgs' ``DynamicJointState`` (built on first use: the fast paths never need it, and
+    it costs 70 ms of start-up)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    return get_typestore(Stores.LATEST)
+    store = get_typestore(Stores.LATEST)
+    types: dict[str, Any] = {}
+    for name, text in CONTROL_MSGS.items():
+        types.update(get_types_from_msg(text, name))
+    store.register(types)
+    return store
 
 
 def _type(name: str) -> Any:

@@ -105,15 +105,20 @@ def expand_logs(paths: Iterable[str | Path]) -> list[Path]:
     """Every log the arguments stand for: files, rosbag2 folders (with their metadata.yaml, or
     without it: ``twincd.io.sources.headless_storage``), and folders of logs; each log once
     (``unique_logs``: a log named twice, or a log and a folder holding it, counts once)."""
+    from twincd.io.sources import unreadable
+
     found: list[Path] = []
     for raw in paths:
         path = Path(raw)
         if not path.exists():
             raise LogReadError("no such file or folder", str(path), "check the path")
-        if path.is_file() or _is_bag(path):
-            found.append(path)
-            continue
-        below = _without_copies(sorted(_logs_below(path)))
+        try:
+            if path.is_file() or _is_bag(path):
+                found.append(path)
+                continue
+            below = _without_copies(sorted(_logs_below(path)))
+        except PermissionError as exc:
+            raise unreadable(exc, path) from exc
         if not below:
             raise LogReadError(
                 "no logs in folder", str(path), "give .mcap, .db3, .bag or rosbag2 folders"

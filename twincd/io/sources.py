@@ -61,6 +61,17 @@ def open_reader(path: Path) -> Any:
     return reader
 
 
+def unreadable(exc: OSError, path: Path) -> LogReadError:
+    """A log (or a folder of logs) the operating system will not let twincd read: one clear
+    error naming the path (exit 2), never an internal error."""
+    where = exc.filename if isinstance(exc.filename, str) and exc.filename else str(path)
+    return LogReadError(
+        f"cannot read log: {exc.strerror or type(exc).__name__}",
+        where,
+        "check that the log and the folders that hold it may be read by this user",
+    )
+
+
 def refuse_non_logs(path: Path) -> None:
     """One clear error for a path that cannot be a log: missing or empty."""
     if not path.exists():

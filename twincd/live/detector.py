@@ -131,10 +131,7 @@ class LiveDetector:
                 lowpass, features, layout, det.period_s, robot, fill, threads=1, filtered=False
             )
             self._twin_chain = built.chain
-        # the rows the detector takes: finite ones (samples come sorted by the reorder buffer)
-        ok = np.isfinite(position).all(axis=1) & np.isfinite(effort).all(axis=1)
-        if not det.velocity_from_position:
-            ok &= np.isfinite(velocity).all(axis=1)
+        ok = det.taken  # the rows the detector took: finite, newer, not absurd
         frame = Frame(
             {
                 "stamp_ns": stamps[ok],

@@ -27,6 +27,7 @@ from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
+    from twincd.signal.bounds import SampleBounds
     from twincd.signal.unwrap import StreamingUnwrap
     from twincd.twin.robot import RobotModel
 
@@ -77,6 +78,17 @@ def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) ->
     from twincd.twin.robot import load_robot
 
     return load_robot(robot, keep=joints)
+
+
+def sample_bounds(robot: RobotModel | None, joints: Sequence[str]) -> SampleBounds:
+    """The causal bound on a stream's absurd samples (``twincd.signal.bounds``) from the robot
+    model's limits (none without a model): the one rule batch, causal, live and ``inspect``
+    apply."""
+    from twincd.signal.bounds import SampleBounds
+
+    if robot is None:
+        return SampleBounds(joints, {})
+    return SampleBounds(joints, robot.position_limits, robot.velocity_limits, robot.effort_limits)
 
 
 def check_urdf(robot: RobotModel, expected: str | None, allow: bool, source: str) -> None:

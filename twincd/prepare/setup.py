@@ -40,6 +40,7 @@ from twincd.prepare.chain import (
     model_joints,
     require_default_robot,
     robot_for,
+    sample_bounds,
     warn_unwrapped,
 )
 from twincd.prepare.frames import Frame, prefetched
@@ -53,6 +54,7 @@ from twincd.types import BoolArray, FloatArray, IndexArray, IntArray
 if TYPE_CHECKING:
     from twincd.io.stream import LogStream
     from twincd.prepare.grid import GridStage
+    from twincd.signal.bounds import SampleBounds
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
@@ -176,6 +178,27 @@ def _finite_rows(frame: Frame, columns: Sequence[str], used: IndexArray) -> Bool
     return ok
 
 
+def _bounded_rows(
+    bounds: SampleBounds, frame: Frame, columns: Sequence[str], used: IndexArray, ok: BoolArray
+) -> BoolArray:
+    """``ok`` less the rows ``bounds`` finds absurd among them (``twincd.signal.bounds``: the
+    causal rule every path applies), judged on the twin's joints of ``columns``."""
+    rows = None if ok.all() else np.flatnonzero(ok)
+    whole = len(used) == frame["position"].shape[1] and bool(np.all(used == np.arange(len(used))))
+    values = {}
+    for c in columns:
+        if c in frame:
+            v = frame[c] if whole else frame[c][:, used]
+            values[c] = v if rows is None else v[rows]
+    stamps = frame["stamp_ns"] if rows is None else frame["stamp_ns"][rows]
+    keep = bounds.keep(stamps, **values)
+    if keep.all():
+        return ok
+    out: BoolArray = ok.copy()
+    out[np.flatnonzero(ok)[~keep]] = False
+    return out
+
+
 class PreparedStream:
     """One log read, twinned and filtered block by block: a context manager whose iteration
     yields Frames with ``stamp_ns``, ``log_time_ns``, ``position``, ``velocity``, ``effort``,
@@ -234,6 +257,7 @@ class PreparedStream:
         self.regressor_mask: BoolArray | None = None
         self.checks: SignalChecks | None = None
         self.near_ends = 0  # samples whose filtered values are ≥ SHORT_FACTOR× the middle's noise
+        self.bounds: SampleBounds | None = None  # absurd samples (twincd.signal.bounds)
         self.nodes = nodes
         self.model = model
         self.jump = jump  # a score's jump threshold: the fast band is not judged around one
@@ -296,7 +320,7 @@ class PreparedStream:
         assert self._log is not None
         names = tuple(self._log.joint_names)
         if self.need_effort:
-            require_effort("effort" in first, self.source, self.topic)
+            require_effort("effort" in first, self.source, self.topic, self._log.no_effort_why)
         twin_names, model = self._twin_source(first.get("sim_effort"), names)
         regressor = self._regressor(twin_names)
         self.joint_names = self._output_joints(twin_names)
@@ -309,6 +333,7 @@ class PreparedStream:
         self.velocity_from_position = fill
         robot = self.robot
         self.checks = SignalChecks(twin_names, robot.position_limits if robot else {})
+        self.bounds = sample_bounds(robot, twin_names)
         setup = self.setup
         built = build_chain(
             setup.lowpass,
@@ -444,14 +469,15 @@ class PreparedStream:
             for block in blocks:
                 yield _frame(block)
 
-        checks = self.checks
-        assert checks is not None
+        checks, bounds = self.checks, self.bounds
+        assert checks is not None and bounds is not None
 
         def clean(frames_in: Iterable[Frame]) -> Iterator[Frame]:
             for frame in frames_in:
                 ok = _finite_rows(frame, needed, used)
+                self.dropped_bad += int((~ok).sum())
+                ok = _bounded_rows(bounds, frame, needed, used, ok)
                 if not ok.all():
-                    self.dropped_bad += int((~ok).sum())
                     frame = Frame({k: v[ok] for k, v in frame.items()})
                 effort = frame.get("effort") if self.need_effort else None
                 checks.push(frame["position"][:, used], None if effort is None else effort[:, used])
@@ -473,6 +499,7 @@ class PreparedStream:
                 self.source,
                 self.dropped_bad,
             )
+        bounds.warn(self.source)
         require_enough_samples(self.samples, self.source)
         warn_unwrapped(self.source, built.unwrap, built.layout.twin)
         checks.warn(self.source)
@@ -581,14 +608,16 @@ def warn_velocity_from_position(
     )
 
 
-def require_effort(has_effort: bool, source: str, topic: str) -> None:
+def require_effort(has_effort: bool, source: str, topic: str, why: str | None = None) -> None:
     """A log without measured effort is refused by every command that compares it with the
-    twin (and by ``inspect``, which says what those would do)."""
+    twin (and by ``inspect``, which says what those would do); ``why``: what the log has that
+    cannot stand in (its DynamicJointState topic without an effort interface)."""
     if not has_effort:
         raise DataError(
-            "the log has no measured effort",
+            "the log has no measured effort" + (f", and {why}" if why else ""),
             f"{source}, {topic}",
-            "record JointState.effort; twincd compares it with the twin",
+            "record JointState.effort (or ros2_control's effort state interface); twincd "
+            "compares it with the twin",
         )
 
 

@@ -185,6 +185,21 @@ class RobotModel:
         return np.atleast_2d(tangent)[:, [j.idx_v for j in self.joints]]
 
     @cached_property
+    def velocity_limits(self) -> dict[str, float]:
+        """Velocity limits by joint name (the URDF's ``velocity``); joints without one (not
+        finite or not positive) are left out."""
+        return self._per_joint(self.model.velocityLimit)
+
+    @cached_property
+    def effort_limits(self) -> dict[str, float]:
+        """Effort limits by joint name (the URDF's ``effort``), as ``velocity_limits``."""
+        return self._per_joint(self.model.effortLimit)
+
+    def _per_joint(self, values: Any) -> dict[str, float]:
+        out = {j.name: float(values[j.idx_v]) for j in self.joints}
+        return {n: v for n, v in out.items() if np.isfinite(v) and v > 0}
+
+    @cached_property
     def position_limits(self) -> dict[str, tuple[float, float]]:
         """(lower, upper) position limits by joint name; joints without any are left out (a
         continuous joint, stored as cos/sin, or limits absent: not finite, or lower ≥ upper)."""
@@ -247,13 +262,14 @@ def _full_model(urdf_path: Path, version: tuple[int, int] = (0, 0)) -> pin.Model
     pin = load_pinocchio()
 
     try:
-        ElementTree.parse(urdf_path)  # malformed XML: a clear message before Pinocchio sees it
+        tree = ElementTree.parse(urdf_path)  # malformed XML: said before Pinocchio sees it
     except ElementTree.ParseError as exc:
         raise RobotModelError(
             f"cannot load URDF: not valid XML ({exc})",
             str(urdf_path),
             "check that the file is a valid URDF",
         ) from exc
+    _refuse_xacro(urdf_path, tree.getroot())
     with _native_stderr_captured() as native:
         try:
             model = pin.buildModelFromUrdf(str(urdf_path))
@@ -267,6 +283,23 @@ def _full_model(urdf_path: Path, version: tuple[int, int] = (0, 0)) -> pin.Model
     for line in native:
         log.debug("urdfdom: %s", line)
     return model
+
+
+XACRO_NS = "{http://www.ros.org/wiki/xacro}"
+
+
+def _refuse_xacro(path: Path, root: ElementTree.Element) -> None:
+    """A xacro file (macros, properties, includes: ``*.urdf.xacro``) is not a URDF yet: say so
+    and what to run, rather than Pinocchio's "does not contain a valid URDF model"."""
+    macros = any(str(e.tag).startswith(XACRO_NS) for e in root.iter())
+    if macros or path.suffix.lower() == ".xacro":
+        urdf = path.name.removesuffix(".xacro").removesuffix(".urdf") + ".urdf"
+        raise RobotModelError(
+            "the robot model is a xacro file, not a URDF",
+            str(path),
+            f"expand it into a URDF first (xacro {path.name} > {urdf}) and give that file",
+            option="robot",
+        )
 
 
 # gripper joints: the arm's twin does not drive them (contract: Inputs: locked, never fitted)

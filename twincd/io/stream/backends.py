@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from twincd.errors import LogReadError
-from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
+from twincd.io.cdr import BOOL, DYNAMIC_JOINT_STATE, JOINT_STATE, CdrStats
 from twincd.io.mcap import MAGIC, McapDamage, McapFile
-from twincd.io.sources import first_line, open_reader, refuse_non_logs, storage_of
+from twincd.io.sources import first_line, open_reader, refuse_non_logs, storage_of, unreadable
 from twincd.io.sqlite3 import FETCH, Sqlite3Storage, SqliteDamage
 from twincd.io.stream.batch import (
     END,
@@ -28,6 +28,7 @@ from twincd.io.stream.batch import (
     JointStateBatch,
     RawTopic,
     StringBatch,
+    dynamic_batches,
 )
 from twincd.types import FloatArray
 
@@ -230,6 +231,8 @@ class _Pending:
             times = np.array([t for t, _ in items], dtype=np.int64)
             if msgtype == BOOL:
                 out.append((topic, BoolBatch(times, np.array([bool(m.data) for _, m in items]))))
+            elif msgtype == DYNAMIC_JOINT_STATE:
+                out.extend((topic, b) for b in dynamic_batches(times, [m for _, m in items]))
             else:
                 out.append((topic, StringBatch(times, [str(m.data) for _, m in items])))
         self.joint, self.other, self.count = {}, {}, 0
@@ -246,7 +249,15 @@ def _stack(rows: list[Any], k: int) -> FloatArray:
 
 def open_backend(path: Path, source: str, stats: CdrStats) -> Backend:
     """The fastest backend that reads ``path``: MCAP, sqlite3, else rosbags. The storage files
-    come from ``storage_of``, the one place that says what a log path stands for."""
+    come from ``storage_of``, the one place that says what a log path stands for. A path this
+    user may not read is one ``LogReadError`` that names it."""
+    try:
+        return _open_backend(path, source, stats)
+    except PermissionError as exc:
+        raise unreadable(exc, path) from exc
+
+
+def _open_backend(path: Path, source: str, stats: CdrStats) -> Backend:
     refuse_non_logs(path)
     if path.is_file():
         with open(path, "rb") as f:

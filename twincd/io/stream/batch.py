@@ -4,14 +4,19 @@ time, as ``TopicReader`` yields them, and the raw (undecoded) messages its backe
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
-from twincd.io.cdr import BOOL, JOINT_STATE, STRING
+import numpy as np
+
+from twincd.io.cdr import BOOL, DYNAMIC_JOINT_STATE, JOINT_STATE, STRING
 from twincd.types import BoolArray, ByteArray, FloatArray, IntArray
 
 __all__ = [
     "DEFAULT_BATCH",
     "END",
+    "INTERFACES",
     "STRING",
     "SUPPORTED",
     "Batch",
@@ -20,9 +25,12 @@ __all__ = [
     "JointStateBatch",
     "RawTopic",
     "StringBatch",
+    "dynamic_batches",
 ]
 
-SUPPORTED = (JOINT_STATE, BOOL, STRING)
+SUPPORTED = (JOINT_STATE, DYNAMIC_JOINT_STATE, BOOL, STRING)
+# the state interfaces of a DynamicJointState that a JointState carries
+INTERFACES = ("position", "velocity", "effort")
 DEFAULT_BATCH = 16384  # messages decoded at once: 4× smaller peak memory than 65 536, as fast
 END = 2**63 - 1  # the watermark once everything has been read
 
@@ -82,3 +90,37 @@ class RawTopic:
 
 class Damage(Exception):
     """Reading stopped at a damaged part of the log (``where`` says what and where)."""
+
+
+def dynamic_batches(log_time_ns: IntArray, msgs: Sequence[Any]) -> list[JointStateBatch]:
+    """ros2_control's ``DynamicJointState`` messages (decoded) as JointState batches, one per
+    layout (joint names and their interfaces): each joint's ``position``, ``velocity`` and
+    ``effort`` interfaces, NaN where a joint lacks one (a sample without a position is then
+    dropped as incomplete), an empty array where no joint has it."""
+    layouts: dict[tuple[Any, ...], list[int]] = {}
+    for i, m in enumerate(msgs):
+        interfaces = tuple(tuple(v.interface_names) for v in m.interface_values)
+        layouts.setdefault((tuple(m.joint_names), interfaces), []).append(i)
+    out = []
+    for (names, interfaces), rows in layouts.items():
+        n, k = len(rows), len(names)
+        columns = []
+        for kind in INTERFACES:
+            where = [(j, ifs.index(kind)) for j, ifs in enumerate(interfaces[:k]) if kind in ifs]
+            if not where and kind != "position":
+                columns.append(np.zeros((n, 0)))
+                continue
+            values = np.full((n, k), np.nan)
+            for j, at in where:
+                values[:, j] = [_value(msgs[r].interface_values[j].values, at) for r in rows]
+            columns.append(values)
+        stamps = np.array(
+            [msgs[r].header.stamp.sec * 1_000_000_000 + msgs[r].header.stamp.nanosec for r in rows],
+            dtype=np.int64,
+        )
+        out.append(JointStateBatch(names, log_time_ns[rows], stamps, *columns))
+    return out
+
+
+def _value(values: Any, at: int) -> float:
+    return float(values[at]) if at < len(values) else float("nan")

@@ -5,7 +5,9 @@ sample layer of the block stream, on top of ``twincd.io.stream.topics``).
 (``twincd.io.stream.topics``) go through a reorder buffer that sorts the newest samples by stamp and
 emits the older ones in blocks. Rules (contract: Inputs):
 
-- time is ``header.stamp``, the log time where the stamp is 0;
+- time is ``header.stamp``, unless every stamp of the topic is 0 (decided on the messages read
+  ahead): then the log time. A stamp of 0 among others is a time like any other (simulation
+  time starts there);
 - the stream's joints are the ``known`` ones (a robot model's or a calibration's), else those of
   the log's own twin effort, else those of the message layout (name list) that carries the most
   joints (ties: the most messages); see ``LogStream``. Messages that carry none of them (another
@@ -40,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twincd.errors import JointMismatchError, LogReadError, SplitJointsError, TopicError
-from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats
+from twincd.io.cdr import BOOL, DYNAMIC_JOINT_STATE, JOINT_STATE, CdrStats
 from twincd.io.stream.batch import DEFAULT_BATCH, END, Batch, BoolBatch, JointStateBatch
 from twincd.io.stream.parts import (
     Clock,
@@ -73,6 +75,7 @@ log = logging.getLogger("twincd")
 
 
 OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's joint states
+DYNAMIC_TOPIC = "/dynamic_joint_states"  # ros2_control's joint_state_broadcaster publishes here
 DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
 
@@ -112,15 +115,23 @@ class StreamCounts:
     jumps: int = 0  # backward jumps of the clock
     largest_jump_ns: int = 0
     samples: int = 0  # emitted
-    unstamped: int = 0  # header stamp 0: timed by the log time instead
+    unstamped: int = 0  # every header stamp of the topic 0: timed by the log time instead
     foreign: int = 0  # ignored: messages that carry none of the stream's joints
     foreign_names: tuple[str, ...] = ()  # the joints those messages name
+    other_publisher: int = 0  # ignored: a second publisher's on the same joints (zeros)
     named_twice: int = 0  # messages naming a joint twice (its first value kept)
     twice_names: tuple[str, ...] = ()
 
     @property
     def dropped(self) -> int:
-        return self.incomplete + self.duplicates + self.late + self.ragged + self.clock_back
+        return (
+            self.incomplete
+            + self.duplicates
+            + self.late
+            + self.ragged
+            + self.clock_back
+            + self.other_publisher
+        )
 
 
 def warn_ignored_joints(source: str, names: Sequence[str], used: Sequence[str], what: str) -> None:
@@ -137,9 +148,10 @@ def warn_ignored_joints(source: str, names: Sequence[str], used: Sequence[str], 
 
 
 def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
-    """The JointState topic to read (contract: Inputs: fall back to the only JointState topic)."""
+    """The JointState topic to read (contract: Inputs: fall back to the only JointState topic,
+    or, without any, to the only DynamicJointState topic)."""
     if wanted in topics:
-        if topics[wanted] != JOINT_STATE:
+        if topics[wanted] not in (JOINT_STATE, DYNAMIC_JOINT_STATE):
             raise TopicError(
                 f"topic {wanted} is {topics[wanted]}, not {JOINT_STATE}",
                 source,
@@ -148,7 +160,7 @@ def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
         return wanted
     candidates = sorted(
         t for t, m in topics.items() if m == JOINT_STATE and not t.startswith(OWN_PREFIX)
-    )
+    ) or sorted(t for t, m in topics.items() if m == DYNAMIC_JOINT_STATE)
     if len(candidates) == 1:
         log.warning(
             "topic %s not in %s; using its only JointState topic %s", wanted, source, candidates[0]
@@ -226,7 +238,14 @@ class LogStream:
             )
         self.sim_topic = options.sim_topic
         self.has_sim = topics.get(self.sim_topic) == JOINT_STATE
-        wanted = [self.topic]
+        # ros2_control's DynamicJointState: read when no JointState carries effort
+        self.no_effort_why: str | None = None  # why it cannot stand in, when it cannot
+        dynamic = [t for t, m in topics.items() if m == DYNAMIC_JOINT_STATE]
+        if topics[self.topic] == DYNAMIC_JOINT_STATE or not dynamic:
+            self._dynamic: str | None = None
+        else:
+            self._dynamic = DYNAMIC_TOPIC if DYNAMIC_TOPIC in dynamic else sorted(dynamic)[0]
+        wanted = [self.topic] + ([self._dynamic] if self._dynamic else [])
         wanted += [self.label_topic] if self.has_labels else []
         wanted += [self.sim_topic] if self.has_sim else []
         self._items = self._reader.batches(wanted)
@@ -239,7 +258,9 @@ class LogStream:
                 seen += len(batch)
                 if seen >= max(self.reorder, 1):
                     break
-        first = [b for t, b, _ in self._head if t == self.topic and isinstance(b, JointStateBatch)]
+        first = self._read_ahead(self.topic)
+        if self._dynamic is not None:
+            first = self._effort_source(first, self._dynamic)
         if not first:
             damage = self._reader.damage
             if damage is not None:  # the damage came before any joint state
@@ -261,24 +282,117 @@ class LogStream:
         elif not exact:  # joints with the log's own twin effort are never ignored
             known = tuple(dict.fromkeys((*known, *self._sim_names())))
         self.joint_names = self._choose_joints(layouts, tuple(known), exact)
+        # header stamps, unless every stamp of the topic is 0 (decided on the first messages):
+        # then the log time; a stamp of 0 among others is a time like any other (simulation
+        # time starts there)
+        self._log_timed = not any(b.stamp_ns.any() for b in first)
+        sims = [
+            b for t, b, _ in self._head if t == self.sim_topic and isinstance(b, JointStateBatch)
+        ]
+        self._sim_log_timed = bool(sims) and not any(b.stamp_ns.any() for b in sims)
         # a log has effort when most of its first messages carry it (one empty message does
         # not decide); samples without it are dropped as bad samples later
         with_effort = sum(len(b) for b in first if b.effort.shape[1] > 0)
         self.has_effort = 2 * with_effort > sum(len(b) for b in first)
+        self._columns: dict[tuple[str, ...], NDArray[np.intp]] = {}
+        self._period_ns = self._measuring_period(first) if self.has_effort else None
+        self._last_measuring = -np.inf  # the stamp of the last sample emitted that measures
         width = len(self.joint_names)
         self._pending = empty_rows(width, self.has_effort)
         self._labels = Labels() if self.has_labels else None
         self._sim = Sim(width) if self.has_sim else None
-        self._columns: dict[tuple[str, ...], NDArray[np.intp]] = {}
         self._seq = 0
         self._clock = Clock()
         self._sim_clock = Clock()
         self._last: int | None = None  # stamp of the last emitted sample
+        self._first: int | None = None  # stamp of the first
         self._out: list[Rows] = []
         self._out_n = 0
         self._labels_out: list[BoolArray] = []
         self._sim_out: list[FloatArray] = []
         self._used = False
+
+    def _read_ahead(self, topic: str) -> list[JointStateBatch]:
+        return [b for t, b, _ in self._head if t == topic and isinstance(b, JointStateBatch)]
+
+    def _effort_source(self, first: list[JointStateBatch], dynamic: str) -> list[JointStateBatch]:
+        """The JointState messages read ahead, or, when none carries effort, those of the
+        DynamicJointState topic ``dynamic`` (which becomes the stream's topic); the topic not
+        read is no longer decoded."""
+        if any(b.effort.shape[1] for b in first):
+            self._reader.ignore(dynamic)
+            return first
+        other = self._read_ahead(dynamic)
+        names = {n for b in first for n in self._mapped(b.names)}
+        shared = [b for b in other if names & set(self._mapped(b.names)) or not names]
+        if not any(b.effort.shape[1] for b in shared):
+            what = "no effort interface" if shared else "none of its joints"
+            self.no_effort_why = f"{dynamic} ({DYNAMIC_JOINT_STATE}) carries {what}"
+            self._reader.ignore(dynamic)
+            return first
+        log.warning(
+            "%s: %s carries no effort; reading the joint states from %s (%s) instead",
+            self.source,
+            self.topic,
+            dynamic,
+            DYNAMIC_JOINT_STATE,
+        )
+        self._reader.ignore(self.topic)
+        self.topic = dynamic
+        return other
+
+    def _measuring_period(self, first: list[JointStateBatch]) -> float | None:
+        """The nominal period (ns) of the messages read ahead that measure effort on the
+        stream's joints (``_other_publisher``'s lattice), or None when too few do."""
+        stamps = []
+        for b in first:
+            cols = self._cols(b.names)
+            if (cols < 0).any() or b.effort.shape[1] != len(b.names):
+                continue
+            effort = b.effort[:, cols]
+            measuring = np.isfinite(effort).all(axis=1) & (effort != 0).any(axis=1)
+            stamps.append((b.log_time_ns if self._log_timed else b.stamp_ns)[measuring])
+        steps = np.diff(np.unique(np.concatenate(stamps))) if stamps else np.zeros(0)
+        return float(np.median(steps)) if len(steps) else None
+
+    def _other_publisher(self, rows: Rows, k: int, final: bool) -> BoolArray:
+        """Which of the first ``k`` pending rows are a second publisher's on the same joints.
+
+        Bags carry no publisher id, so the rule is the stamp lattice with the content: a sample
+        whose efforts are all exactly 0 (a fake driver, a placeholder node) that falls between
+        two samples measuring effort less than 1.5 periods apart was squeezed in beside the
+        live stream, not in its place (after the stream's last live sample: less than half a
+        period after it). A driver whose motors are off publishes zeros in place of its
+        samples, a period apart: those are kept. Decided on the pending rows (the reorder
+        window is the look ahead), vectorised."""
+        effort = rows.effort
+        none = np.zeros(k, dtype=bool)
+        if self._period_ns is None or effort is None or not k:
+            return none
+        # a sample all of whose efforts are 0 has its first one 0: most blocks have none
+        if (effort[:k, 0] == 0).any():
+            finite = np.isfinite(effort).all(axis=1)
+            zero = finite & (effort == 0).all(axis=1)
+            measuring = finite & ~zero
+            stamp = rows.stamp.astype(np.float64)
+            prev = np.maximum.accumulate(np.where(measuring, stamp, -np.inf))
+            prev = np.maximum(prev, self._last_measuring)
+            after = np.where(measuring, stamp, np.inf)[::-1]
+            following = np.minimum.accumulate(after)[::-1]
+            squeezed = zero & (following - prev <= 1.5 * self._period_ns)
+            if final:  # after the last live sample: squeezed in when well before its next one
+                late = np.isinf(following) & (stamp - prev < 0.5 * self._period_ns)
+                squeezed |= zero & late
+            none = squeezed[:k]
+        # the last sample emitted that measures effort: the last one, as a rule
+        last = effort[k - 1]
+        if np.isfinite(last).all() and last.any():
+            self._last_measuring = float(rows.stamp[k - 1])
+        else:
+            measures = np.flatnonzero(np.isfinite(effort[:k]).all(axis=1) & effort[:k].any(axis=1))
+            if len(measures):
+                self._last_measuring = float(rows.stamp[measures[-1]])
+        return none
 
     def _mapped(self, names: Sequence[str]) -> tuple[str, ...]:
         return tuple(dict.fromkeys(self._joint_map.get(n, n) for n in names))
@@ -455,8 +569,8 @@ class LogStream:
         effort = None
         if self.has_effort:
             effort = pick(batch.effort) if batch.effort.shape[1] else nan
-        stamp = np.where(batch.stamp_ns != 0, batch.stamp_ns, batch.log_time_ns)
-        self.counts.unstamped += int(np.count_nonzero(batch.stamp_ns == 0))
+        stamp = batch.log_time_ns if self._log_timed else batch.stamp_ns
+        self.counts.unstamped += n if self._log_timed else 0
         seq = np.arange(self._seq, self._seq + n, dtype=np.int64)
         self._seq += n
         rows = Rows(stamp, batch.log_time_ns, seq, position, velocity, effort)
@@ -490,7 +604,7 @@ class LogStream:
         effort = np.full((len(batch), len(cols)), np.nan)
         have = (cols >= 0) & (cols < width)  # like zip(name, effort): extra names get nothing
         effort[:, have] = batch.effort[:, cols[have]]
-        stamp = np.where(batch.stamp_ns != 0, batch.stamp_ns, batch.log_time_ns)
+        stamp = batch.log_time_ns if self._sim_log_timed else batch.stamp_ns
         # as their samples: never over earlier ones
         ahead = ~self._sim_clock.behind(stamp, batch.log_time_ns)
         stamp, effort = stamp[ahead], effort[ahead]
@@ -507,9 +621,15 @@ class LogStream:
             waiting = np.flatnonzero(pending.log_time[:k] >= mark)
             if len(waiting):
                 k = int(waiting[0])
+        other = self._other_publisher(pending, k, final)
         if k:
             done, self._pending = pending.select(slice(0, k)), pending.select(slice(k, None))
             self._last = int(done.stamp[-1])
+            self._first = int(done.stamp[0]) if self._first is None else self._first
+            if other.any():
+                self.counts.other_publisher += int(other.sum())
+                done = done.select(np.flatnonzero(~other))
+                k = len(done)
             if self._labels is not None:
                 self._labels_out.append(self._labels.hold(done.log_time))
             if self._sim is not None:
@@ -523,6 +643,11 @@ class LogStream:
             self._labels.settle(mark, needed)
         while self._out_n >= self.block_size or (final and self._out_n):
             yield self._block(min(self.block_size, self._out_n))
+
+    def _span_s(self) -> float:
+        """Seconds from the first sample emitted to the last."""
+        first = self._first if self._first is not None else self._last
+        return 0.0 if first is None or self._last is None else (self._last - first) * 1e-9
 
     def _block(self, n: int) -> SampleBlock:
         rows = self._out[0] if len(self._out) == 1 else concat(self._out)
@@ -563,8 +688,10 @@ class LogStream:
             )
         if c.unstamped:
             log.warning(
-                "%s: %d sample(s) carry no header stamp; timed by their log time instead",
+                "%s: the samples on %s carry no header stamp (every one is 0); the %d sample(s) "
+                "are timed by their log time instead",
                 self.source,
+                self.topic,
                 c.unstamped,
             )
         if c.duplicates:
@@ -581,6 +708,16 @@ class LogStream:
                 c.foreign,
                 self.topic,
                 ", ".join(c.foreign_names[:8]),
+            )
+        if c.other_publisher:
+            log.warning(
+                "%s: ignoring %d message(s) on %s from a second publisher of the same joints "
+                "(every effort exactly 0, between samples of the live one less than 1.5 periods "
+                "apart; ≈ %.3g Hz)",
+                self.source,
+                c.other_publisher,
+                self.topic,
+                c.other_publisher / max(self._span_s(), 1e-9),
             )
         if c.named_twice:
             log.warning(

@@ -22,7 +22,15 @@ from typing import Any
 import numpy as np
 
 from twincd.errors import LogReadError, TopicError, TwincdError
-from twincd.io.cdr import BOOL, JOINT_STATE, CdrStats, decode_bools, decode_joint_states, typestore
+from twincd.io.cdr import (
+    BOOL,
+    DYNAMIC_JOINT_STATE,
+    JOINT_STATE,
+    CdrStats,
+    decode_bools,
+    decode_joint_states,
+    typestore,
+)
 from twincd.io.sources import first_line
 from twincd.io.stream.backends import McapBackend, open_backend
 from twincd.io.stream.batch import (
@@ -36,6 +44,7 @@ from twincd.io.stream.batch import (
     JointStateBatch,
     RawTopic,
     StringBatch,
+    dynamic_batches,
 )
 from twincd.types import ByteArray, IntArray
 
@@ -58,6 +67,7 @@ class TopicReader:
         self.watermark_ns = -(2**63)
         self.messages = 0  # yielded so far
         self.last_log_time_ns: int | None = None
+        self.ignored: set[str] = set()  # wanted topics no longer decoded (``ignore``)
         self._damage: str | None = None
         self._backend = open_backend(self.path, self.source, self.stats)
         self.topics: dict[str, str] = dict(self._backend.topics)
@@ -117,12 +127,14 @@ class TopicReader:
                     if count == 0:  # everything before the mark has been yielded
                         self.watermark_ns = item
                 elif isinstance(item, RawTopic):
+                    if item.topic in self.ignored:
+                        continue
                     pending.setdefault((item.topic, item.payloads.shape[1]), []).append(item)
                     count += len(item.log_time_ns)
                     if count >= 4 * self.batch_size:  # a huge chunk: bound memory anyway
                         yield from self._flush(pending)
                         count = 0
-                else:
+                elif item[0] not in self.ignored:
                     yield self._note(*item)
         except Damage as exc:
             yield from self._flush(pending)
@@ -131,6 +143,11 @@ class TopicReader:
             return
         yield from self._flush(pending)
         self.watermark_ns = END
+
+    def ignore(self, topic: str) -> None:
+        """Stop decoding ``topic`` in the batches still to come (a topic read ahead and then
+        not needed)."""
+        self.ignored.add(topic)
 
     def _note(self, topic: str, batch: Batch) -> tuple[str, Batch]:
         self.messages += len(batch)
@@ -163,6 +180,10 @@ class TopicReader:
                 ]
             if msgtype == BOOL:
                 return [BoolBatch(log_time, decode_bools(payloads, self.stats))]
+            if msgtype == DYNAMIC_JOINT_STATE:  # rare, and nested: decoded by rosbags
+                msgs = [typestore().deserialize_cdr(row.tobytes(), msgtype) for row in payloads]
+                self.stats.add(fallback=len(msgs))
+                return list(dynamic_batches(log_time, msgs))
             values = []
             for row in payloads:
                 msg: Any = typestore().deserialize_cdr(row.tobytes(), STRING)

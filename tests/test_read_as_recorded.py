@@ -1,0 +1,261 @@
+"""A recording is read as it is (contract: Inputs): simulation time that starts at 0, a second
+publisher on the arm's joints, ros2_control's ``/dynamic_joint_states``. Logs are the shipped
+xArm 7 sample logs written again by rosbags' writer and by twincd's, edited on the way."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from support.builders import rewrite
+from support.clitools import assert_one_line_error, run
+
+SAMPLES = Path(__file__).resolve().parent.parent / "sample_logs"
+CALIBRATION = SAMPLES / "calibration.json"
+CLEAN = SAMPLES / "val" / "val_000.mcap"
+NS = 1_000_000_000
+
+
+def detect(log: Path, *args: Any) -> dict[str, Any]:
+    result = run("detect", log, "-c", CALIBRATION, "--json", *args)
+    assert result.exit_code in (0, 1), result.output
+    doc: dict[str, Any] = json.loads(result.stdout)
+    return doc
+
+
+def restamped(src: Path, dst: Path, stamp: Any, writer: str = "rosbags") -> Path:
+    """``src`` with each JointState's header stamp replaced by ``stamp(i, old_ns)``."""
+    seen = [0]
+
+    def edit(msg: Any) -> None:
+        ns = stamp(seen[0], msg.header.stamp.sec * NS + msg.header.stamp.nanosec)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(ns), NS)
+        seen[0] += 1
+
+    return rewrite(src, dst, edit, writer=writer)
+
+
+# ---------------------------------------------------------------- simulation time from 0
+
+
+@pytest.mark.parametrize("writer", ["rosbags", "twincd"])
+def test_simulation_time_from_zero_is_read_as_time(tmp_path: Path, writer: str) -> None:
+    """Gazebo before its first /clock: header stamps from exactly 0. The 24 s log was refused
+    ("fewer than two distinct stamps"): its first stamp, 0, was taken for no stamp."""
+    first: list[int] = []
+
+    def from_zero(i: int, ns: int) -> int:
+        first.append(ns)
+        return ns - first[0]
+
+    log = restamped(CLEAN, tmp_path / "sim.mcap", from_zero, writer)
+    got, want = detect(log), detect(CLEAN)
+    assert got["logs"][0] == {**want["logs"][0], "path": str(log)}
+    assert not [w for w in got["warnings"] if "stamp" in w or "clock" in w]
+
+
+def test_only_stamps_that_all_equal_each_other_are_too_few(tmp_path: Path) -> None:
+    log = restamped(CLEAN, tmp_path / "same.mcap", lambda i, ns: 12 * NS)
+    result = run("detect", log, "-c", CALIBRATION)
+    assert_one_line_error(result, "fewer than two distinct stamps")
+    # every stamp 0: no stamp at all, so the log time is used, and said
+    zero = detect(restamped(CLEAN, tmp_path / "zero.mcap", lambda i, ns: 0))
+    assert zero["logs"][0]["samples"] == detect(CLEAN)["logs"][0]["samples"]
+    assert [w for w in zero["warnings"] if "carry no header stamp" in w and "log time" in w]
+
+
+# ---------------------------------------------------------------- publishers told apart
+
+
+def beside(
+    tmp_path: Path, name: str, writer: str, names: Any, every: int, offset_ns: int, values: Any
+) -> Path:
+    """The clean log with a second JointState publisher on its topic: one message per
+    ``every`` of the arm's, ``offset_ns`` after it, joints ``names``, ``values(msg)`` →
+    (position, velocity, effort)."""
+    from support.builders import Message, joint_state, messages_of, write_by
+
+    msgs = messages_of(CLEAN)
+    arm = [m for m in msgs if m.topic == "/joint_states"]
+    extra = []
+    for m in arm[::every]:
+        stamp = m.msg.header.stamp.sec * NS + m.msg.header.stamp.nanosec + offset_ns
+        pos, vel, eff = values(m.msg)
+        extra.append(
+            Message(
+                m.topic, m.msgtype, m.log_time + offset_ns, joint_state(stamp, names, pos, vel, eff)
+            )
+        )
+    every_msg = sorted(msgs + extra, key=lambda m: m.log_time)
+    return write_by(writer, tmp_path / f"{name}.mcap", every_msg)
+
+
+def zeros(msg: Any) -> tuple[Any, Any, Any]:
+    k = len(msg.name)
+    return np.zeros(k), np.zeros(k), np.zeros(k)
+
+
+@pytest.mark.parametrize("writer", ["rosbags", "twincd"])
+@pytest.mark.parametrize(("every", "offset_ms"), [(10, 3), (1, 4), (9, 8)])
+def test_a_second_publisher_of_zeros_is_left_out_and_named(
+    tmp_path: Path, writer: str, every: int, offset_ms: int
+) -> None:
+    """A stray publisher of exact zeros on the arm's joints (10 Hz or the arm's own rate)
+    beside the live one gave one event over the whole clean log."""
+    log = beside(tmp_path, "zeros", writer, [f"joint{i}" for i in range(1, 8)], every,
+                 offset_ms * 1_000_000, zeros)  # fmt: skip
+    got, want = detect(log), detect(CLEAN)
+    assert got["logs"][0] == {**want["logs"][0], "path": str(log)}
+    count = len(range(0, want["logs"][0]["samples"], every))
+    (line,) = [w for w in got["warnings"] if "second publisher" in w]
+    assert f"ignoring {count} message(s) on /joint_states" in line
+    found = json.loads(run("inspect", log, "--json").stdout)["logs"][0]
+    assert found["other_publisher"] == count and found["usable"]
+    assert "second publisher" in run("inspect", log).stdout
+
+
+@pytest.mark.parametrize("writer", ["rosbags", "twincd"])
+def test_a_gripper_node_on_other_joints_is_never_dropped(tmp_path: Path, writer: str) -> None:
+    log = beside(tmp_path, "gripper", writer, ["gripper_joint"], 10, 3_000_000, zeros)
+    got, want = detect(log), detect(CLEAN)
+    assert got["logs"][0] == {**want["logs"][0], "path": str(log)}
+    assert not [w for w in got["warnings"] if "second publisher" in w]
+
+
+def test_motors_off_zeros_in_place_of_samples_are_kept(tmp_path: Path) -> None:
+    """A driver whose motors are off publishes zero efforts in place of its samples (a real
+    Doosan does, for 23 s): the one publisher, kept (its effort is what it is)."""
+    seen = [0]
+
+    def off(msg: Any) -> None:
+        if 1000 <= seen[0] < 1300:
+            msg.effort = np.zeros_like(msg.effort)
+        seen[0] += 1
+
+    log = rewrite(CLEAN, tmp_path / "off.mcap", off)
+    got = detect(log)
+    assert got["logs"][0]["samples"] == detect(CLEAN)["logs"][0]["samples"]
+    assert not [w for w in got["warnings"] if "second publisher" in w]
+
+
+# ---------------------------------------------------------------- ros2_control's DynamicJointState
+
+DYNAMIC = "control_msgs/msg/DynamicJointState"
+
+
+def split_to_dynamic(
+    tmp_path: Path,
+    name: str,
+    interfaces: tuple[str, ...],
+    keep_joint_states: bool = True,
+    form: str = "mcap",
+) -> Path:
+    """The clean log as ros2_control records it: /joint_states without effort (or none at
+    all), and /dynamic_joint_states with ``interfaces`` per joint, at the same stamps; written
+    by rosbags' writer with control_msgs registered from its .msg text."""
+    from support.builders import TS, Message, messages_of, write
+
+    value_type = TS.types["control_msgs/msg/InterfaceValue"]
+    out = []
+    for m in messages_of(CLEAN):
+        if m.msgtype != "sensor_msgs/msg/JointState":
+            out.append(m)
+            continue
+        arrays = {"position": m.msg.position, "velocity": m.msg.velocity, "effort": m.msg.effort}
+        values = [
+            value_type(interface_names=list(interfaces),
+                       values=np.array([arrays[i][j] for i in interfaces]))
+            for j in range(len(m.msg.name))
+        ]  # fmt: skip
+        dyn = TS.types[DYNAMIC](header=m.msg.header, joint_names=list(m.msg.name),
+                                interface_values=values)  # fmt: skip
+        out.append(Message("/dynamic_joint_states", DYNAMIC, m.log_time, dyn))
+        if keep_joint_states:
+            m.msg.effort = np.zeros(0)
+            out.append(m)
+    return write(tmp_path / (f"{name}.mcap" if form == "mcap" else name), form, out)
+
+
+@pytest.mark.parametrize("form", ["mcap", "rosbag2-sqlite3"])
+@pytest.mark.parametrize("keep_joint_states", [True, False])
+def test_dynamic_joint_states_stand_in_when_no_joint_state_carries_effort(
+    tmp_path: Path, keep_joint_states: bool, form: str
+) -> None:
+    log = split_to_dynamic(tmp_path, "ros2_control", ("position", "velocity", "effort"),
+                           keep_joint_states, form)  # fmt: skip
+    got, want = detect(log), detect(CLEAN)
+    assert got["logs"][0] == {**want["logs"][0], "path": str(log)}
+    if keep_joint_states:
+        (line,) = [w for w in got["warnings"] if "/dynamic_joint_states" in w]
+        assert "/joint_states carries no effort" in line and DYNAMIC in line
+    found = json.loads(run("inspect", log, "--json").stdout)["logs"][0]
+    assert found["usable"] and found["joint_topic"] == "/dynamic_joint_states"
+
+
+def test_dynamic_joint_states_without_effort_are_named_in_the_error(tmp_path: Path) -> None:
+    log = split_to_dynamic(tmp_path, "no_effort", ("position", "velocity"))
+    result = run("detect", log, "-c", CALIBRATION)
+    assert_one_line_error(result, "no measured effort")
+    assert "/dynamic_joint_states" in result.stderr and "no effort interface" in result.stderr
+
+
+# ---------------------------------------------------------------- what cannot be read
+
+
+def denied(monkeypatch: pytest.MonkeyPatch, target: Path) -> None:
+    """The operating system refuses ``target`` (a folder's listing, a file's opening) as it
+    does for a user without the right (these tests run as root, who may read everything)."""
+    import builtins
+
+    def refuse(path: object) -> None:
+        if Path(str(path)).resolve() == target.resolve():
+            raise PermissionError(13, "Permission denied", str(path))
+
+    listing = Path.iterdir
+    opening = builtins.open
+
+    def iterdir(self: Path) -> Any:
+        refuse(self)
+        return listing(self)
+
+    def open_(file: Any, *args: Any, **kwargs: Any) -> Any:
+        if isinstance(file, str | Path):
+            refuse(file)
+        return opening(file, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "iterdir", iterdir)
+    monkeypatch.setattr(builtins, "open", open_)
+
+
+@pytest.mark.parametrize("what", ["folder", "file"])
+def test_an_unreadable_log_is_exit_2_with_its_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, what: str
+) -> None:
+    folder = tmp_path / "train"
+    folder.mkdir()
+    log = Path(shutil.copy(CLEAN, folder / "a.mcap"))
+    target = folder if what == "folder" else log
+    denied(monkeypatch, target)
+    for command in (("fit", folder, "-o", tmp_path / "c.json"), ("inspect", folder)):
+        result = run(*command)
+        assert_one_line_error(result, "Permission denied")
+        assert str(target) in result.stderr
+
+
+def test_an_unreadable_log_is_refused_for_real(tmp_path: Path) -> None:
+    """Without a stand-in: a folder without read permission, where this user may not read it."""
+    folder = tmp_path / "train"
+    folder.mkdir()
+    shutil.copy(CLEAN, folder / "a.mcap")
+    folder.chmod(0)
+    try:
+        if os.access(folder, os.R_OK):
+            pytest.skip("this user (root) may read a folder without read permission")
+        assert_one_line_error(run("fit", folder, "-o", tmp_path / "c.json"), "Permission denied")
+    finally:
+        folder.chmod(0o755)

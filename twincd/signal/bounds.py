@@ -1,0 +1,264 @@
+"""Absurd values: samples no arm makes, dropped as data faults (contract: Inputs, bad samples).
+
+A recorder glitch leaves finite values that NaN handling does not catch: positions of 253 rad on
+three joints, an effort of 1e300 or 3.4e38 (float32's largest). Filtered with its neighbours, one
+such sample raises an event seconds before it, overflows a score to ``inf``, or doubles a
+threshold. ``SampleBounds`` judges each sample against bounds from the robot model's limits,
+**causally** (from the samples before it only), so that a log read whole, streamed in any block
+size, or pushed live sample by sample drops the same samples. A sample is absurd when one of its
+values is
+
+- a position beyond the joint's limits by more than the joint's range (at least π);
+- a velocity beyond ``VELOCITY_BOUND`` × the joint's velocity limit;
+- an effort (or the log's own twin effort) beyond ``EFFORT_BOUND`` × the joint's effort limit;
+
+**and** that value lies further from the last sample kept than such a bound (for a position: the
+margin plus what the joint travels at ``VELOCITY_BOUND`` × its velocity limit in the time between):
+a jump no motor makes in one period. The second condition keeps a log recorded in other units,
+degrees say, whose values are far out but continuous (``SignalChecks`` names those); the first
+keeps every real motion, push and strike. A sample with nothing kept before it is compared with
+the last sample read; the very first sample of a stream, with nothing before it, by the bounds
+alone. Limits a URDF does not give (and every limit without a robot model) are taken as
+``FALLBACK_VELOCITY`` and ``FALLBACK_EFFORT``. Rows within the bounds always pass, so the check
+costs each block's column extremes; only rows beyond a bound are judged one by one.
+
+The dropped samples are counted with their times, and ``warning`` says so in one line.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from twincd.types import BoolArray, FloatArray, IntArray
+
+log = logging.getLogger("twincd")
+
+__all__ = [
+    "EFFORT_BOUND",
+    "FALLBACK_EFFORT",
+    "FALLBACK_VELOCITY",
+    "VELOCITY_BOUND",
+    "Dropped",
+    "SampleBounds",
+]
+
+VELOCITY_BOUND = 10.0  # × the velocity limit: no joint turns that fast
+EFFORT_BOUND = 20.0  # × the effort limit (URDF limits are often nominal: a real push reached 6.5×)
+FALLBACK_VELOCITY = 10.0  # rad/s: a joint whose model gives no velocity limit
+FALLBACK_EFFORT = 1000.0  # N·m: a joint whose model gives no effort limit
+EXAMPLES = 8  # times of dropped samples kept for the warning and inspect
+
+CHANNELS = ("position", "velocity", "effort", "sim_effort")
+
+
+@dataclass
+class Dropped:
+    """The absurd samples dropped so far: how many, the first ones' times (seconds from the
+    first sample judged) and, per value kind, the joints that were beyond their bound."""
+
+    samples: int = 0
+    times_s: list[float] = field(default_factory=list)
+    joints: dict[str, list[str]] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, object]:
+        return {"samples": self.samples, "times_s": list(self.times_s), "joints": dict(self.joints)}
+
+
+def _limit(values: Mapping[str, float], names: Sequence[str], fallback: float) -> FloatArray:
+    out = [float(values.get(n, math.nan)) for n in names]
+    return np.array([v if math.isfinite(v) and v > 0 else fallback for v in out])
+
+
+class SampleBounds:
+    """The causal bound on one stream's samples (see the module docstring).
+
+    ``position_limits`` maps a joint to its (lower, upper) limits (a joint it lacks is not
+    bounded in position: a continuous joint); ``velocity_limits`` and ``effort_limits`` map a
+    joint to its limit. Columns follow ``joint_names``.
+    """
+
+    def __init__(
+        self,
+        joint_names: Sequence[str],
+        position_limits: Mapping[str, tuple[float, float]],
+        velocity_limits: Mapping[str, float] | None = None,
+        effort_limits: Mapping[str, float] | None = None,
+    ) -> None:
+        self.joint_names = tuple(joint_names)
+        names = self.joint_names
+        inf = (-math.inf, math.inf)
+        lower = np.array([position_limits.get(n, inf)[0] for n in names], dtype=np.float64)
+        upper = np.array([position_limits.get(n, inf)[1] for n in names], dtype=np.float64)
+        margin = np.where(np.isfinite(upper - lower), np.maximum(upper - lower, math.pi), math.inf)
+        limited = np.isfinite(margin)
+        self._center = np.zeros(len(names))
+        self._center[limited] = (lower[limited] + upper[limited]) / 2
+        speed = VELOCITY_BOUND * _limit(velocity_limits or {}, names, FALLBACK_VELOCITY)
+        effort = EFFORT_BOUND * _limit(effort_limits or {}, names, FALLBACK_EFFORT)
+        # per channel: the half-width of the plausible band around its centre, which is also
+        # the largest jump from the last kept sample
+        self._bound = {
+            "position": (upper - lower) / 2 + margin,
+            "velocity": speed,
+            "effort": effort,
+            "sim_effort": effort,
+        }
+        self._jump = {"position": margin, "velocity": speed, "effort": effort, "sim_effort": effort}
+        self._speed = speed  # the position's allowance per second since the last kept sample
+        self._kept: dict[str, FloatArray] | None = None  # the last sample kept, per channel
+        self._kept_ns = 0
+        self._read: dict[str, FloatArray] | None = None  # the last sample read, per channel
+        self._read_ns = 0
+        self.first_ns: int | None = None
+        self.dropped = Dropped()
+
+    def keep(self, stamp_ns: IntArray, **values: FloatArray | None) -> BoolArray:
+        """Which of these samples (finite, in stamp order) are kept; ``values``: ``position``,
+        ``velocity``, ``effort``, ``sim_effort`` (N, joints), None or NaN where absent."""
+        n = len(stamp_ns)
+        ok = np.ones(n, dtype=bool)
+        if not n:
+            return ok
+        if self.first_ns is None:
+            self.first_ns = int(stamp_ns[0])
+        columns = {c: v for c, v in values.items() if v is not None and c in self._bound}
+        # each column's extremes first (a read of the block, no temporaries): the usual block
+        # lies within every bound, and no row needs a look of its own
+        beyond = {c: self._beyond(c, v) for c, v in columns.items() if self._outside(c, v)}
+        if beyond:
+            suspects = np.zeros(n, dtype=bool)
+            for b in beyond.values():
+                suspects |= b.any(axis=1)
+            ok = self._judge(stamp_ns, columns, beyond, np.flatnonzero(suspects))
+        kept = np.flatnonzero(ok)
+        if len(kept):
+            last = int(kept[-1])
+            self._kept = {c: v[last].copy() for c, v in columns.items()}
+            self._kept_ns = int(stamp_ns[last])
+        self._read = {c: v[-1].copy() for c, v in columns.items()}
+        self._read_ns = int(stamp_ns[-1])
+        return ok
+
+    def _outside(self, channel: str, values: FloatArray) -> bool:
+        """Whether any value of the block lies beyond its joint's bound (NaN never does): the
+        block's extremes against the band every joint allows, then, only when they leave it,
+        each joint against its own."""
+        centre = self._center if channel == "position" else 0.0
+        low, high = centre - self._bound[channel], centre + self._bound[channel]
+        least, most = np.fmin.reduce(values, axis=None), np.fmax.reduce(values, axis=None)
+        if not (least < low.max() or most > high.min()):
+            return False
+        return bool(((values < low) | (values > high)).any())
+
+    def _beyond(self, channel: str, values: FloatArray) -> BoolArray:
+        centre = self._center if channel == "position" else 0.0
+        out: BoolArray = np.abs(values - centre) > self._bound[channel]
+        return out
+
+    def _judge(
+        self,
+        stamp_ns: IntArray,
+        columns: dict[str, FloatArray],
+        beyond: dict[str, BoolArray],
+        suspects: IntArray,
+    ) -> BoolArray:
+        """Rows beyond a bound: dropped when the value also jumped from the last sample kept
+        (rows within every bound are always kept). A suspect row whose previous row is kept and
+        within a jump of it is kept without a look of its own (a log in other units is such a
+        run), so only rows after a jump or after a dropped row are judged one by one."""
+        n = len(stamp_ns)
+        ok = np.ones(n, dtype=bool)
+        steady = np.zeros(n, dtype=bool)  # within a jump of the previous row on every bound
+        dt = np.maximum(np.diff(stamp_ns), 0).astype(np.float64)[:, None] * 1e-9
+        for c, out in beyond.items():
+            v = columns[c]
+            steady[1:] |= (out[1:] & self._far(c, v[1:], v[:-1], dt)).any(axis=1)
+        steady[1:] = ~steady[1:]
+        visit = [int(i) for i in suspects if not steady[i]]
+        heapq.heapify(visit)
+        popped, last_kept = -1, -1  # the last row judged, and the last row kept up to it
+        while visit:
+            i = heapq.heappop(visit)
+            if i == popped:
+                continue
+            # rows between the last one judged and this one were kept
+            before = i - 1 if i - 1 > popped else last_kept
+            ref, ref_ns = self._reference(i, before, stamp_ns, columns)
+            bad: dict[str, list[int]] = {}
+            for c, out in beyond.items():
+                joints = out[i]
+                if c in ref and joints.any():
+                    dt_i = max(int(stamp_ns[i]) - ref_ns, 0) * 1e-9
+                    joints = joints & self._far(c, columns[c][i], ref[c], dt_i)
+                if joints.any():
+                    bad[c] = np.flatnonzero(joints).tolist()
+            if bad:
+                ok[i] = False
+                self._note(int(stamp_ns[i]), bad)
+                if i + 1 < n and steady[i + 1] and any(b[i + 1].any() for b in beyond.values()):
+                    heapq.heappush(visit, i + 1)  # its previous row is gone: judge it alone
+            popped, last_kept = i, i if ok[i] else before
+        return ok
+
+    def _reference(
+        self, i: int, before: int, stamp_ns: IntArray, columns: dict[str, FloatArray]
+    ) -> tuple[dict[str, FloatArray], int]:
+        """What row ``i`` is compared with: the last sample kept (``before`` in this block, else
+        an earlier block's); with none kept yet, the last sample read; with none read, nothing
+        (the bounds alone judge the very first sample)."""
+        if before < 0 and self._kept is not None:
+            return self._kept, self._kept_ns
+        row = before if before >= 0 else i - 1
+        if row >= 0:
+            return {c: v[row] for c, v in columns.items()}, int(stamp_ns[row])
+        return self._read or {}, self._read_ns
+
+    def _far(
+        self, channel: str, values: FloatArray, ref: FloatArray, dt_s: FloatArray | float
+    ) -> BoolArray:
+        """Where ``values`` lie further from ``ref`` than a motor moves them in ``dt_s``."""
+        jump = self._jump[channel] + (self._speed * dt_s if channel == "position" else 0.0)
+        out: BoolArray = np.abs(values - ref) > jump
+        return out
+
+    def _note(self, stamp_ns: int, bad: dict[str, list[int]]) -> None:
+        d = self.dropped
+        d.samples += 1
+        if len(d.times_s) < EXAMPLES:
+            d.times_s.append(round((stamp_ns - (self.first_ns or stamp_ns)) * 1e-9, 6))
+        for c, cols in bad.items():
+            names = d.joints.setdefault(c, [])
+            names.extend(self.joint_names[j] for j in cols if self.joint_names[j] not in names)
+
+    def warning(self, source: str) -> str | None:
+        """One line on the absurd samples dropped, or None."""
+        d = self.dropped
+        if not d.samples:
+            return None
+        what = {
+            "position": "positions far outside the joint limits",
+            "velocity": f"velocities over {VELOCITY_BOUND:g} × the velocity limit",
+            "effort": f"efforts over {EFFORT_BOUND:g} × the effort limit",
+            "sim_effort": f"twin efforts over {EFFORT_BOUND:g} × the effort limit",
+        }
+        kinds = "; ".join(
+            f"{what[c]} on {', '.join(d.joints[c])}" for c in CHANNELS if c in d.joints
+        )
+        more = ", …" if d.samples > len(d.times_s) else ""
+        times = ", ".join(f"{t:.3f}" for t in d.times_s)
+        return (
+            f"{source}: dropping {d.samples} sample(s) with absurd values at {times}{more} s from "
+            f"the first sample ({kinds}, reached by a jump no motor makes): a recorder glitch, "
+            "not motion"
+        )
+
+    def warn(self, source: str) -> None:
+        line = self.warning(source)
+        if line is not None:
+            log.warning("%s", line)
