@@ -22,9 +22,11 @@ from .options import (
     Force,
     Jobs,
     JointMap,
+    JointPrefix,
     Json,
     KeepGoing,
     LabelTopic,
+    LinkTopic,
     Logs,
     Quiet,
     Report,
@@ -122,7 +124,9 @@ def fit(
     topic: Topic = None,
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
+    link_topic: LinkTopic = None,
     joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
     filter_kind: FilterKind = None,
@@ -155,8 +159,9 @@ def fit(
 
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, cutoff_hz=cutoff, filter_order=filter_order,
-        filter_kind=filter_kind, causal=causal, strict=strict
+        link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
+        cutoff_hz=cutoff, filter_order=filter_order, filter_kind=filter_kind, causal=causal,
+        strict=strict
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = fit_calibration(
@@ -178,7 +183,9 @@ def threshold(
     topic: Topic = None,
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
+    link_topic: LinkTopic = None,
     joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
     strict: Strict = False,
@@ -209,7 +216,7 @@ def threshold(
 
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, strict=strict,
+        joint_map=joint_map, joint_prefix=joint_prefix, link_topic=link_topic, strict=strict,
         allow_urdf_change=allow_urdf_change
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)

@@ -250,10 +250,6 @@ def test_the_session_file_holds_what_arrived_and_twincds_channels(
     other.write_bytes(log.read_bytes())
     refused = run("watch", "ws://127.0.0.1:1", "-c", causal_cal, "-o", other)
     assert_one_line_error(refused, "overwrite")
-    # labels on another topic than the calibration's could not be judged with it later
-    refused = run("watch", "ws://127.0.0.1:1", "-c", causal_cal, "--label-topic", "/contact")
-    assert_one_line_error(refused, "contradicts the calibration's /collision_flag")
-    assert "--label-topic" in refused.stderr
 
 
 @pytest.fixture(scope="module")

@@ -51,7 +51,8 @@ class LogFit:
     joint_names: tuple[str, ...]
     period_s: float
     simulated: bool
-    robot: tuple[str, str] | None  # (name, URDF sha256) when a model was used
+    # (name, URDF sha256, dynamics sha256, package URI or "") when a model was used
+    robot: tuple[str, str, str, str] | None
     seconds: float  # time spent in the regression sums, as the paper times training
     samples: int = 0  # every sample read (labelled ones too): what progress counts
     labelled: bool = True  # the log has collision labels (else every sample is taken as clean)
@@ -137,10 +138,16 @@ class _Cells:
         return part
 
 
-def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:
-    if stream.robot is None:
+def _robot_of(stream: PreparedStream) -> tuple[str, str, str, str] | None:
+    """How the calibration names the stream's robot model: as the user gave it, by its file's
+    sha256 (for older readers), by its dynamics, and by its package when it lies in one."""
+    from twincd.twin.robot import package_uri
+
+    robot = stream.robot
+    if robot is None:
         return None
-    return stream.robot.name, stream.robot.urdf_sha256
+    package = package_uri(robot.urdf_path) or ""
+    return robot.name, robot.urdf_sha256, robot.dynamics_sha256, package
 
 
 def check_model(model: str | None) -> None:
@@ -177,7 +184,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         model = best_model(total)
         log.info("fit: model %s, the best these logs allow (--model affine is the paper's)", model)
     robots = sorted({p.robot for p in parts if p.robot is not None})
-    name, sha = robots[0] if robots else (setup.robot, None)
+    name, sha, dynamics, package = robots[0] if robots else (setup.robot, None, None, None)
     links, depths = _links_and_depths(name, names)
     start = time.perf_counter()
     fitted = make_model(model, depth_order(depths, len(names)))
@@ -205,6 +212,8 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         any(p.simulated for p in parts),
         [p.source for p in parts],
         period_s=period,
+        dynamics_sha256=dynamics,
+        robot_package=package or None,
     )
     return replace(cal, links=links, depths=depths)
 
