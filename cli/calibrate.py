@@ -87,7 +87,10 @@ def fit_table(cal: Calibration) -> Table:
     a, b, cs, ds, eps = c["a"], c["b"], c["c"], c["d"], c["epsilon"]
     assert a is not None and b is not None
     caption = (
-        "* held: not determined by these logs' motion (see the warning above)"
+        "* held: not determined by these logs' motion (see the warning above); θ*: the "
+        "joint's inertial parameters held at the URDF's"
+        if any("theta" in h for h in held)
+        else "* held: not determined by these logs' motion (see the warning above)"
         if any(held)
         else None
     )
@@ -111,7 +114,8 @@ def fit_table(cal: Calibration) -> Table:
                 mark("d", f"{ds[i]:+.3f}"),
                 f"{eps[i]:g}",
             ]
-        table.add_row(name, mark("a", f"{a[i]:.3f}"), f"{b[i]:+.3f}", *more, r2, rmse)
+        joint = mark("theta", f"{name} θ") if "theta" in held[i] else name
+        table.add_row(joint, mark("a", f"{a[i]:.3f}"), f"{b[i]:+.3f}", *more, r2, rmse)
     return table
 
 

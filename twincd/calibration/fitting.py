@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from twincd.calibration.affine import clean_rows, solve, warn_ill_conditioned
-from twincd.calibration.excitation import check_motion
+from twincd.calibration.excitation import check_motion, independent_samples
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.calibration.models import (
     EPSILON_GRID,
@@ -37,7 +37,6 @@ from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
     from twincd.prepare.frames import FrameSink
-    from twincd.signal.filters import LowPass
 
 log = logging.getLogger("twincd")
 
@@ -92,6 +91,10 @@ def fit_log(
             for sink in sinks:
                 sink.write(frame, [])
         assert stats is not None  # the stream raises on logs without samples
+        cutoff = setup.lowpass.cutoff_hz
+        stats = replace(
+            stats, independent=independent_samples(stats.affine.n, cutoff, stream.period_s)
+        )
         return LogFit(
             source=stream.source,
             stats=stats,
@@ -196,11 +199,12 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
     if not fitted.needs_coulomb:
         affine = solve(total.affine)
         warn_ill_conditioned(names, total.affine, affine.ill_conditioned, affine.a)
-    for line in fitted.held_.messages(names):
+    for line in fitted.held_.messages(names, fitted.kind):
         log.warning("fit: %s", line)
     r2 = fitted.r2_
     assert r2 is not None
-    gain, error = twin_gain(fitted, total, independent_samples(total, setup.lowpass, period))
+    independent = independent_samples(total.affine.n, setup.lowpass.cutoff_hz, period)
+    gain, error = twin_gain(fitted, total, independent)
     _warn_about_fit(names, fitted, gain, error, r2, [p.source for p in parts if not p.labelled])
     cal = calibration_from_fit(
         fitted,
@@ -240,12 +244,6 @@ LOW_R2 = 0.1
 # a gain on the twin's effort is said to be negative when it is below 0 by this many standard
 # errors (a gain the logs barely determine, on a joint whose twin effort hardly varies, is not)
 SIGN_ERRORS = 3.0
-
-
-def independent_samples(stats: FitStats, lowpass: LowPass, period_s: float) -> float:
-    """How many independent samples the fit's filtered signals hold: a signal low-passed at
-    f_c carries 2·f_c values a second (Nyquist), so n·min(1, 2·f_c·period)."""
-    return stats.affine.n * min(1.0, 2.0 * lowpass.cutoff_hz * period_s)
 
 
 def twin_gain(
