@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 
 # what watch subscribes to when a log carries it: publishing waits for each of them, so that
 # no twin effort is sent before its subscription arrived (samples without it are skipped)
-WATCHED = ("/joint_states", "/twincd/sim_effort", "/collision_flag")
+WATCHED = ("/joint_states", "/twincd/sim_effort", "/collision_flag", "/collision_link")
 
 
 class _Listener:

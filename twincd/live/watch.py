@@ -38,7 +38,7 @@ import numpy as np
 
 from twincd.detection.events import Event
 from twincd.errors import CalibrationError
-from twincd.io.cdr import BOOL, JOINT_STATE
+from twincd.io.cdr import BOOL, JOINT_STATE, STRING
 from twincd.live.connect import open_source
 from twincd.live.detector import LiveDetector, Scored
 from twincd.live.samples import REORDER_WINDOW_NS, JointDecoder, Reorder, Sample, Segments
@@ -208,6 +208,8 @@ class _Session:
         self.source_name = source_name
         self.detector = LiveDetector(cal, source_name, twin=recorder is not None, robot=robot)
         self.topic, self.label_topic = options.topic, options.label_topic
+        # what a recorded session keeps of the other topics: labels and contact links, by type
+        self.extra = {options.label_topic: BOOL, options.link_topic: STRING}
         self.sim_topic = options.sim_topic if self.detector.use_sim else None
         names = self.detector.joint_names
         self.decoder = JointDecoder(names, options.rename)
@@ -231,7 +233,7 @@ class _Session:
         wanted = [Wanted(self.topic, JOINT_STATE)]
         if self.sim_topic:
             wanted.append(Wanted(self.sim_topic, JOINT_STATE))
-        wanted.append(Wanted(self.label_topic, BOOL, required=False))
+        wanted += [Wanted(topic, msgtype, required=False) for topic, msgtype in self.extra.items()]
         return wanted
 
     def take(self, arrivals: Sequence[Arrival]) -> tuple[int, list[Event]]:
@@ -240,7 +242,7 @@ class _Session:
         events: list[Event] = []
         for a in arrivals:
             if self.recorder is not None:
-                msgtype = BOOL if a.topic == self.label_topic else JOINT_STATE
+                msgtype = self.extra.get(a.topic, JOINT_STATE)
                 self.recorder.message(a.topic, msgtype, a.log_time_ns, a.data)
             if a.topic == self.sim_topic:
                 s = self.sim_decoder.decode(a.data, a.log_time_ns, a.received_ns)
@@ -375,6 +377,7 @@ def watch(
     *,
     topic: str | None = None,
     label_topic: str | None = None,
+    link_topic: str | None = None,
     sim_topic: str | None = None,
     joint_map: Mapping[str, str] | None = None,
     joint_prefix: str | None = None,
@@ -389,10 +392,10 @@ def watch(
     stop: threading.Event | None = None,
 ) -> Iterator[WatchItem]:
     """Watch ``source`` (``ws://HOST:PORT``, ``ros2``, or a ``Source``) with ``calibration``
-    (see the module's docstring). ``topic``, ``label_topic``, ``sim_topic``, ``joint_map``,
-    ``joint_prefix`` and ``robot`` (its URDF) default to the calibration's, as for every
-    command; the label topic is subscribed to when it is published, for ``record``: the
-    session MCAP (``-o``)."""
+    (see the module's docstring). ``topic``, ``label_topic``, ``link_topic``, ``sim_topic``,
+    ``joint_map``, ``joint_prefix`` and ``robot`` (its URDF) default to the calibration's, as
+    for every command; the label and link topics are subscribed to when they are published,
+    for ``record``: the session MCAP (``-o``)."""
     from twincd.commands.settings import SetupOptions
 
     cal = _load(calibration)
@@ -401,6 +404,7 @@ def watch(
     setup = SetupOptions(
         topic=topic,
         label_topic=label_topic,
+        link_topic=link_topic,
         sim_topic=sim_topic,
         joint_map=joint_map,
         joint_prefix=joint_prefix,
