@@ -129,9 +129,8 @@ def settle_named(
 
     Logs that cannot be opened are left to their own run to report."""
     checks = [o for o in _TOPICS if options.names(o) and (topics is None or o in topics)]
-    renamings = [o for o in options.named if o.startswith("joint_map:") or o == "joint_prefix"]
-    if topics is not None:
-        renamings = []
+    renaming = ("joint_map:", "joint_prefix")
+    renamings = [] if topics is not None else [o for o in options.named if o.startswith(renaming)]
     if not checks and not renamings:
         return options
     found: dict[Path, _Found] = {}
@@ -172,7 +171,7 @@ def settle_named(
     unmatched = {p: dict(_unmatched_joints(options, f.joints)) for p, f in found.items()}
     for option in sorted(renamings):
         lacking = [p for p in found if option in unmatched[p]]
-        what = next(iter(unmatched[lacking[0]].values()), option) if lacking else option
+        what = unmatched[lacking[0]][option] if lacking else option
         if len(lacking) == len(found):
             joints: set[str] = set()
             for f in found.values():
