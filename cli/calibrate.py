@@ -22,9 +22,11 @@ from .options import (
     Force,
     Jobs,
     JointMap,
+    JointPrefix,
     Json,
     KeepGoing,
     LabelTopic,
+    LinkTopic,
     Logs,
     Quiet,
     Report,
@@ -85,7 +87,10 @@ def fit_table(cal: Calibration) -> Table:
     a, b, cs, ds, eps = c["a"], c["b"], c["c"], c["d"], c["epsilon"]
     assert a is not None and b is not None
     caption = (
-        "* held: not determined by these logs' motion (see the warning above)"
+        "* held: not determined by these logs' motion (see the warning above); θ*: the "
+        "joint's inertial parameters held at the URDF's"
+        if any("theta" in h for h in held)
+        else "* held: not determined by these logs' motion (see the warning above)"
         if any(held)
         else None
     )
@@ -109,7 +114,8 @@ def fit_table(cal: Calibration) -> Table:
                 mark("d", f"{ds[i]:+.3f}"),
                 f"{eps[i]:g}",
             ]
-        table.add_row(name, mark("a", f"{a[i]:.3f}"), f"{b[i]:+.3f}", *more, r2, rmse)
+        joint = mark("theta", f"{name} θ") if "theta" in held[i] else name
+        table.add_row(joint, mark("a", f"{a[i]:.3f}"), f"{b[i]:+.3f}", *more, r2, rmse)
     return table
 
 
@@ -122,7 +128,9 @@ def fit(
     topic: Topic = None,
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
+    link_topic: LinkTopic = None,
     joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
     filter_kind: FilterKind = None,
@@ -155,8 +163,9 @@ def fit(
 
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, cutoff_hz=cutoff, filter_order=filter_order,
-        filter_kind=filter_kind, causal=causal, strict=strict
+        link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
+        cutoff_hz=cutoff, filter_order=filter_order, filter_kind=filter_kind, causal=causal,
+        strict=strict
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = fit_calibration(
@@ -178,7 +187,9 @@ def threshold(
     topic: Topic = None,
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
+    link_topic: LinkTopic = None,
     joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
     strict: Strict = False,
@@ -209,7 +220,7 @@ def threshold(
 
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, strict=strict,
+        joint_map=joint_map, joint_prefix=joint_prefix, link_topic=link_topic, strict=strict,
         allow_urdf_change=allow_urdf_change
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)

@@ -71,6 +71,7 @@ FLAGS: dict[str, str] = {
     "topic": "--topic",
     "sim_topic": "--sim-topic",
     "joint_map": "--joint-map",
+    "joint_prefix": "--joint-prefix",
     "calibration": "-c/--calibration",
     "jobs": "--jobs",
     "scheduler": "--scheduler",

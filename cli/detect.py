@@ -20,10 +20,12 @@ from .options import (
     Force,
     Jobs,
     JointMap,
+    JointPrefix,
     Json,
     Junit,
     KeepGoing,
     LabelTopic,
+    LinkTopic,
     Logs,
     NoSummary,
     Quiet,
@@ -74,7 +76,9 @@ def detect(
     topic: Topic = None,
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
+    link_topic: LinkTopic = None,
     joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
     causal: Causal = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
@@ -99,8 +103,8 @@ def detect(
 
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, causal=causal, strict=strict,
-        allow_urdf_change=allow_urdf_change
+        link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix, causal=causal,
+        strict=strict, allow_urdf_change=allow_urdf_change
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = detect_files(

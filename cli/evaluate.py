@@ -11,7 +11,7 @@ import typer
 from rich import box
 from rich.table import Table
 
-from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
+from twincd.defaults import DEFAULT_REPEATS
 
 from .common import command, finish, json_document, run_options, stdout
 from .options import (
@@ -24,10 +24,12 @@ from .options import (
     Force,
     Jobs,
     JointMap,
+    JointPrefix,
     Json,
     Junit,
     KeepGoing,
     LabelTopic,
+    LinkTopic,
     Logs,
     NoSummary,
     Quiet,
@@ -100,14 +102,6 @@ MinF1 = Annotated[
 MinAuc = Annotated[
     float | None, typer.Option("--min-auc", help="Exit 1 if a method's AUC is lower.")
 ]
-LinkTopic = Annotated[
-    str | None,
-    typer.Option(
-        "--link-topic",
-        help="std_msgs/String contact link (isolation ground truth), when logs have it "
-        f"[default: {DEFAULT_LINK_TOPIC}].",
-    ),
-]
 
 
 @command
@@ -130,6 +124,7 @@ def evaluate(
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
     joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
     cutoff: Cutoff = None,
     filter_order: FilterOrder = None,
     filter_kind: FilterKind = None,
@@ -160,14 +155,14 @@ def evaluate(
 
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, cutoff_hz=cutoff, filter_order=filter_order,
-        filter_kind=filter_kind, causal=causal, strict=strict,
-        allow_urdf_change=allow_urdf_change
+        link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
+        cutoff_hz=cutoff, filter_order=filter_order, filter_kind=filter_kind, causal=causal,
+        strict=strict, allow_urdf_change=allow_urdf_change
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = evaluate_logs(
         logs, calibration, methods=methods, train=train or (), val=val or (), k_sigma=sigma,
-        repeats=repeats, link_topic=link_topic, min_f1=min_f1, min_auc=min_auc, report=report,
+        repeats=repeats, min_f1=min_f1, min_auc=min_auc, report=report,
         junit=junit, step_summary=not no_summary, force=force, **run, **asked
     )  # fmt: skip
     if json_:

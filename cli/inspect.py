@@ -12,8 +12,10 @@ from .common import command, finish, stdout
 from .options import (
     Debug,
     JointMap,
+    JointPrefix,
     Json,
     LabelTopic,
+    LinkTopic,
     Logs,
     Quiet,
     Robot,
@@ -133,7 +135,9 @@ def inspect(
     topic: Topic = None,
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
+    link_topic: LinkTopic = None,
     joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
     strict: Strict = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -154,7 +158,7 @@ def inspect(
 
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, strict=strict
+        joint_map=joint_map, joint_prefix=joint_prefix, link_topic=link_topic, strict=strict
     )  # fmt: skip
     done = inspect_logs(logs, calibration, **asked)
     if json_:

@@ -12,6 +12,7 @@ from twincd.defaults import (
     DEFAULT_CAUSAL_CUTOFF_HZ,
     DEFAULT_CUTOFF_HZ,
     DEFAULT_LABEL_TOPIC,
+    DEFAULT_LINK_TOPIC,
     DEFAULT_ORDER,
     DEFAULT_ROBOT,
     DEFAULT_SIM_TOPIC,
@@ -28,7 +29,10 @@ Logs = Annotated[
 Robot = Annotated[
     str | None,
     typer.Option(
-        "--robot", "-r", help=f"example-robot-data name or URDF path [default: {DEFAULT_ROBOT}]"
+        "--robot",
+        "-r",
+        help="example-robot-data name, URDF path or package:// URI [default: the "
+        f"calibration's, else {DEFAULT_ROBOT}]",
     ),
 ]
 Topic = Annotated[
@@ -42,8 +46,24 @@ SimTopic = Annotated[
     str | None,
     typer.Option("--sim-topic", help=f"simulated effort topic [default: {DEFAULT_SIM_TOPIC}]"),
 ]
+LinkTopic = Annotated[
+    str | None,
+    typer.Option(
+        "--link-topic",
+        help="std_msgs/String contact link (isolation ground truth), when logs have it "
+        f"[default: {DEFAULT_LINK_TOPIC}].",
+    ),
+]
 JointMap = Annotated[
     str | None, typer.Option("--joint-map", help="rename log joints: old=new,old2=new2")
+]
+JointPrefix = Annotated[
+    str | None,
+    typer.Option(
+        "--joint-prefix",
+        help="read log joints named PREFIX+name as name (--joint-prefix left_: left_joint1 is "
+        "joint1); with --joint-map, its entries come first",
+    ),
 ]
 Json = Annotated[bool, typer.Option("--json", help="Print one JSON document.", metavar="")]
 Quiet = Annotated[
@@ -104,8 +124,9 @@ AllowUrdfChange = Annotated[
     bool,
     typer.Option(
         "--allow-urdf-change",
-        help="Use a robot URDF that changed since the calibration was fitted (its sha256 "
-        "differs) when the change does not affect dynamics; refused otherwise.",
+        help="Use a robot model whose dynamics (joints, inertias, kinematics, limits) differ "
+        "from those the calibration was fitted with (for calibrations of older versions: a "
+        "URDF whose file changed); refused otherwise.",
         metavar="",
     ),
 ]

@@ -15,8 +15,10 @@ from .options import (
     Force,
     Jobs,
     JointMap,
+    JointPrefix,
     KeepGoing,
     LabelTopic,
+    LinkTopic,
     Quiet,
     Robot,
     Scheduler,
@@ -41,7 +43,9 @@ def simulate(
     topic: Topic = None,
     label_topic: LabelTopic = None,
     sim_topic: SimTopic = None,
+    link_topic: LinkTopic = None,
     joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
     in_place: Annotated[
         bool, typer.Option("--in-place", help="Rewrite a bare .mcap input atomically.", metavar="")
     ] = False,
@@ -74,7 +78,7 @@ def simulate(
         raise UsageError("no logs given", "simulate", "pass LOG... or --list-robots")
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, strict=strict
+        joint_map=joint_map, joint_prefix=joint_prefix, link_topic=link_topic, strict=strict
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = simulate_logs(logs, output=output, in_place=in_place, force=force, **run, **asked)

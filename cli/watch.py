@@ -15,10 +15,23 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from .common import command, stderr, stdout
-from .options import CalibrationIn, Debug, Force, Json, LabelTopic, Quiet, Topic
+from .options import (
+    CalibrationIn,
+    Debug,
+    Force,
+    JointMap,
+    JointPrefix,
+    Json,
+    LabelTopic,
+    LinkTopic,
+    Quiet,
+    Robot,
+    SimTopic,
+    Topic,
+)
 
 if TYPE_CHECKING:
-    from twincd.live import WatchEvent, WatchStatus, WatchSummary
+    from twincd.live import WatchEvent, WatchNotice, WatchStatus, WatchSummary
 
 FLAGS_WATCH = {"connect_timeout": "--connect-timeout", "causal": "fit --causal"}
 
@@ -61,10 +74,16 @@ def _status_line(item: WatchStatus, source: str) -> str:
 
 def _summary_line(item: WatchSummary) -> str:
     verdict = "collision" if item.collision else "no collision"
+    back = f", source back {item.reconnects}×" if item.reconnects else ""
     return (
         f"{verdict}: {item.events} event(s) in {item.samples} samples "
-        f"({item.elapsed_s:.1f} s, ended: {item.ended})"
+        f"({item.elapsed_s:.1f} s, ended: {item.ended}{back})"
     )
+
+
+def _notice_line(item: WatchNotice) -> str:
+    """A notice on stderr as every warning (or note) is written."""
+    return f"twincd: {'warning: ' if item.warning else ''}{item.text}"
 
 
 @command
@@ -79,6 +98,11 @@ def watch(
     calibration: CalibrationIn,
     topic: Topic = None,
     label_topic: LabelTopic = None,
+    link_topic: LinkTopic = None,
+    sim_topic: SimTopic = None,
+    joint_map: JointMap = None,
+    joint_prefix: JointPrefix = None,
+    robot: Robot = None,
     json_: Json = False,
     output: Annotated[
         Path | None,
@@ -123,13 +147,17 @@ def watch(
 
     Runs the calibration's causal chain (fit it with --causal): the events and flags are
     those of `detect --causal` on the same messages. Prints each event when it closes, a
-    status line on a terminal, and a summary at the end (--duration, --idle-timeout, Ctrl-C).
+    status line on a terminal, a line when the source goes away and comes back or is sampled
+    at another rate than the calibration, and a summary at the end (--duration,
+    --idle-timeout, Ctrl-C). The topics, joint names and robot URDF default to the
+    calibration's.
 
     Exit code 1 when a collision was seen, 0 when none, 2 on errors, 3 on a defect in twincd.
 
     Example: twincd watch ws://localhost:8765 -c calibration.json -o session.mcap
     """
-    from twincd.live import WatchEvent, WatchStatus, WatchSummary
+    from twincd.io.options import parse_joint_map
+    from twincd.live import WatchEvent, WatchNotice, WatchStatus, WatchSummary
     from twincd.live import watch as live_watch
 
     from .common import FLAGS
@@ -150,6 +178,11 @@ def watch(
             calibration,
             topic=topic,
             label_topic=label_topic,
+            link_topic=link_topic,
+            sim_topic=sim_topic,
+            joint_map=None if joint_map is None else parse_joint_map(joint_map),
+            joint_prefix=joint_prefix,
+            robot=robot,
             record=output,
             force=force,
             duration_s=duration,
@@ -174,6 +207,12 @@ def watch(
                 else:
                     stdout.print(_event_row(item), markup=False, highlight=False)
                     sys.stdout.flush()
+            elif isinstance(item, WatchNotice):
+                if json_:
+                    emit(item.to_dict())
+                elif not quiet:
+                    stderr.file.write(_notice_line(item) + "\n")
+                    stderr.file.flush()
             elif isinstance(item, WatchSummary):
                 summary = item
     if status_shown:

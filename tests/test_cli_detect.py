@@ -127,8 +127,11 @@ def test_errors(cal, twin_dataset, tmp_path, twin_log):
     # the calibration recorded no robot (the logs carry the twin), so --robot is not a
     # contradiction; but panda has none of the log's joints
     assert_one_line_error(result, "no joint of the log is in the robot model")
+    # a label topic is the run's to name, and one that matches nothing is an error
     result = run("detect", twin_dataset / "val" / "val_0.mcap", "-c", cal, "--label-topic", "/l")
-    assert_one_line_error(result, "contradicts")
+    assert_one_line_error(result, "label topic /l is in none of the logs")
+    result = run("detect", twin_dataset / "val" / "val_0.mcap", "-c", cal, "--causal")
+    assert_one_line_error(result, "causal filter contradicts the calibration's zero-phase")
     (tmp_path / "broken.mcap").write_bytes(b"\x89MCAP0\r\n garbage")
     assert_one_line_error(run("detect", tmp_path / "broken.mcap", "-c", cal), "cannot read")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.mcap", "fit.json", "other.mcap"]

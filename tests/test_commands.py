@@ -14,11 +14,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support.builders import joint_recording, write
+from support.arms import messages_of, retopic, two_arm_bag
+from support.builders import XARM, joint_recording, write
 from support.clitools import run
 
 import twincd
 from twincd.commands import LogsFailed
+from twincd.io.options import LogOptions, parse_joint_map
 
 # what may differ between two runs: when a calibration was written, how long work took
 CHANGING = {"created", "seconds", "train_s", "test_s", "train_s_std", "test_s_std"}
@@ -239,3 +241,125 @@ def test_keep_going_gives_the_failures_and_every_log_failing_is_an_error(
     assert raised.value.exit_code == 2 and len(raised.value.failures) == 1
     again = pickle.loads(pickle.dumps(raised.value))  # it may cross a process boundary
     assert again.exit_code == 2 and again.message == raised.value.message
+
+
+# ---------------------------------------------------------------- reading options by name
+
+LEFT_TOPIC = "/left/joint_states"
+LEFT_FLAGS = ("--topic", LEFT_TOPIC, "--joint-prefix", "left_")
+
+
+@pytest.fixture(scope="module")
+def two_arms(twin_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, list[Path]]:
+    """twin_dataset's logs as the left arms of two-arm bags (``left_j1``…), labels on
+    ``/collision``."""
+    root = tmp_path_factory.mktemp("two_arms")
+    relabel = {"/collision_flag": "/collision"}
+    out: dict[str, list[Path]] = {}
+    for split in ("train", "val", "test"):
+        logs = sorted((twin_dataset / split).glob("*.mcap"))
+        out[split] = [
+            two_arm_bag(root / f"{split}_{i}", log, logs[0], topics=relabel)
+            for i, log in enumerate(logs)
+        ]
+    return out
+
+
+def test_fit_and_threshold_read_one_arm_as_the_library_does(two_arms, tmp_path):
+    cli, lib = tmp_path / "cli.json", tmp_path / "lib.json"
+    assert run("fit", *two_arms["train"], *LEFT_FLAGS, "-o", cli, "-q").exit_code == 0
+    twincd.fit_calibration(two_arms["train"], output=lib, topic=LEFT_TOPIC, joint_prefix="left_")
+    assert _json(lib) == _json(cli)
+    assert json.loads(cli.read_text())["log_options"]["joint_prefix"] == "left_"
+    shown = run("threshold", *two_arms["val"], "-c", cli, *LEFT_FLAGS, "--json")
+    assert shown.exit_code == 0, shown.output
+    done = twincd.threshold_calibration(
+        two_arms["val"], lib, output=lib, topic=LEFT_TOPIC, joint_prefix="left_"
+    )
+    assert _json(lib) == _json(cli)
+    assert done.to_dict() == {**_answer(json.loads(shown.stdout)), "calibration": str(lib)}
+
+
+def test_detect_and_evaluate_read_one_arm_as_the_library_does(two_arms, cli_calibration):
+    """The calibration was fitted on the unprefixed arm, its labels on /collision_flag: the
+    options given read the bag, by the CLI's flags or the library's keywords alike."""
+    log = two_arms["test"][0]
+    by_map = ",".join(f"left_j{i}=j{i}" for i in range(1, 4))
+    as_mapped = ("--topic", LEFT_TOPIC, "--joint-map", by_map)
+    for flags, summary in (
+        (
+            LEFT_FLAGS,
+            twincd.detect_file(
+                log, cli_calibration, step_summary=False, topic=LEFT_TOPIC, joint_prefix="left_"
+            ),
+        ),
+        (
+            as_mapped,
+            twincd.detect_file(
+                log,
+                cli_calibration,
+                step_summary=False,
+                topic=LEFT_TOPIC,
+                joint_map=parse_joint_map(by_map),
+            ),
+        ),
+    ):
+        shown = run("detect", log, "-c", cli_calibration, *flags, "--json", "--no-summary")
+        assert shown.exit_code == 1, shown.output
+        assert [summary.to_dict()] == json.loads(shown.stdout)["logs"] and summary.events
+    labels = ("--label-topic", "/collision")
+    shown = run(
+        "evaluate",
+        *two_arms["test"],
+        "-c",
+        cli_calibration,
+        *LEFT_FLAGS,
+        *labels,
+        "--json",
+        "--no-summary",
+    )
+    assert shown.exit_code == 0, shown.output
+    done = twincd.evaluate_logs(
+        two_arms["test"],
+        cli_calibration,
+        label_topic="/collision",
+        step_summary=False,
+        topic=LEFT_TOPIC,
+        joint_prefix="left_",
+    )
+    assert _stable(done.to_dict()) == _stable(_answer(json.loads(shown.stdout)))
+    assert done.evaluation.positives > 0
+
+
+def test_inspect_reads_links_and_one_arm_as_the_library_does(xarm_dataset, tmp_path):
+    """``--link-topic`` and ``--joint-prefix`` on inspect: the contact links of a log that
+    carries them on another topic, the joints of one arm."""
+    log = xarm_dataset / "test" / "test_000.mcap"
+    touched = write(
+        tmp_path / "touched",
+        "rosbag2-mcap",
+        retopic(messages_of(log), {"/collision_link": "/touched"}),
+    )
+    shown = run("inspect", touched, "--link-topic", "/touched", "--json")
+    done = twincd.inspect_logs([touched], link_topic="/touched")
+    assert shown.exit_code == done.exit_code == 0, shown.output
+    assert done.to_dict() == json.loads(shown.stdout) and done.logs[0].link_labels
+    bag = two_arm_bag(tmp_path / "bag", log, xarm_dataset / "val" / "val_000.mcap")
+    shown = run("inspect", bag, *LEFT_FLAGS, "--json")
+    done = twincd.inspect_logs([bag], topic=LEFT_TOPIC, joint_prefix="left_")
+    assert shown.exit_code == done.exit_code == 0, shown.output
+    assert done.to_dict() == json.loads(shown.stdout) and done.logs[0].matched == XARM
+
+
+def test_simulate_reads_one_arm_as_the_library_does(tmp_path):
+    names = [f"left_{n}" for n in XARM]
+    recording = joint_recording(n=60, names=names, topic="/left/joint_states")
+    a = write(tmp_path / "a.mcap", "mcap", recording)
+    b = write(tmp_path / "b.mcap", "mcap", recording)
+    assert run("simulate", a, *LEFT_FLAGS, "-o", tmp_path / "a.cli.mcap", "-q").exit_code == 0
+    twincd.simulate_logs([b], topic=LEFT_TOPIC, joint_prefix="left_")
+    left = LogOptions(topic=LEFT_TOPIC, joint_prefix="left_")
+    outputs = (tmp_path / "a.cli.mcap", tmp_path / "b.twin.mcap")
+    cli, lib = (twincd.read_log(p, left) for p in outputs)
+    assert cli.sim_effort is not None and lib.sim_effort is not None
+    np.testing.assert_array_equal(lib.sim_effort, cli.sim_effort)

@@ -153,6 +153,50 @@ def test_the_sign_warning_speaks_of_the_fitted_model(xarm_dataset, tmp_path):
     assert "(of a·twin + b)" not in result.stderr
 
 
+@pytest.mark.parametrize("model", [None, "affine", "friction"])
+def test_a_fit_on_two_seconds_holds_what_it_cannot_determine(tmp_path, model):
+    """2 s of a synthetic path: 75 clean samples at 100 Hz (its ends, the filter's settling
+    time, left out), about 2 independent ones once low-passed at 1.5 Hz. Before: gains of
+    −180 and +0.03, offsets of +1928 N·m, and only a motion warning. Now each model keeps
+    what 2 samples determine (the offset b) and holds the rest at its prior, saying which of
+    the model fitted (each with the default model's filter: the critically damped 1.5 Hz)."""
+    short = synthlogs.write(synthlogs.path("train", 0, 2.0, longest=2.0), tmp_path / "short")
+    options = [] if model is None else ["--model", model, "--filter-kind", "critical"]
+    options += [] if model is None else ["--cutoff", "1.5"]
+    result = run("fit", short, "-o", tmp_path / "cal.json", *options)
+    assert result.exit_code == 0, result.output
+    cal = json.loads((tmp_path / "cal.json").read_text())
+    kind = cal["model"]["kind"]
+    line = next(ln for ln in result.stderr.splitlines() if "independent samples" in ln)
+    assert f"the {kind} model" in line and "about 2.25 independent samples" in line
+    assert "held at their prior" in line and "a (the gain on the twin's effort) on" in line
+    expected = {"identified-whitened": ["a", "c", "d", "theta"], "affine": ["a"]}
+    for name, joint in cal["fit"]["joints"].items():
+        held = expected.get(kind, ["a", "c", "d"])
+        if name == "joint4" and kind != "affine":  # it does not move: c, d held for that
+            assert set(joint["held"]) >= {"a", "c", "d"}
+        else:
+            assert joint["held"] == held, (name, joint)
+    for coefficients in cal["model"]["joints"].values():
+        assert coefficients["a"] == 1.0
+        assert all(v == 0.0 for v in coefficients.get("theta", []))
+        assert abs(coefficients["b"]) < 10.0  # not thousands of N·m
+
+
+def test_a_fit_holds_theta_where_the_logs_hold_too_few_samples_for_it():
+    """θ as a whole (its directions the motion spans), then d, c, a, as the independent
+    samples run short; with as many as its coefficients take, nothing is held."""
+    from twincd.calibration.excitation import SAMPLES_PER_COEFFICIENT, scarce
+
+    free = np.ones((3, 3), dtype=bool)
+    directions = np.array([0, 0, 5])
+    held = scarce(free, directions, independent=SAMPLES_PER_COEFFICIENT * 3)
+    # 3 coefficients' samples: b, a and c; d held (and the third joint, with θ's 5, all)
+    assert held.tolist() == [[False, False, True]] * 2 + [[True, True, True]]
+    assert not scarce(free, directions, None).any()  # not known: nothing held for it
+    assert not scarce(free, directions, SAMPLES_PER_COEFFICIENT * 9).any()
+
+
 def test_conditioning():
     rng = np.random.default_rng(0)
     n = 1000

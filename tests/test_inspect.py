@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from support.builders import XARM, Message, joint_recording, joint_state, write
 from support.clitools import run
+from support.robots import xarm_urdf
 
 from twincd.commands.inspection import inspect_log
 
@@ -137,18 +138,19 @@ def test_warnings_detect_would_give_are_listed_with_the_log(tmp_path):
     assert json.loads(result.stdout)["warnings"] == found.warnings
 
 
-def test_a_changed_urdf_makes_the_log_unusable(tmp_path):
-    from twincd.twin.robot import resolve_urdf
-
-    urdf = tmp_path / "arm.urdf"
-    urdf.write_text(resolve_urdf("xarm7").read_text())
+def test_a_urdf_of_other_dynamics_makes_the_log_unusable(tmp_path):
+    """Judged by content: a comment added changes nothing the twin uses; a link's mass
+    does."""
+    urdf = xarm_urdf(tmp_path / "arm.urdf")
     log = write(tmp_path / "run.mcap", "mcap", joint_recording(effort=np.ones((400, 7))))
     cal = tmp_path / "cal.json"
     assert run("fit", log, "--robot", urdf, "-o", cal, "-q").exit_code == 0
     assert inspect_log(log, robot=str(urdf)).usable
-    urdf.write_text(urdf.read_text() + "\n<!-- edited -->\n")
+    xarm_urdf(urdf, comment=True)
+    assert run("inspect", log, "-c", cal).exit_code == 0
+    xarm_urdf(urdf, heavier=True)
     result = run("inspect", log, "-c", cal)
-    assert result.exit_code == 2 and "changed since the calibration" in result.stderr
+    assert result.exit_code == 2 and "other dynamics than the calibration" in result.stderr
 
 
 def test_a_log_cut_before_its_first_joint_state_says_so(tmp_path):

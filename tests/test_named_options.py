@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.builders import XARM, Bool, Message, joint_recording, write_by
+from support.builders import XARM, Bool, Message, String, joint_recording, write_by
 from support.clitools import assert_one_line_error, run
 
 from twincd.errors import TopicError, UsageError
@@ -73,6 +73,8 @@ def test_a_mistyped_sim_topic_is_refused_not_simulated(tmp_path, writer):
         ("--topic", "/arm/joint_states", "joint-state topic /arm/joint_states"),
         ("--label-topic", "/colision_flag", "label topic /colision_flag"),
         ("--joint-map", "joint_1=joint1", "joint map entry joint_1=joint1"),
+        ("--joint-prefix", "left_", "joint prefix left_ matches no joint"),
+        ("--link-topic", "/touched", "link topic /touched"),
     ],
 )
 @pytest.mark.parametrize("command", ["fit", "threshold", "inspect", "simulate"])
@@ -111,9 +113,13 @@ def _renamed(source: Path, target: Path, option: str, value: str) -> None:
                 topic = value
             if option == "--joint-map" and c.msgtype.endswith("JointState"):
                 msg.name = [old if n == new else n for n in msg.name]
+            if option == "--joint-prefix" and c.msgtype.endswith("JointState"):
+                msg.name = [value + n for n in msg.name]
             msgs.append(Message(topic, c.msgtype, t, msg))
     if option == "--label-topic" and not any(m.topic == value for m in msgs):
         msgs.append(Message(value, "std_msgs/msg/Bool", msgs[0].log_time - 1, Bool(data=False)))
+    if option == "--link-topic":
+        msgs.append(Message(value, "std_msgs/msg/String", msgs[0].log_time - 1, String(data="")))
     write_by("rosbags", target, msgs)
 
 
@@ -176,6 +182,20 @@ def test_the_library_refuses_a_named_option_alike(tmp_path):
         list(s)
     with pytest.raises(UsageError, match="joint map entry j9=joint1"):
         fit_calibration([log], joint_map={"j9": "joint1"})
+    with pytest.raises(UsageError, match="joint prefix left_ matches no joint of the log"):
+        fit_calibration([log], joint_prefix="left_")
+
+
+def test_of_several_renamings_the_one_that_matches_nothing_is_named(tmp_path):
+    """A joint prefix that matches one log and a joint-map entry that matches none: the entry
+    is the error, and its own words say so (not the prefix's)."""
+    prefixed = tmp_path / "left.mcap"
+    _renamed(arm_log(tmp_path / "a.mcap", "rosbags"), prefixed, "--joint-prefix", "left_")
+    plain = arm_log(tmp_path / "b.mcap", "rosbags", seed=1)
+    asked = ("--joint-prefix", "left_", "--joint-map", "j9=joint1", "-o", tmp_path / "c.json")
+    result = run("fit", prefixed, plain, *asked)
+    assert_one_line_error(result, "joint map entry j9=joint1 matches no joint of the logs")
+    assert "(option --joint-map)" in result.stderr
 
 
 # ---------------------------------------------------------------- the default robot

@@ -18,6 +18,7 @@ import pytest
 from conftest import build_twin_log
 from support.builders import rewrite
 from support.clitools import assert_one_line_error, run
+from support.robots import xarm_urdf
 
 from twincd.calibration import Calibration
 from twincd.errors import CalibrationError
@@ -156,27 +157,26 @@ def _xarm_urdf(folder: Path) -> Path:
 
 
 def test_a_urdf_edited_after_fit_is_refused_unless_allowed(tmp_path: Path) -> None:
+    """An edit of what the twin uses (link1's mass; the fixed base's inertia would not be):
+    other dynamics than the calibration's, refused unless allowed."""
     urdf = _xarm_urdf(tmp_path / "robot")
     cal = tmp_path / "cal.json"
     train = [SAMPLES / "train" / f"train_00{i}.mcap" for i in range(3)]
     assert run("fit", *train, "--robot", urdf, "-o", cal, "-q", "-j", "1").exit_code == 0
     assert run("threshold", SAMPLES / "val", "-c", cal, "-q", "-j", "1").exit_code == 0
     assert run("detect", CLEAN, "-c", cal, "-q").exit_code == 0
-    text = urdf.read_text()
-    start = text.index('ixx="') + len('ixx="')
-    end = text.index('"', start)
-    urdf.write_text(text[:start] + repr(float(text[start:end]) * 1.5) + text[end:])
+    xarm_urdf(urdf, heavier=True)
 
     for command in (("detect", CLEAN), ("threshold", SAMPLES / "val", "-o", tmp_path / "t.json")):
         result = run(*command, "-c", cal, "-j", "1")
-        assert_one_line_error(result, match="changed since the calibration was fitted")
+        assert_one_line_error(result, match="other dynamics than the calibration was fitted with")
         assert str(urdf) in result.stderr and "--allow-urdf-change" in result.stderr
     result = run("evaluate", SAMPLES / "test" / "test_000.mcap", "-c", cal, "--no-summary")
     assert_one_line_error(result, match=str(urdf))
 
     code, doc, _ = detect_json(CLEAN, "-c", cal, "--allow-urdf-change")
     assert code in (0, 1)
-    (line,) = doubts(doc["warnings"], "changed since the calibration was fitted")
+    (line,) = doubts(doc["warnings"], "other dynamics than the calibration was fitted with")
     assert str(urdf) in line and str(CLEAN) in line
 
 
@@ -192,6 +192,8 @@ def test_the_live_detector_checks_the_urdf(caplog: pytest.LogCaptureFixture) -> 
         OnlineDetector(edited, allow_urdf_change=True, source="arm")
     assert [r.getMessage() for r in caplog.records if "changed" in r.getMessage()]
     OnlineDetector(replace(cal, urdf_sha256=None))  # an old file without a sha256: not checked
+    with pytest.raises(CalibrationError, match="other dynamics"):  # a file of this version
+        OnlineDetector(replace(cal, dynamics_sha256="0" * 64))
 
 
 # ---------------------------------------------------------------- a log near its ends throughout

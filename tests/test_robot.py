@@ -94,3 +94,39 @@ def test_a_xacro_file_is_named_with_what_to_run(tmp_path, name):
         "inspect", Path(__file__).parent.parent / "sample_logs/val/val_000.mcap", "--robot", path
     )
     assert_one_line_error(result, "xacro file")
+
+
+def test_the_dynamics_hash_is_what_the_twin_uses_not_the_file(tmp_path):
+    """A robot is identified by what inverse dynamics computes with: the same file at another
+    path, or with a comment added, hashes alike; a heavier link, another robot or another
+    set of joints (a reduced model) does not."""
+    from support.robots import xarm_urdf
+
+    shipped = load_robot("xarm7")
+    moved = load_robot(str(xarm_urdf(tmp_path / "a" / "arm.urdf")))
+    commented = load_robot(str(xarm_urdf(tmp_path / "b" / "arm.urdf", comment=True)))
+    heavier = load_robot(str(xarm_urdf(tmp_path / "c" / "arm.urdf", heavier=True)))
+    assert moved.dynamics_sha256 == shipped.dynamics_sha256 == commented.dynamics_sha256
+    assert commented.urdf_sha256 != shipped.urdf_sha256  # the file's bytes differ
+    assert heavier.dynamics_sha256 != shipped.dynamics_sha256
+    assert load_robot("panda").dynamics_sha256 != shipped.dynamics_sha256
+    reduced = load_robot("xarm7", keep=[f"joint{i}" for i in range(1, 7)])
+    assert reduced.dynamics_sha256 != shipped.dynamics_sha256
+
+
+def test_a_package_uri_names_a_urdf_in_a_package(tmp_path, monkeypatch):
+    from support.robots import xarm_urdf
+
+    from twincd.twin.robot import package_uri
+
+    shipped = resolve_urdf("xarm7")
+    assert package_uri(shipped) == "package://xarm_description/urdf/xarm7.urdf"
+    assert resolve_urdf("package://xarm_description/urdf/xarm7.urdf") == shipped
+    ament = tmp_path / "install"
+    urdf = xarm_urdf(ament / "share" / "arm_description" / "urdf" / "arm.urdf")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(ament))
+    assert package_uri(urdf) == "package://arm_description/urdf/arm.urdf"
+    assert resolve_urdf("package://arm_description/urdf/arm.urdf") == urdf
+    assert package_uri(tmp_path / "loose.urdf") is None
+    with pytest.raises(RobotModelError, match="not found in any installed package"):
+        resolve_urdf("package://arm_description/urdf/missing.urdf")

@@ -1,5 +1,7 @@
 """Settings by name (``twincd.SetupOptions``) resolved to a ``Setup``: defaults without a
-calibration, a calibration's recorded settings with one, and a contradiction refused."""
+calibration; with one, what it learned kept (a filter that contradicts it refused) and how a
+recording is read (topics, joint names, the robot's URDF) the run's own, its recorded values
+the defaults."""
 
 from __future__ import annotations
 
@@ -54,15 +56,13 @@ def test_a_calibration_s_settings_are_the_defaults() -> None:
 @pytest.mark.parametrize(
     ("given", "option", "words"),
     [
-        ({"topic": "/other"}, "topic", "topic /other contradicts the calibration's /arm/joint"),
-        ({"joint_map": {"b": "j2"}}, "joint_map", "joint map b=j2 contradicts"),
         ({"causal": False}, "causal", "zero-phase filter contradicts the calibration's causal"),
         ({"cutoff_hz": 1.0}, "cutoff_hz", "cut-off (Hz) 1 contradicts the calibration's 2"),
         ({"filter_order": 2}, "filter_order", "filter order 2 contradicts"),
         ({"filter_kind": "critical"}, "filter_kind", "filter kind critical contradicts"),
     ],
 )
-def test_a_setting_against_the_calibration_is_refused(
+def test_a_filter_against_the_calibration_is_refused(
     given: dict[str, object], option: str, words: str
 ) -> None:
     with pytest.raises(UsageError) as caught:
@@ -71,9 +71,41 @@ def test_a_setting_against_the_calibration_is_refused(
     assert "(cal.json)" in caught.value.message
 
 
-def test_a_robot_against_the_calibration_s_is_refused() -> None:
-    with pytest.raises(UsageError, match="robot panda contradicts the calibration's xarm7"):
-        SetupOptions(robot="panda").resolve(_calibration(robot="xarm7"))
+def test_how_a_recording_is_read_overrides_the_calibration_s_defaults() -> None:
+    """Topics, the joint map or prefix and the robot given are the run's; what the calibration
+    learned (filter, joints, dynamics) stays. A joint map or prefix given replaces both."""
+    cal = _calibration(robot="xarm7")
+    setup = SetupOptions(
+        topic="/left/joint_states",
+        label_topic="/collision",
+        link_topic="/touched",
+        sim_topic="/twin",
+        joint_prefix="left_",
+        robot="panda",
+    ).resolve(cal)
+    options = setup.options
+    assert (options.topic, options.label_topic, options.link_topic, options.sim_topic) == (
+        "/left/joint_states",
+        "/collision",
+        "/touched",
+        "/twin",
+    )
+    assert options.joint_map is None and options.joint_prefix == "left_"
+    assert options.rename("left_joint1") == "joint1" and options.rename("a") == "a"
+    assert setup.robot == "panda" and setup.lowpass == cal.lowpass
+    assert setup.joint_names == cal.joint_names
+    mapped = SetupOptions(joint_map={"b": "j2"}).resolve(cal).options
+    assert dict(mapped.joint_map or {}) == {"b": "j2"} and mapped.joint_prefix == ""
+    assert mapped.named == {"joint_map:b"}
+
+
+def test_a_joint_map_entry_comes_before_the_prefix() -> None:
+    options = LogOptions(joint_map={"left_j9": "j1"}, joint_prefix="left_")
+    assert [options.rename(n) for n in ("left_j9", "left_j2", "right_j2")] == [
+        "j1",
+        "j2",
+        "right_j2",
+    ]
 
 
 def test_fit_without_a_model_prepares_for_the_best_one() -> None:

@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 
 # what watch subscribes to when a log carries it: publishing waits for each of them, so that
 # no twin effort is sent before its subscription arrived (samples without it are skipped)
-WATCHED = ("/joint_states", "/twincd/sim_effort", "/collision_flag")
+WATCHED = ("/joint_states", "/twincd/sim_effort", "/collision_flag", "/collision_link")
 
 
 class _Listener:
@@ -128,3 +128,92 @@ class Replay:
 
     def __exit__(self, *exc: Any) -> None:
         self.stop()
+
+
+# ---------------------------------------------------------------- a source on a fake clock
+
+
+class FakeClock:
+    """A monotonic clock that moves only when told (``advance``): what ``watch`` reads its time
+    from in tests that must not depend on the machine's speed (patch the watch module's
+    ``time`` with it)."""
+
+    def __init__(self) -> None:
+        self.now_ns = 1_000_000_000
+
+    def monotonic(self) -> float:
+        return self.now_ns * 1e-9
+
+    def monotonic_ns(self) -> int:
+        return self.now_ns
+
+    def advance(self, seconds: float) -> None:
+        self.now_ns += max(0, round(seconds * 1e9))
+
+
+class Scripted:
+    """A ``twincd.live.Source`` without a transport: ``messages`` ((topic, log time, payload), as
+    ``read_messages`` gives them) arrive on ``clock`` as they were logged (the first at once,
+    ``speed`` times faster than logged), and the connection goes away and comes back at the
+    times of ``drops`` ((away at s, back at s) from the first message; nothing arrives in
+    between). ``receive`` waits on the fake clock: it moves to the next arrival or by the
+    timeout."""
+
+    def __init__(
+        self,
+        messages: list[tuple[str, int, bytes]],
+        clock: FakeClock,
+        speed: float = 1.0,
+        drops: tuple[tuple[float, float], ...] = (),
+    ) -> None:
+        self.name = "scripted"
+        self.clock = clock
+        first = messages[0][1]
+        start = clock.now_ns
+        self._due = [
+            (start + round((t - first) / speed), topic, t, data) for topic, t, data in messages
+        ]
+        self._drops = [(start + round(a * 1e9), start + round(b * 1e9)) for a, b in drops]
+        self._changes: list[Any] = []
+        self._next = 0
+        self._said = 0  # connection changes said (2 per drop)
+
+    def start(self, wanted: Any, timeout_s: float) -> None:
+        pass
+
+    def _away(self, at_ns: int) -> bool:
+        return any(a <= at_ns < b for a, b in self._drops)
+
+    def receive(self, timeout_s: float) -> list[Any]:
+        from twincd.live.source import Arrival
+
+        limit = self.clock.now_ns + round(timeout_s * 1e9)
+        if self._next < len(self._due) and self._due[self._next][0] > self.clock.now_ns:
+            self.clock.now_ns = min(limit, self._due[self._next][0])
+        elif self._next >= len(self._due):
+            self.clock.now_ns = limit
+        self._say_changes()
+        out = []
+        while self._next < len(self._due) and self._due[self._next][0] <= self.clock.now_ns:
+            due, topic, log_time, data = self._due[self._next]
+            self._next += 1
+            if not self._away(due):
+                out.append(Arrival(topic, log_time, due, data))
+        return out
+
+    def _say_changes(self) -> None:
+        times = [(t, up) for a, b in self._drops for t, up in ((a, False), (b, True))]
+        while self._said < len(times) and times[self._said][0] <= self.clock.now_ns:
+            from twincd.live.source import Connection
+
+            at, up = times[self._said]
+            reason = "" if up else "connection closed"
+            self._changes.append(Connection(up, at * 1e-9, reason))
+            self._said += 1
+
+    def notices(self) -> list[Any]:
+        changes, self._changes = self._changes, []
+        return changes
+
+    def close(self) -> None:
+        pass

@@ -26,14 +26,18 @@ from twincd.twin.dynamics import inverse_dynamics
 SEED = 3
 
 
-def config(seconds: float = 12.0) -> SynthConfig:
+def config(seconds: float = 12.0, longest: float | None = None) -> SynthConfig:
     base = SynthConfig()
-    return replace(base, motion=replace(base.motion, duration_s=(seconds, seconds + 2.0)))
+    longest = seconds + 2.0 if longest is None else longest
+    return replace(base, motion=replace(base.motion, duration_s=(seconds, longest)))
 
 
-def path(split: str, index: int, seconds: float = 12.0, seed: int = SEED) -> SynthRun:
-    """One collision-free path of the run set ``seed`` (as ``twincd synth`` writes it)."""
-    return simulate_path(config(seconds), seed, split, index, collisions=False)
+def path(
+    split: str, index: int, seconds: float = 12.0, seed: int = SEED, longest: float | None = None
+) -> SynthRun:
+    """One collision-free path of the run set ``seed`` (as ``twincd synth`` writes it), of
+    ``seconds`` to ``longest`` (default: 2 s more) seconds."""
+    return simulate_path(config(seconds, longest), seed, split, index, collisions=False)
 
 
 def held(run: SynthRun, joints: Sequence[int] | None = None, seed: int = SEED) -> SynthRun:

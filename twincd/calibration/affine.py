@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from twincd.calibration.excitation import PRIOR, conditioning, gain_held
+from twincd.calibration.excitation import PRIOR, affordable, conditioning, gain_held
 from twincd.errors import DataError
 from twincd.signal.moments import Moments
 from twincd.types import BoolArray, FloatArray
@@ -187,10 +187,12 @@ class AffineSolution:
     r2: FloatArray
     rmse: FloatArray
     ill_conditioned: BoolArray
-    # joints whose twin effort stays at one level, so that a and b cannot be told apart: a is
-    # held at 1 there (``twincd.calibration.excitation``)
+    # joints whose twin effort stays at one level, so that a and b cannot be told apart, or
+    # whose logs hold too few independent samples for a and b: a is held at 1 there
+    # (``twincd.calibration.excitation``)
     held: BoolArray
     gain_share: FloatArray  # each joint's twin effort's spread over its RMS (``gain_share``)
+    scarce: BoolArray  # of ``held``, those held for want of independent samples
 
 
 def gain_share(stats: AffineStats) -> FloatArray:
@@ -200,9 +202,10 @@ def gain_share(stats: AffineStats) -> FloatArray:
     return out
 
 
-def solve(stats: AffineStats) -> AffineSolution:
+def solve(stats: AffineStats, independent: float | None = None) -> AffineSolution:
     """Least squares per joint from merged statistics (closed form of eq. 3); where the twin's
-    effort stays at one level (``gain_share``), a is held at 1 and b fits what it leaves."""
+    effort stays at one level (``gain_share``), or the ``independent`` samples are too few
+    for a and b (``excitation.affordable``), a is held at 1 and b fits what it leaves."""
     require_samples(stats.n, 2)
     n = stats.n
     cxx, cyy, cxy = stats.cxx, stats.cyy, stats.cxy
@@ -211,6 +214,8 @@ def solve(stats: AffineStats) -> AffineSolution:
     sse = np.maximum(cyy - a * cxy, 0.0)
     share = gain_share(stats)
     held = gain_held(share, np.sqrt(cxx / n), np.sqrt(sse / n))
+    scarce = ~held & (affordable(independent) < 2)
+    held |= scarce
     if held.any():
         a = np.where(held, PRIOR["a"], a)
         sse = np.where(held, np.maximum(cyy - 2.0 * a * cxy + a * a * cxx, 0.0), sse)
@@ -218,7 +223,7 @@ def solve(stats: AffineStats) -> AffineSolution:
     r2 = r_squared(sse, cyy)
     rmse = np.sqrt(sse / n)
     ill = degenerate | (np.sqrt(cxx) < CONDITION_RATIO * np.sqrt(cyy))
-    return AffineSolution(a, b, r2, rmse, ill & ~held, held, share)
+    return AffineSolution(a, b, r2, rmse, ill & ~held, held, share, scarce)
 
 
 def warn_ill_conditioned(

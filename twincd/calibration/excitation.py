@@ -1,6 +1,6 @@
 """What the logs' motion determines of a model (contract: Exit codes and streams, ``fit``).
 
-A coefficient is learned from how its column varies across the fit's samples. Three ways it
+A coefficient is learned from how its column varies across the fit's samples. Four ways it
 cannot be (per joint):
 
 - the arm does not move: every joint's position stays within ``REST_POSITION`` (std) of one
@@ -14,6 +14,14 @@ cannot be (per joint):
   changes. Its coefficient trades against the offset ``b`` (or ``c`` against ``d``) on noise:
   ``a`` is held at 1 (the twin's effort as it is), ``c`` and ``d`` at 0, an inertial parameter's
   correction θ at 0.
+- too few independent samples: the filtered signals of a fit carry 2·f_c values a second
+  (``independent_samples``: a 2 s log at 100 Hz, its 0.63 s edges left out, holds 74 samples
+  but about 2 independent ones after the 1.5 Hz filter), and each coefficient of a joint, its
+  offset ``b`` among them, takes ``SAMPLES_PER_COEFFICIENT`` of them (``scarce``). Short of
+  that the fit has about as many unknowns as values and fits their noise (a gain of −231 from
+  2 s of a synthetic path, every column well conditioned against its few neighbours). Held
+  first: the identified model's inertial correction θ, as a whole (its directions the motion
+  spans, ``spanned``: θ stays at the URDF's), then ``d``, ``c``, then ``a``.
 
 Held coefficients are fitted around (least squares of the others with them fixed, ``b`` always
 free), recorded (``Calibration.held``) and said in one warning each, with the motion that would
@@ -26,14 +34,15 @@ Panda at rest); their joints' positions vary by 0.08 rad (std) and more, an arm 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from twincd.errors import DataError
 from twincd.signal.moments import Moments
-from twincd.types import BoolArray, FloatArray
+from twincd.types import BoolArray, FloatArray, IntArray
 
 # a joint whose position varies less than this (std over the clean samples, rad or m) does not
 # move; encoders resolve far below it (a real arm at rest: 10⁻⁵ rad)
@@ -49,6 +58,53 @@ GAIN_STEP = 0.1
 PRIOR = {"a": 1.0, "c": 0.0, "d": 0.0}
 # the friction models' columns judged here, in ``FrictionStats``'s order
 GAIN, COULOMB, VISCOUS = 0, 1, 2
+# independent samples each coefficient of a joint (its offset among them) takes: with fewer,
+# a fit has about as many unknowns as values, and fits their noise
+SAMPLES_PER_COEFFICIENT = 2.0
+
+
+def independent_samples(n: float, cutoff_hz: float, period_s: float) -> float:
+    """How many independent samples ``n`` samples low-passed at ``cutoff_hz`` hold: a filtered
+    signal carries 2·f_c values a second (Nyquist), so n·min(1, 2·f_c·period)."""
+    return n * min(1.0, 2.0 * cutoff_hz * period_s)
+
+
+def affordable(independent: float | None) -> float:
+    """How many coefficients per joint, its offset among them, ``independent`` samples
+    determine (``SAMPLES_PER_COEFFICIENT`` each; None, not known: any number)."""
+    return math.inf if independent is None else independent / SAMPLES_PER_COEFFICIENT
+
+
+def spanned(cross: FloatArray, live: BoolArray) -> IntArray:
+    """(D,) the number of directions the ``live`` (D, K) columns of centred cross-products
+    ``cross`` (D, K, K) span within the condition limit: the eigenvalues of their correlation
+    matrix above 1/``CONDITION_LIMIT``² of the largest (a set of columns the motion moves
+    together counts once)."""
+    out = np.zeros(len(cross), dtype=np.int64)
+    for j in range(len(cross)):
+        cols = np.flatnonzero(live[j])
+        if not len(cols):
+            continue
+        block = cross[j][np.ix_(cols, cols)]
+        unit = np.sqrt(np.maximum(np.diagonal(block), 1e-300))
+        values = np.linalg.eigvalsh(block / np.outer(unit, unit))
+        out[j] = int(np.count_nonzero(values > values[-1] / CONDITION_LIMIT**2))
+    return out
+
+
+def scarce(free: BoolArray, extra: IntArray | int, independent: float | None) -> BoolArray:
+    """(..., 3) which of a, c, d (``free`` (..., 3): not held otherwise) to hold so that a
+    joint's coefficients, its offset, the free ones among a, c, d and ``extra`` more (θ's
+    directions), fit in what ``independent`` samples determine (``affordable``): d first,
+    then c, then a (the friction the twin lacks before the gain on the twin's own effort)."""
+    room = affordable(independent) - 1.0 - np.asarray(extra, dtype=np.float64)
+    count = free.sum(axis=-1)
+    held = np.zeros_like(free)
+    for k in (VISCOUS, COULOMB, GAIN):
+        drop = free[..., k] & (count > room)
+        held[..., k] = drop
+        count = count - drop
+    return held
 
 
 @dataclass(frozen=True)
@@ -189,43 +245,61 @@ def squared_error(
 
 @dataclass(frozen=True)
 class Held:
-    """Per joint, the coefficients the logs' motion did not determine (held at ``PRIOR``), and
-    why: the joints that did not move (``resting``), each joint's twin-effort share against
-    the intercept (``gain_share``, for the message)."""
+    """Per joint, the coefficients the logs' motion did not determine (held at ``PRIOR``; the
+    identified model's θ at the URDF's), and why: the joints that did not move (``resting``),
+    each joint's twin-effort share against the intercept (``gain_share``, for the message),
+    and (``scarce``, (D, 4): a, c, d, θ) those held because the logs hold too few
+    ``independent`` samples for them (``excitation.scarce``)."""
 
     a: BoolArray
     c: BoolArray
     d: BoolArray
     resting: BoolArray
     gain_share: FloatArray
+    theta: BoolArray | None = None
+    scarce: BoolArray | None = None
+    independent: float | None = None
 
     @property
     def any(self) -> bool:
-        return bool(self.a.any() or self.c.any() or self.d.any())
+        theta = self.theta is not None and bool(self.theta.any())
+        return bool(self.a.any() or self.c.any() or self.d.any()) or theta
+
+    def _masks(self) -> tuple[tuple[str, BoolArray], ...]:
+        none = np.zeros_like(self.a)
+        return (
+            ("a", self.a),
+            ("c", self.c),
+            ("d", self.d),
+            ("theta", none if self.theta is None else self.theta),
+        )
 
     def per_joint(self, joint: int) -> tuple[str, ...]:
         """The held coefficients' names of one joint."""
-        return tuple(
-            key for key, mask in (("a", self.a), ("c", self.c), ("d", self.d)) if mask[joint]
-        )
+        return tuple(key for key, mask in self._masks() if mask[joint])
 
-    def messages(self, names: Sequence[str]) -> list[str]:
-        """One line per reason, naming the joints and the motion that would determine them."""
+    def messages(self, names: Sequence[str], model: str = "") -> list[str]:
+        """One line per reason, naming the joints and the motion that would determine them
+        (``model``: the kind fitted, which the lines name)."""
         out = []
 
         def listed(mask: BoolArray) -> str:
             return ", ".join(n for n, m in zip(names, mask, strict=True) if m)
 
-        if self.a.any():
-            worst = float(np.min(self.gain_share[self.a]))
+        scarce = np.zeros((len(self.a), 4), dtype=bool) if self.scarce is None else self.scarce
+        if scarce.any():
+            out.append(self._scarce_message(scarce, listed, model))
+        if (self.a & ~scarce[:, GAIN]).any():
+            held_a = self.a & ~scarce[:, GAIN]
+            worst = float(np.min(self.gain_share[held_a]))
             out.append(
                 f"these logs do not determine a (the gain on the twin's effort) on "
-                f"{listed(self.a)}: the twin's effort there stays at one level (it varies by "
+                f"{listed(held_a)}: the twin's effort there stays at one level (it varies by "
                 f"{100 * worst:.2g} % of its size or less), so a and the offset b cannot be told "
                 "apart; a is held at 1 (the twin's effort as it is). Move the arm through "
                 "poses and speeds that change the effort on these joints"
             )
-        still = self.resting & (self.c | self.d)
+        still = self.resting & ((self.c & ~scarce[:, COULOMB]) | (self.d & ~scarce[:, VISCOUS]))
         if still.any():
             verb = "does" if int(still.sum()) == 1 else "do"
             out.append(
@@ -247,11 +321,34 @@ class Held:
                 "where it moves at several speeds",
             ),
         )
-        for held, coefficient, why in friction:
-            moving = held & ~self.resting
+        for (held, coefficient, why), column in zip(friction, (COULOMB, VISCOUS), strict=True):
+            moving = held & ~self.resting & ~scarce[:, column]
             if moving.any():
                 out.append(f"these logs do not determine {coefficient} on {listed(moving)}: {why}")
         return out
+
+    def _scarce_message(
+        self, scarce: BoolArray, listed: Callable[[BoolArray], str], model: str
+    ) -> str:
+        """The line for what too few independent samples left held (``scarce``)."""
+        groups = (
+            (3, "θ (the URDF's inertial parameters re-fitted)"),
+            (VISCOUS, "d (viscous friction)"),
+            (COULOMB, "c (Coulomb friction)"),
+            (GAIN, "a (the gain on the twin's effort)"),
+        )
+        which = "; ".join(
+            f"{what} on {listed(scarce[:, k])}" for k, what in groups if scarce[:, k].any()
+        )
+        samples = "few" if self.independent is None else f"about {self.independent:.3g}"
+        fitted = f"the {model} model" if model else "the model"
+        return (
+            f"these logs hold {samples} independent samples (their clean samples once "
+            f"low-passed: 2 a second per Hz of cut-off), too few for every coefficient of "
+            f"{fitted} ({SAMPLES_PER_COEFFICIENT:g} each, the offset b among them); held at "
+            f"their prior (the twin as it is: θ at the URDF's, c and d at 0, a at 1): {which}. "
+            "Fit on longer logs of the arm moving (a minute or more)"
+        )
 
 
 def no_held(joints: int) -> Held:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -16,16 +17,20 @@ from twincd.calibration.score import Score, read_score
 from twincd.calibration.tail import TAIL_METHODS, TailFit
 from twincd.calibration.values import finite_array, finite_number
 from twincd.errors import CalibrationError, NotFittedError, UsageError
-from twincd.io.options import LogOptions
+from twincd.io.options import DEFAULT_LINK_TOPIC, LogOptions
 from twincd.signal.filters import LowPass
 from twincd.types import FloatArray
 from twincd.version import __version__
+
+log = logging.getLogger("twincd")
 
 if TYPE_CHECKING:
     from twincd.prepare.setup import PreparedLog, Setup
 
 SCHEMA = "twincd.calibration/2"
 SCHEMA_V1 = "twincd.calibration/1"  # still read, through ``upgrade_v1``
+# the coefficients ``fit.joints.<joint>.held`` may name (``twincd.calibration.excitation``)
+HELD_KEYS = ("a", "c", "d", "theta")
 # what a threshold's μ and σ are (``Threshold.estimator``)
 ESTIMATORS = ("mean-sd", "median-mad")
 
@@ -96,7 +101,8 @@ class FitInfo:
     samples: int = 0
     seconds: float = 0.0
     # per joint, the coefficients the fit logs' motion did not determine, held at their prior
-    # (``twincd.calibration.excitation``); None when no joint has any, or not recorded
+    # (``twincd.calibration.excitation``: some of a, c, d, theta); None when no joint has any,
+    # or not recorded
     held: tuple[tuple[str, ...], ...] | None = None
     # each band's score on the fit's own logs, each scored by a model fitted without it
     # (``twincd.calibration.crossfit``): clean data ``threshold`` sets its budget on too
@@ -105,16 +111,23 @@ class FitInfo:
 
 @dataclass(frozen=True)
 class Calibration:
-    """Everything detection needs, as stored in calibration JSON (docs/contract.md): how logs
-    were read (log options, robot, filter, joints, sampling period), the fitted ``model``
-    (which alone says what scores: its coefficients and the features it needs), the
-    ``threshold``, and where they came from (``fit``, ``created``, ``twincd_version``)."""
+    """Everything detection needs, as stored in calibration JSON (docs/contract.md).
+
+    What it learned, which a run may not contradict: the robot's dynamics (``dynamics_sha256``,
+    ``RobotModel.dynamics_sha256``) and the joints the model was fitted on (``joint_names``,
+    after the joint map), the filter and the sampling period, the fitted ``model`` (which
+    alone says what scores: its coefficients and the features it needs) and the
+    ``threshold``. How its logs were read, the defaults of later runs, which may read theirs
+    otherwise: the log options (topics, joint map and prefix) and where the robot's URDF was
+    (``robot``: a name or a path; ``robot_package``: its ``package://`` URI, when it lay in
+    a package). Where it came from: ``fit``, ``created``, ``twincd_version``."""
 
     joint_names: tuple[str, ...]
     model: ResidualModel = field(compare=False)  # fitted, one of MODEL_KINDS
     lowpass: LowPass = field(default_factory=LowPass)
     options: LogOptions = field(default_factory=LogOptions)
     robot: str | None = None
+    # the URDF file's sha256: what files written before the dynamics' hash were checked by
     urdf_sha256: str | None = None
     simulated: bool = True
     # nominal sampling period of the fitted logs: later logs are filtered at this rate, so that
@@ -130,6 +143,41 @@ class Calibration:
     created: str = ""
     twincd_version: str = __version__
     source: str = ""  # the file it was loaded from, for messages
+    dynamics_sha256: str | None = None  # the robot's dynamics (None: files written before)
+    robot_package: str | None = None  # ``package://…`` of the URDF, when in a package
+
+    @property
+    def uses_robot(self) -> bool:
+        """Whether scoring needs the robot model: the twin is computed, or the model needs
+        the joint-torque regressor (the identified models)."""
+        return self.simulated or self.model.features.regressor
+
+    def robot_model(self, given: str | None = None) -> str | None:
+        """The robot model to run the twin with on this machine: ``given`` (a name, a URDF
+        path or a ``package://`` URI), else the recorded one where it is (a name, or a path
+        that exists), else a file of its name beside the calibration file, else the file of
+        its package (``robot_package``). None when it records none, or (a model the twin does
+        not need) none is found; a ``RobotModelError`` when the twin needs one and none is
+        found. Which file it is does not matter: its dynamics are checked
+        (``twincd.prepare.chain.check_robot``)."""
+        if given is not None or self.robot is None:
+            return given if given is not None else self.robot
+        from twincd.twin.robot import locate_urdf
+
+        beside = Path(self.source).parent if self.source else None
+        found = locate_urdf(self.robot, self.robot_package, beside)
+        if found is None and self.uses_robot:
+            from twincd.errors import RobotModelError
+
+            name = Path(self.robot).name
+            raise RobotModelError(
+                "the calibration's robot URDF is not found on this machine",
+                f"{self.robot}, {self.source or 'calibration'}",
+                f"give the robot's URDF (its path, or its package://… URI), or put {name} "
+                "beside the calibration",
+                option="robot",
+            )
+        return found
 
     @property
     def fast_hz(self) -> float | None:
@@ -182,6 +230,7 @@ class Calibration:
             "robot": {
                 "name": self.robot,
                 "urdf_sha256": self.urdf_sha256,
+                **_present(dynamics_sha256=self.dynamics_sha256, package=self.robot_package),
                 "joint_names": names,
                 "simulated": self.simulated,
                 **({} if self.links is None else {"links": list(self.links)}),
@@ -191,7 +240,9 @@ class Calibration:
                 "topic": self.options.topic,
                 "label_topic": self.options.label_topic,
                 "sim_topic": self.options.sim_topic,
+                "link_topic": self.options.link_topic,
                 "joint_map": dict(self.options.joint_map or {}),
+                "joint_prefix": self.options.joint_prefix,
             },
             "filter": {
                 **self.lowpass.to_dict(),
@@ -355,8 +406,10 @@ def _read(d: Mapping[str, Any], source: str, where: str) -> Calibration:
         label_topic=str(opts["label_topic"]),
         sim_topic=str(opts["sim_topic"]),
         joint_map=dict(opts["joint_map"] or {}) or None,
+        link_topic=str(opts.get("link_topic", DEFAULT_LINK_TOPIC)),  # files before it: default
+        joint_prefix=str(opts.get("joint_prefix") or ""),
     )
-    return Calibration(
+    cal = Calibration(
         joint_names=names,
         model=model,
         lowpass=_lowpass(d["filter"], where),
@@ -382,7 +435,36 @@ def _read(d: Mapping[str, Any], source: str, where: str) -> Calibration:
         created=str(d["created"]),
         twincd_version=str(d["twincd_version"]),
         source=source,
+        dynamics_sha256=_optional_text(robot, "dynamics_sha256", where),
+        robot_package=_optional_text(robot, "package", where),
     )
+    if cal.dynamics_sha256 is None and cal.urdf_sha256 and cal.uses_robot:
+        log.info(
+            "%s records its robot by the URDF file's sha256 (written before calibrations "
+            "recorded the robot's dynamics): the URDF is checked byte for byte; re-fit it to "
+            "have it checked by content",
+            where,
+        )
+    return cal
+
+
+def _present(**values: str | None) -> dict[str, str]:
+    """The keys whose value is set (a file records what it knows, nothing for the rest)."""
+    return {k: v for k, v in values.items() if v is not None}
+
+
+def _optional_text(section: Mapping[str, Any], key: str, where: str) -> str | None:
+    """``section[key]``, a string, when present (None when absent or null)."""
+    value = section.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise CalibrationError(
+            f"calibration field robot.{key} is {value!r}, not a string",
+            where,
+            "re-run `twincd fit` to write a new one",
+        )
+    return value
 
 
 def _threshold(th: Mapping[str, Any] | None, where: str) -> Threshold | None:
@@ -623,8 +705,10 @@ def _held(per_joint: Mapping[str, Any], names: Sequence[str]) -> tuple[tuple[str
     out = []
     for n in names:
         keys = (per_joint.get(n) or {}).get("held", [])
-        if not isinstance(keys, list) or not all(k in ("a", "c", "d") for k in keys):
-            raise ValueError(f"fit.joints.{n}.held must list some of a, c, d, not {keys!r}")
+        if not isinstance(keys, list) or not all(k in HELD_KEYS for k in keys):
+            raise ValueError(
+                f"fit.joints.{n}.held must list some of {', '.join(HELD_KEYS)}, not {keys!r}"
+            )
         out.append(tuple(str(k) for k in keys))
     return tuple(out)
 
@@ -639,6 +723,8 @@ def calibration_from_fit(
     simulated: bool,
     logs: Sequence[str],
     period_s: float | None = None,
+    dynamics_sha256: str | None = None,
+    robot_package: str | None = None,
 ) -> Calibration:
     """The calibration file's content from a fitted model (``fit_s_``: its training time)."""
     held = getattr(model, "held_", None)
@@ -659,4 +745,6 @@ def calibration_from_fit(
         ),
         created=_now(),
         period_s=period_s,
+        dynamics_sha256=dynamics_sha256,
+        robot_package=robot_package,
     )

@@ -17,7 +17,7 @@ import numpy as np
 from twincd.calibration.affine import fit_rows, solve, warn_ill_conditioned
 from twincd.calibration.crossfit import FOLD_BLOCK_S, MAX_FOLDS, Each, Folds, VelocitySteps
 from twincd.calibration.crossfit import time_folds as crossfit_folds
-from twincd.calibration.excitation import check_motion
+from twincd.calibration.excitation import check_motion, independent_samples
 from twincd.calibration.file import Calibration, calibration_from_fit
 from twincd.calibration.models import (
     EPSILON_GRID,
@@ -40,7 +40,6 @@ from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.prepare.frames import FrameSink
-    from twincd.signal.filters import LowPass
 
 log = logging.getLogger("twincd")
 
@@ -54,7 +53,8 @@ class LogFit:
     joint_names: tuple[str, ...]
     period_s: float
     simulated: bool
-    robot: tuple[str, str] | None  # (name, URDF sha256) when a model was used
+    # (name, URDF sha256, dynamics sha256, package URI or "") when a model was used
+    robot: tuple[str, str, str, str] | None
     seconds: float  # time spent in the regression sums, as the paper times training
     samples: int = 0  # every sample read (labelled ones too): what progress counts
     labelled: bool = True  # the log has collision labels (else every sample is taken as clean)
@@ -111,6 +111,10 @@ def fit_log(
         kept = [f for f in folds if f is not None]
         assert kept  # the stream raises on logs without samples
         stats = ResidualModel.merge(kept)
+        cutoff = setup.lowpass.cutoff_hz
+        stats = replace(
+            stats, independent=independent_samples(stats.affine.n, cutoff, stream.period_s)
+        )
         return LogFit(
             source=stream.source,
             stats=stats,
@@ -203,10 +207,16 @@ class _Cells:
         return parts
 
 
-def _robot_of(stream: PreparedStream) -> tuple[str, str] | None:
-    if stream.robot is None:
+def _robot_of(stream: PreparedStream) -> tuple[str, str, str, str] | None:
+    """How the calibration names the stream's robot model: as the user gave it, by its file's
+    sha256 (for older readers), by its dynamics, and by its package when it lies in one."""
+    from twincd.twin.robot import package_uri
+
+    robot = stream.robot
+    if robot is None:
         return None
-    return stream.robot.name, stream.robot.urdf_sha256
+    package = package_uri(robot.urdf_path) or ""
+    return robot.name, robot.urdf_sha256, robot.dynamics_sha256, package
 
 
 def check_model(model: str | None) -> None:
@@ -249,7 +259,7 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         model = best_model(total)
         log.info("fit: model %s, the best these logs allow (--model affine is the paper's)", model)
     robots = sorted({p.robot for p in parts if p.robot is not None})
-    name, sha = robots[0] if robots else (setup.robot, None)
+    name, sha, dynamics, package = robots[0] if robots else (setup.robot, None, None, None)
     links, depths = _links_and_depths(name, names)
     start = time.perf_counter()
     fitted = make_model(model, depth_order(depths, len(names)))
@@ -261,11 +271,12 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
     if not fitted.needs_coulomb:
         affine = solve(total.affine)
         warn_ill_conditioned(names, total.affine, affine.ill_conditioned, affine.a)
-    for line in fitted.held_.messages(names):
+    for line in fitted.held_.messages(names, fitted.kind):
         log.warning("fit: %s", line)
     r2 = fitted.r2_
     assert r2 is not None
-    gain, error = twin_gain(fitted, total, independent_samples(total, setup.lowpass, period))
+    independent = independent_samples(total.affine.n, setup.lowpass.cutoff_hz, period)
+    gain, error = twin_gain(fitted, total, independent)
     _warn_about_fit(names, fitted, gain, error, r2, [p.source for p in parts if not p.labelled])
     cal = calibration_from_fit(
         fitted,
@@ -277,6 +288,8 @@ def merge_fits(parts: Iterable[LogFit], setup: Setup, model: str | None = None) 
         any(p.simulated for p in parts),
         [p.source for p in parts],
         period_s=period,
+        dynamics_sha256=dynamics,
+        robot_package=package or None,
     )
     return replace(cal, links=links, depths=depths)
 
@@ -303,12 +316,6 @@ LOW_R2 = 0.1
 # a gain on the twin's effort is said to be negative when it is below 0 by this many standard
 # errors (a gain the logs barely determine, on a joint whose twin effort hardly varies, is not)
 SIGN_ERRORS = 3.0
-
-
-def independent_samples(stats: FitStats, lowpass: LowPass, period_s: float) -> float:
-    """How many independent samples the fit's filtered signals hold: a signal low-passed at
-    f_c carries 2·f_c values a second (Nyquist), so n·min(1, 2·f_c·period)."""
-    return stats.affine.n * min(1.0, 2.0 * lowpass.cutoff_hz * period_s)
 
 
 def twin_gain(

@@ -3,11 +3,11 @@
 turning the answer into an exit code (contract: The library does what the CLI does).
 
 Each takes its inputs, then the calibration, then keyword arguments: the command's own, the
-reading settings by name (``Settings``: with a calibration, its own by default, and one that
-contradicts it is an error) and how to run many logs (``RunOptions``: ``jobs``,
-``scheduler``, ``keep_going``, ``progress``, ``on_failure``). Each returns a ``CommandRun``:
-its answer, the warnings it gave (as data; also logged on the ``twincd`` logger as they came)
-and the logs that failed.
+reading settings by name (``Settings``: with a calibration, its recorded ones by default, and
+a filter setting that contradicts it is an error) and how to run many logs (``RunOptions``:
+``jobs``, ``scheduler``, ``keep_going``, ``progress``, ``on_failure``). Each returns a
+``CommandRun``: its answer, the warnings it gave (as data; also logged on the ``twincd`` logger
+as they came) and the logs that failed.
 """
 
 from twincd.commands.detect import DetectRun, detect_file, detect_files

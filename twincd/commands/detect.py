@@ -74,8 +74,9 @@ def detect_files(
     each streamed block by block down ``calibration``'s chain (one, or its file) at flat
     memory, on ``jobs`` local processes or the Dask cluster at ``scheduler``.
 
-    ``options`` as ``fit_calibration``'s; the reading settings are the calibration's by
-    default, and one that contradicts it is an error.
+    ``options`` as ``fit_calibration``'s; how the logs are read is the calibration's by
+    default, and may be given (``twincd.SetupOptions``: a filter that contradicts it is an
+    error).
     ``output``: per-sample output (.mcap: the input plus twincd's channels, .csv, .jsonl) for
     one log, or a folder of ``<log>.detect.mcap`` files; ``report`` (.md or .html) and
     ``junit``: written after every log (all or nothing); ``step_summary``: the Markdown

@@ -57,7 +57,6 @@ def evaluate_logs(
     val: Iterable[str | Path] = (),
     k_sigma: float | None = None,
     repeats: int = DEFAULT_REPEATS,
-    link_topic: str | None = None,
     min_f1: float | None = None,
     min_auc: float | None = None,
     report: str | Path | None = None,
@@ -130,7 +129,6 @@ def evaluate_logs(
                 repeats=repeats,
                 progress=bar,
                 run=run,
-                link_topic=link_topic,
                 batch=max(1, getattr(executor, "workers", 1) or 1),
             )
         if result.positives == 0:

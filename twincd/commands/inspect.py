@@ -39,8 +39,8 @@ def inspect_logs(
     **settings: Unpack[Settings],
 ) -> InspectRun:
     """``twincd inspect``: what each of ``logs`` holds and what twincd will make of it
-    (``twincd.commands.inspection.inspect_log``), read with ``settings`` (with ``calibration``: its
-    own, which a setting may not contradict, and its joints checked)."""
+    (``twincd.commands.inspection.inspect_log``), read with ``settings`` (with ``calibration``:
+    its recorded ones by default, its joints and robot dynamics checked)."""
     from twincd.calibration import Calibration
     from twincd.commands.inspection import inspect_log
     from twincd.executors.local import gathered_warnings

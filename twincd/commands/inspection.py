@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from twincd.defaults import DEFAULT_LINK_TOPIC, DEFAULT_ROBOT
+from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import TwincdError
 from twincd.io.options import LogOptions
 from twincd.signal.bounds import Dropped
@@ -195,9 +195,8 @@ def _inspect(
 
             what = f"topic {found.joint_topic} has no readable messages"
             raise LogReadError(what, found.path, "record joint states, or repair the log")
-    rename = dict(options.joint_map or {})
-    in_log = tuple(dict.fromkeys(rename.get(n, n) for s in found.joint_sets for n in s.joints))
-    model_name = robot or (calibration.robot if calibration is not None else None)
+    in_log = tuple(dict.fromkeys(options.rename(n) for s in found.joint_sets for n in s.joints))
+    model_name = robot or (calibration.robot_model() if calibration is not None else None)
     if model_name is None and not has_sim:
         model_name = DEFAULT_ROBOT
         found.robot_is_default = True
@@ -238,7 +237,7 @@ def _read_topics(reader: TopicReader, found: Inspection, options: LogOptions) ->
     sets: dict[tuple[str, ...], list[int]] = {}
     labels = positive = 0
     links: dict[str, None] = {}
-    wanted = [found.joint_topic or options.topic, options.label_topic, DEFAULT_LINK_TOPIC]
+    wanted = [found.joint_topic or options.topic, options.label_topic, options.link_topic]
     for topic, batch in reader.batches(wanted):
         if topic == found.joint_topic and isinstance(batch, JointStateBatch):
             counts = sets.setdefault(batch.names, [0, 0, 0, 0])
@@ -249,7 +248,7 @@ def _read_topics(reader: TopicReader, found: Inspection, options: LogOptions) ->
         elif topic == options.label_topic and isinstance(batch, BoolBatch):
             labels += len(batch)
             positive += int(np.count_nonzero(batch.value))
-        elif topic == DEFAULT_LINK_TOPIC and isinstance(batch, StringBatch):
+        elif topic == options.link_topic and isinstance(batch, StringBatch):
             links.update(dict.fromkeys(v for v in batch.values if v))
     found.joint_sets = [
         JointSet(names, *counts) for names, counts in sorted(sets.items(), key=lambda kv: -kv[1][0])
@@ -279,9 +278,11 @@ def _match_robot(
 
         require_default_robot(in_log, found.path)
     if calibration is not None and not has_own_twin:
-        from twincd.prepare.chain import check_urdf
+        from twincd.prepare.chain import check_robot, robot_for
 
-        check_urdf(full, calibration.urdf_sha256, allow_urdf_change, found.path)
+        twin = robot_for(name, calibration.joint_names)
+        cal = calibration
+        check_robot(twin, cal.dynamics_sha256, cal.urdf_sha256, allow_urdf_change, found.path)
     return load_robot(name, keep=in_log)  # the model detect will use (its warnings too)
 
 

@@ -27,19 +27,23 @@ ProgressDisplay = Callable[[int, str], contextlib.AbstractContextManager["Progre
 
 class Settings(TypedDict, total=False):
     """How to read logs, by name (``twincd.SetupOptions``' fields): the keyword arguments of
-    every command. With a calibration, a setting that contradicts it is an error."""
+    every command. With a calibration, what it learned (the filter; the joints after the map
+    and the robot's dynamics, checked as logs are read) may not be contradicted; how a
+    recording is read (topics, joint names, the URDF's path) overrides its defaults."""
 
     robot: str | None  # example-robot-data name or URDF path
     topic: str | None
     label_topic: str | None
     sim_topic: str | None
+    link_topic: str | None
     joint_map: Mapping[str, str] | None  # log joint name → model joint name
+    joint_prefix: str | None  # taken off log joint names that start with it
     cutoff_hz: float | None
     filter_order: int | None
     filter_kind: str | None
     causal: bool | None
     strict: bool  # refuse a truncated log instead of reading up to the damage
-    allow_urdf_change: bool  # accept a changed URDF whose dynamics did not change
+    allow_urdf_change: bool  # accept a robot model whose dynamics differ from the calibration's
 
 
 class RunOptions(TypedDict, total=False):

@@ -1,13 +1,14 @@
 """The settings a user asks for by name (``SetupOptions``: each None when not given) and the
 ``twincd.Setup`` they resolve to: without a calibration, the defaults fill in what was not
-given; with one, the calibration's recorded settings are the defaults, and a setting given that
-contradicts them is an error (a calibration only judges logs read the way it was fitted)."""
+given; with one, what it learned stays (the filter; the joints after the map and the robot's
+dynamics, checked by content as logs are read) and a filter setting given that contradicts it
+is an error, while how a recording is read (topics, the joint map and prefix, where the robot's
+URDF is) is the run's own: the calibration's recorded values are only its defaults."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from twincd.defaults import (
@@ -32,55 +33,69 @@ class SetupOptions:
     >>> setup = SetupOptions(topic="/arm/joint_states").resolve(calibration)  # doctest: +SKIP
     """
 
-    robot: str | None = None  # example-robot-data name or URDF path
+    robot: str | None = None  # example-robot-data name, package:// URI or URDF path
     topic: str | None = None
     label_topic: str | None = None
     sim_topic: str | None = None
+    link_topic: str | None = None
     joint_map: Mapping[str, str] | None = None  # log joint name → model joint name
+    joint_prefix: str | None = None  # taken off the log joint names that start with it
     cutoff_hz: float | None = None
     filter_order: int | None = None
     filter_kind: str | None = None  # None: Butterworth without a calibration
     causal: bool | None = None
     strict: bool = False  # refuse a truncated log instead of reading up to the damage
-    allow_urdf_change: bool = False  # accept a changed URDF whose dynamics did not change
+    allow_urdf_change: bool = False  # accept a robot model of other dynamics (warned)
 
     def log_options(self, defaults: LogOptions | None = None) -> LogOptions:
-        """The topics and joint map given; those not given fall back to ``defaults``. The ones
-        given are ``named`` (a log must have them; ``twincd.io.named``)."""
+        """The topics and joint names given; those not given fall back to ``defaults``. A
+        joint map or prefix given replaces both of the defaults' (the log's joints are named
+        one way). The ones given are ``named`` (a log must have them; ``twincd.io.named``)."""
         from twincd.io.options import LogOptions
 
         base = defaults or LogOptions()
+        renamed = self.joint_map is not None or self.joint_prefix is not None
         return LogOptions(
             topic=self.topic or base.topic,
             label_topic=self.label_topic or base.label_topic,
             sim_topic=self.sim_topic or base.sim_topic,
-            joint_map=self.joint_map or base.joint_map,
+            joint_map=(self.joint_map or None) if renamed else base.joint_map,
             named=self.named(),
+            link_topic=self.link_topic or base.link_topic,
+            joint_prefix=(self.joint_prefix or "") if renamed else base.joint_prefix,
         )
 
     def named(self) -> frozenset[str]:
         """The log options given (``LogOptions.named``)."""
         from twincd.io.options import named_options
 
-        return named_options(self.topic, self.label_topic, self.sim_topic, self.joint_map)
+        return named_options(
+            self.topic,
+            self.label_topic,
+            self.sim_topic,
+            self.joint_map,
+            self.link_topic,
+            self.joint_prefix,
+        )
 
     def resolve(self, calibration: Calibration | None = None) -> Setup:
-        """The ``Setup`` these options ask for, on top of ``calibration``'s when given."""
+        """The ``Setup`` these options ask for, on top of ``calibration``'s when given: its
+        filter, joints, period and dynamics, with the log options and the robot model given
+        in place of its recorded ones (``Calibration.robot_model`` finds the recorded URDF
+        when none is given)."""
         if calibration is None:
             return self._without_calibration()
-        self._check_against(calibration)
+        self._check_filter(calibration)
         from twincd.prepare.setup import Setup
 
         setup = Setup.from_calibration(calibration)
-        setup = replace(
+        return replace(
             setup,
-            options=replace(setup.options, named=self.named()),  # given: the recorded ones
+            options=self.log_options(calibration.options),
+            robot=calibration.robot_model(self.robot),
             strict=self.strict,
             allow_urdf_change=self.allow_urdf_change,
         )
-        if self.robot is not None and calibration.robot is None:
-            setup = replace(setup, robot=self.robot)
-        return setup
 
     def _without_calibration(self) -> Setup:
         from twincd.prepare.setup import Setup
@@ -95,23 +110,10 @@ class SetupOptions:
         )
         return Setup(self.log_options(), self.robot, lowpass, strict=self.strict)
 
-    def _check_against(self, cal: Calibration) -> None:
-        """A ``UsageError`` for the first setting given that the calibration contradicts."""
-        recorded, lp = cal.options, cal.lowpass
-        for option, label, given, was in (
-            ("topic", "topic", self.topic, recorded.topic),
-            ("label_topic", "label topic", self.label_topic, recorded.label_topic),
-            ("sim_topic", "simulated effort topic", self.sim_topic, recorded.sim_topic),
-        ):
-            if given is not None and given != was:
-                _contradiction(option, f"{label} {given}", was, cal)
-        if self.joint_map is not None and dict(self.joint_map) != dict(recorded.joint_map or {}):
-            was_map = _joint_map_text(recorded.joint_map) or "empty map"
-            given_map = f"joint map {_joint_map_text(self.joint_map)}"
-            _contradiction("joint_map", given_map, was_map, cal)
-        robot = self.robot
-        if robot is not None and cal.robot is not None and not _same_robot(robot, cal.robot):
-            _contradiction("robot", f"robot {robot}", cal.robot, cal)
+    def _check_filter(self, cal: Calibration) -> None:
+        """A ``UsageError`` for the first filter setting given that the calibration's filter
+        contradicts (the filter is part of what it learned)."""
+        lp = cal.lowpass
         if self.causal is not None and self.causal != lp.causal:
             filters = ("zero-phase", "causal")
             _contradiction(
@@ -159,14 +161,3 @@ def _contradiction(option: str, given: str, recorded: object, calibration: Calib
         "leave the setting out, or fit a calibration with it",
         option=option,
     )
-
-
-def _joint_map_text(joint_map: Mapping[str, str] | None) -> str:
-    return ",".join(f"{k}={v}" for k, v in (joint_map or {}).items())
-
-
-def _same_robot(a: str, b: str) -> bool:
-    if a == b:
-        return True
-    pa, pb = Path(a), Path(b)
-    return pa.exists() and pb.exists() and pa.resolve() == pb.resolve()

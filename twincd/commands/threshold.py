@@ -66,9 +66,9 @@ def threshold_calibration(
     alarms the threshold gives on these logs are counted (``detect``'s events, as ``evaluate``
     counts them) and a threshold that flags most of them is refused.
 
-    ``options`` as ``fit_calibration``'s; the reading settings are the calibration's by
-    default, and one that contradicts it is an error. ``output``: where to write the
-    calibration (None: nowhere)."""
+    ``options`` as ``fit_calibration``'s; how the logs are read is the calibration's by
+    default, and may be given (``twincd.SetupOptions``). ``output``: where to write the
+    calibration (None: nowhere; its recorded reading options are kept as they were)."""
     from twincd.calibration import Calibration
     from twincd.calibration.threshold import LogScores, check_threshold_choice, score_log
     from twincd.detection.files import threshold_logs

@@ -46,7 +46,7 @@ from twincd.prepare.chain import (
     BuiltChain,
     JointLayout,
     build_chain,
-    check_urdf,
+    check_robot,
     robot_for,
     sample_bounds,
 )
@@ -69,6 +69,11 @@ class OnlineResult:
     residual: FloatArray  # (N, joints)
     events: list[Event]  # events that closed with this push
     stamp_ns: IntArray | None = None  # (N,) the stamps of these rows, as pushed
+    # the twin's effort of the rows that went down the chain (skipped ones left out): a frame of
+    # ``stamp_ns``, ``position``, ``velocity`` (differentiated where the pushes had none) and
+    # ``sim_effort``, when the chain twins each sample (None: the pushes carry the log's own
+    # twin effort, or the twin runs on a coarse grid's cells)
+    twin: Frame | None = None
 
 
 class OnlineDetector:
@@ -85,10 +90,13 @@ class OnlineDetector:
     do not record it). ``sim_effort=True`` expects the twin's effort in every push (a log with
     its own ``/twincd/sim_effort``) instead of computing it with the robot model.
 
-    The robot model's URDF must be the one the calibration was fitted with (its sha256): a
-    changed one is refused unless ``allow_urdf_change`` (then said once). ``source`` names the
-    stream in messages (default: the calibration). ``rules``: how flags become events
-    (default: ``EventRules()``, as ``detect``).
+    ``robot``: the robot model (an example-robot-data name, a ``package://`` URI or a URDF
+    path) when not the calibration's (``Calibration.robot_model``: the recorded one, found
+    where it is, beside the calibration file or by its package). Its dynamics must be those
+    the calibration was fitted with (``twincd.prepare.chain.check_robot``): other ones are
+    refused unless ``allow_urdf_change`` (then said once). ``source`` names the stream in
+    messages (default: the calibration). ``rules``: how flags become events (default:
+    ``EventRules()``, as ``detect``).
     """
 
     def __init__(
@@ -100,6 +108,7 @@ class OnlineDetector:
         allow_urdf_change: bool = False,
         source: str | None = None,
         rules: EventRules | None = None,
+        robot: str | None = None,
     ) -> None:
         calibration.require_threshold()
         where = calibration.source or "calibration"
@@ -124,8 +133,15 @@ class OnlineDetector:
         # the twin's effort, or (identified models) the regressor, needs the robot model
         self.robot: RobotModel | None = None
         if not self.use_sim or calibration.model.features.regressor:
-            self.robot = robot_for(calibration.robot or DEFAULT_ROBOT, tuple(self.joint_names))
-            check_urdf(self.robot, calibration.urdf_sha256, allow_urdf_change, source or where)
+            model = calibration.robot_model(robot) or DEFAULT_ROBOT
+            self.robot = robot_for(model, tuple(self.joint_names))
+            check_robot(
+                self.robot,
+                calibration.dynamics_sha256,
+                calibration.urdf_sha256,
+                allow_urdf_change,
+                source or where,
+            )
             undriven = [n for n in self.joint_names if n not in self.robot.joint_names]
             if undriven:
                 raise JointMismatchError(
@@ -339,7 +355,19 @@ class OnlineDetector:
         resid = np.full((n, len(self.joint_names)), np.nan)
         if out.n:
             score[ok], flag[ok], resid[ok] = scored["score"], scored["flag"], scored["residual"]
-        return OnlineResult(score, flag, resid, events, stamp)
+        return OnlineResult(score, flag, resid, events, stamp, self._twin_of(out))
+
+    def _twin_of(self, out: Frame) -> Frame | None:
+        """The twin's per-sample effort the chain computed for ``out`` (``OnlineResult.twin``)."""
+        per_sample = self._chain is not None and self._chain.grid is None
+        if self.use_sim or not per_sample or (out.n and "sim_effort" not in out):
+            return None
+        columns = ("stamp_ns", "position", "velocity", "sim_effort")
+        if not out.n:
+            joints = len(self.joint_names)
+            empty = np.zeros((0, joints))
+            return Frame({"stamp_ns": np.zeros(0, np.int64), **{c: empty for c in columns[1:]}})
+        return Frame({c: out[c] for c in columns})
 
     @property
     def velocity_from_position(self) -> bool:

@@ -36,7 +36,7 @@ from twincd.calibration.threshold import (
     same_rule,
     score_log,
 )
-from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_LINK_TOPIC, DEFAULT_REPEATS
+from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_REPEATS
 from twincd.detection.detect import FlagCount
 from twincd.detection.events import EventRules
 from twincd.detection.files import threshold_logs
@@ -48,7 +48,6 @@ from twincd.executors.local import Bound
 from twincd.io.links import read_links
 from twincd.io.logs import expand_logs
 from twincd.io.named import settle_named
-from twincd.io.options import LogOptions
 from twincd.prepare.setup import PreparedLog, Setup, agreed_joints, prepare_log
 from twincd.signal.features import ModelFeatures
 from twincd.types import BoolArray, FloatArray
@@ -739,12 +738,11 @@ def evaluate(
     repeats: int = DEFAULT_REPEATS,
     progress: Progress = _no_progress,
     run: Mapper | None = None,
-    link_topic: str | None = None,
     batch: int = 1,
 ) -> Evaluation:
     """Every method in ``methods`` over the same test logs; isolation is judged where the
-    test logs carry the contact link on ``link_topic`` (None: the default topic, where logs
-    have it; a topic named that no test log has is an error, ``twincd.io.named``).
+    test logs carry the contact link on ``setup.options.link_topic`` (a link topic named
+    that no test log has is an error, ``twincd.io.named``).
 
     ``run(func, paths, description)`` maps a per-log function over logs, results in the order
     of ``paths`` (default: one after another here; the CLI passes one that runs them on local
@@ -756,11 +754,13 @@ def evaluate(
     test_paths = expand_logs(test_paths)
     train_paths = expand_logs(train_paths) if train_paths else []
     val_paths = expand_logs(val_paths) if val_paths else []
-    # a named option that none of the logs has is refused before any work
+    # a named option that none of the logs has is refused before any work; the contact
+    # links are read from the test logs only
+    options = setup.options
+    setup = replace(setup, options=options.unnamed("link_topic"))
     setup = setup.for_logs([*test_paths, *train_paths, *val_paths])
-    if link_topic is not None:
-        settle_named(test_paths, LogOptions(), link_topic)
-    link_topic = link_topic or DEFAULT_LINK_TOPIC
+    settle_named(test_paths, options, topics=("link_topic",))
+    link_topic = options.link_topic
     if repeats < 1:
         raise UsageError(
             "repeats must be at least 1", f"repeats={repeats}", "give 1 or more", option="repeats"

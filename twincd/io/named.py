@@ -37,17 +37,14 @@ _TOPICS = {
 }
 
 
-def _value(options: LogOptions, option: str, link_topic: str | None) -> str:
-    return link_topic or "" if option == "link_topic" else str(getattr(options, option))
-
-
 def _of_type(topics: Mapping[str, str], msgtype: str) -> str:
     found = sorted(t for t, m in topics.items() if m == msgtype)
     return ", ".join(found[:6]) + (", …" if len(found) > 6 else "") if found else "none"
 
 
 def require_named(options: LogOptions, topics: Mapping[str, str], source: str) -> None:
-    """A ``TopicError`` for the first named topic that ``topics`` (a log's) lacks."""
+    """A ``TopicError`` for the first named topic that ``topics`` (a log's) lacks (the link
+    topic aside: only ``evaluate`` reads it, over its test logs, ``settle_named``)."""
     for option, (what, msgtype, _) in _TOPICS.items():
         if option == "link_topic" or not options.names(option):
             continue
@@ -62,20 +59,32 @@ def require_named(options: LogOptions, topics: Mapping[str, str], source: str) -
             )
 
 
-def require_named_joints(options: LogOptions, joints: Iterable[str], source: str) -> None:
-    """A ``UsageError`` when a named joint-map entry matches none of the log's ``joints``."""
-    names = set(joints)
-    missing = [
-        f"{old}={new}"
+def _unmatched_joints(options: LogOptions, names: set[str]) -> list[tuple[str, str]]:
+    """The named joint renamings (``joint_map:OLD`` entries, the ``joint_prefix``) that match
+    none of ``names``: (option, how it reads)."""
+    out = [
+        (f"joint_map:{old}", f"joint map entry {old}={new}")
         for old, new in (options.joint_map or {}).items()
         if options.names(f"joint_map:{old}") and old not in names
     ]
+    prefix = options.joint_prefix
+    if options.names("joint_prefix") and not any(n.startswith(prefix) for n in names):
+        out.append(("joint_prefix", f"joint prefix {prefix}"))
+    return out
+
+
+def require_named_joints(options: LogOptions, joints: Iterable[str], source: str) -> None:
+    """A ``UsageError`` when a named joint-map entry, or the named joint prefix, matches none
+    of the log's ``joints``."""
+    names = set(joints)
+    missing = _unmatched_joints(options, names)
     if missing:
+        option = missing[0][0].partition(":")[0]
         raise UsageError(
-            f"joint map entry {', '.join(missing)} matches no joint of the log",
+            f"{', '.join(what for _, what in missing)} matches no joint of the log",
             f"{source}: log joints {', '.join(sorted(names)[:10])}",
-            "check its spelling, or leave the entry out",
-            option="joint_map",
+            "check its spelling, or leave it out",
+            option=option,
         )
 
 
@@ -111,23 +120,23 @@ def _look(path: Path, options: LogOptions, joints: bool) -> _Found:
 
 
 def settle_named(
-    paths: Sequence[Path], options: LogOptions, link_topic: str | None = None
+    paths: Sequence[Path], options: LogOptions, topics: Sequence[str] | None = None
 ) -> LogOptions:
     """The options to read ``paths`` (one run's logs) with: a named option that matches none
     of them is a ``TopicError`` or ``UsageError``; one that some lack is said in one warning
     and no longer counted as named (those logs are read as if it had not been given).
-    ``link_topic``: a contact-link topic the user named (``evaluate``), checked alike.
+    ``topics``: the topic options to check (None: every one, the link topic too).
 
     Logs that cannot be opened are left to their own run to report."""
-    checks = [o for o in _TOPICS if o != "link_topic" and options.names(o)]
-    checks += ["link_topic"] if link_topic else []
-    entries = [old for old in options.joint_map or {} if options.names(f"joint_map:{old}")]
-    if not checks and not entries:
+    checks = [o for o in _TOPICS if options.names(o) and (topics is None or o in topics)]
+    renaming = ("joint_map:", "joint_prefix")
+    renamings = [] if topics is not None else [o for o in options.named if o.startswith(renaming)]
+    if not checks and not renamings:
         return options
     found: dict[Path, _Found] = {}
     for path in paths:
         try:
-            found[Path(path)] = _look(Path(path), options, bool(entries))
+            found[Path(path)] = _look(Path(path), options, bool(renamings))
         except TwincdError:
             continue
     if not found:
@@ -135,7 +144,7 @@ def settle_named(
     relaxed: list[str] = []
     for option in checks:
         what, msgtype, instead = _TOPICS[option]
-        wanted = _value(options, option, link_topic)
+        wanted = str(getattr(options, option))
         lacking = [p for p, f in found.items() if wanted not in f.topics]
         if len(lacking) == len(found):
             everywhere: dict[str, str] = {}
@@ -159,29 +168,29 @@ def settle_named(
                 instead,
             )
             relaxed.append(option)
-    for old in entries:
-        new = (options.joint_map or {})[old]
-        lacking = [p for p, f in found.items() if old not in f.joints]
+    unmatched = {p: dict(_unmatched_joints(options, f.joints)) for p, f in found.items()}
+    for option in sorted(renamings):
+        lacking = [p for p in found if option in unmatched[p]]
+        what = unmatched[lacking[0]][option] if lacking else option
         if len(lacking) == len(found):
             joints: set[str] = set()
             for f in found.values():
                 joints |= f.joints
             raise UsageError(
-                f"joint map entry {old}={new} matches no joint of the logs",
+                f"{what} matches no joint of the logs",
                 f"{_where(list(found))}: log joints {', '.join(sorted(joints)[:10])}",
-                "check its spelling, or leave the entry out",
-                option="joint_map",
+                "check its spelling, or leave it out",
+                option=option.partition(":")[0],
             )
         if lacking:
             log.warning(
-                "joint map entry %s=%s matches no joint of %d of the %d logs (%s)",
-                old,
-                new,
+                "%s matches no joint of %d of the %d logs (%s)",
+                what,
                 len(lacking),
                 len(found),
                 _names(lacking),
             )
-            relaxed.append(f"joint_map:{old}")
+            relaxed.append(option)
     return options.unnamed(*relaxed)
 
 

@@ -3,17 +3,26 @@
 from __future__ import annotations
 
 from twincd.live.connect import open_source
-from twincd.live.source import Arrival, Source, SourceError, SourceLost, Wanted
-from twincd.live.watch import WatchEvent, WatchItem, WatchStatus, WatchSummary, watch
+from twincd.live.source import Arrival, Connection, Source, SourceError, SourceLost, Wanted
+from twincd.live.watch import (
+    WatchEvent,
+    WatchItem,
+    WatchNotice,
+    WatchStatus,
+    WatchSummary,
+    watch,
+)
 
 __all__ = [
     "Arrival",
+    "Connection",
     "Source",
     "SourceError",
     "SourceLost",
     "Wanted",
     "WatchEvent",
     "WatchItem",
+    "WatchNotice",
     "WatchStatus",
     "WatchSummary",
     "open_source",

@@ -6,10 +6,12 @@ holds at the end of a segment. A detector whose results carry no stamps returns 
 pushed sample, at once.
 
 With ``twin=True`` (a recorded session) and a calibration whose twin runs on the robot model,
-each pushed sample's τ̂ is computed per sample on the samples the detector takes, through the
-calibration's chain up to the twin (its causal derivative, inverse dynamics; no filter, no
-grid: ``build_chain(..., filtered=False)``, what ``detect --causal`` twins on at 100 Hz), and
-returned with the push (``Scored.twin``), for ``/twincd/sim_effort``.
+each pushed sample's τ̂ is returned with the push (``Scored.twin``), for ``/twincd/sim_effort``:
+the detector's own, where its chain twins each sample (``OnlineResult.twin``: the twin runs
+once per sample); where it twins a coarse grid's cells instead (1 kHz), computed per sample on
+the samples the detector takes, through the calibration's chain up to the twin (its causal
+derivative, inverse dynamics; no filter, no grid: ``build_chain(..., filtered=False)``, what
+``detect --causal`` twins on at 100 Hz).
 """
 
 from __future__ import annotations
@@ -50,9 +52,16 @@ class Scored:
 class LiveDetector:
     """A restartable ``OnlineDetector``: one per segment of the stream."""
 
-    def __init__(self, calibration: Calibration, source: str, twin: bool = False) -> None:
+    def __init__(
+        self,
+        calibration: Calibration,
+        source: str,
+        twin: bool = False,
+        robot: str | None = None,
+    ) -> None:
         self.calibration = calibration
         self.source = source
+        self.robot = robot  # the robot model when not the calibration's (OnlineDetector's)
         self._detector = self._new()
         self.joint_names: list[str] = list(self._detector.joint_names)
         self.use_sim: bool = bool(self._detector.use_sim)
@@ -67,7 +76,7 @@ class LiveDetector:
     def _new(self) -> OnlineDetector:
         from twincd.detection.online import OnlineDetector
 
-        return OnlineDetector(self.calibration, source=self.source)
+        return OnlineDetector(self.calibration, source=self.source, robot=self.robot)
 
     def _warm_up(self) -> None:
         """What the first push would import and compute (the filter's edge factors, its
@@ -78,6 +87,11 @@ class LiveDetector:
 
         edge_profile(slow_band(self.calibration.lowpass), self._detector.period_s)
         self.filter_delay_s = float(self._detector.latency_s)  # the causal filter's group delay
+
+    @property
+    def period_s(self) -> float:
+        """The sampling period the chain filters at: the calibration's."""
+        return float(self._detector.period_s)
 
     @property
     def judged(self) -> int:
@@ -103,7 +117,13 @@ class LiveDetector:
         self.flagged += int(np.count_nonzero(out.flag))
         if self.twin:
             times = stamp_ns if log_time_ns is None else log_time_ns
-            scored.twin = self._twin(stamp_ns, times, position, velocity, effort)
+            own = getattr(out, "twin", None)
+            if own is not None:  # the detector's τ̂ of its samples, at their log times
+                at = dict(zip(np.asarray(stamp_ns).tolist(), np.asarray(times).tolist()))
+                logged = [at[t] for t in own["stamp_ns"].tolist()]
+                scored.twin = own.with_columns(log_time_ns=np.asarray(logged, dtype=np.int64))
+            else:
+                scored.twin = self._twin(stamp_ns, times, position, velocity, effort)
         return scored
 
     def _twin(
@@ -153,6 +173,10 @@ class LiveDetector:
             scored = Scored(stamps, out.score, out.flag, out.residual, list(out.events))
             self.samples += len(stamps)
             self.flagged += int(np.count_nonzero(out.flag))
+            own = getattr(out, "twin", None)
+            if self.twin and own is not None and own.n:
+                # none is held without a grid; any would be recorded at its stamp
+                scored.twin = own.with_columns(log_time_ns=own["stamp_ns"])
         scored.events += det.close()
         if self._twin_chain is not None:
             scored.twin = self._twin_chain.finish()

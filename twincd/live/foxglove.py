@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from twincd.live.source import Arrival, SourceError, SourceLost, Wanted, ros_type
+from twincd.live.source import Arrival, Connection, SourceError, SourceLost, Wanted, ros_type
 
 __all__ = ["SUBPROTOCOLS", "FoxgloveSource"]
 
@@ -39,7 +39,9 @@ _RETRY_S = 0.1
 class _Note:
     """What the client thread tells the caller besides messages."""
 
-    kind: str  # "subscribed", "error" (fatal), "gone" (no connection within the timeout)
+    # "subscribed", "dropped" (the connection closed), "error" (fatal), "gone" (no
+    # connection within the timeout)
+    kind: str
     text: str = ""
 
 
@@ -58,6 +60,8 @@ class FoxgloveSource:
         self._task: asyncio.Task[None] | None = None
         self.connections = 0
         self._reason = "no answer"  # why the last connection attempt failed
+        self._changes: list[Connection] = []  # for ``notices``
+        self._down = False  # the connection closed and is not back yet
 
     # ------------------------------------------------------------ the caller's side
 
@@ -134,12 +138,23 @@ class FoxgloveSource:
                 )
             elif item.kind == "error":
                 raise SourceError(item.text, self.name, "pick the JointState topic", option="topic")
+            elif item.kind == "dropped" and not self._down:
+                self._down = True
+                self._changes.append(Connection(False, time.monotonic(), item.text))
+            elif item.kind == "subscribed" and self._down:  # back, its topics subscribed again
+                self._down = False
+                self._changes.append(Connection(True, time.monotonic()))
             if len(out) >= 4096:
                 return out
             try:
                 item = self._queue.get_nowait()
             except queue.Empty:
                 return out
+
+    def notices(self) -> list[Connection]:
+        """The connection closing, and coming back with the topics subscribed again."""
+        changes, self._changes = self._changes, []
+        return changes
 
     def close(self) -> None:
         loop, task, thread = self._loop, self._task, self._thread
@@ -198,6 +213,7 @@ class FoxgloveSource:
             finally:
                 await ws.close()
             reason = "connection closed"
+            self._queue.put(_Note("dropped", reason))
             since = time.monotonic()
 
     async def _session(self, ws: Any) -> bool:

@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from twincd.live.source import Arrival, SourceError, Wanted, take_queued
+from twincd.live.source import Arrival, Connection, SourceError, Wanted, take_queued
 
 __all__ = ["Ros2Source"]
 
@@ -124,6 +124,10 @@ class Ros2Source:
             self._queue.put(Arrival(topic, time.time_ns(), time.monotonic_ns(), bytes(data)))
 
         return take
+
+    def notices(self) -> list[Connection]:
+        """None: DDS has no connection that goes away (publishers simply stop)."""
+        return []
 
     def receive(self, timeout_s: float) -> list[Arrival]:
         return take_queued(self._queue, timeout_s)

@@ -2,12 +2,13 @@
 cut into segments where the source's clock jumps back.
 
 - Time is ``header.stamp``, the message's log time where the stamp is 0 (as for a log).
-- Joints are matched by name to the calibration's (after its joint map); a message's other
-  joints are ignored; a message that lacks a calibrated joint is not usable (counted).
+- Joints are matched by name to the calibration's (after the joint map or prefix); a message's
+  other joints are ignored; a message that lacks a calibrated joint is not usable (counted).
 - Reordering: a sample is held until the newest stamp is ``window_ns`` past it (default 20 ms,
-  ``REORDER_WINDOW_NS``) or ``max_rows`` samples are held (1000); then samples leave in stamp
-  order. A sample whose twin effort comes on its own topic (a calibration that uses the
-  log's) also waits for it, up to ``JOIN_WAIT_NS`` (100 ms) more. A sample older than one
+  ``REORDER_WINDOW_NS``), or it arrived ``window_ns`` ago (the source paused or ended: no newer
+  sample comes), or ``max_rows`` samples are held (1000); then samples leave in stamp order.
+  A sample whose twin effort comes on its own topic (a calibration that uses the log's) also
+  waits for it, up to ``JOIN_WAIT_NS`` (100 ms) more. A sample older than one
   already released is late: dropped and counted; an exact duplicate stamp is dropped (the
   first kept), as a log reader does.
 - A clock that jumps back (a restarted source, a replay that loops): a stamp that falls behind
@@ -18,7 +19,7 @@ cut into segments where the source's clock jumps back.
 from __future__ import annotations
 
 import heapq
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,10 +59,11 @@ class DecodeCounts:
 
 @dataclass
 class JointDecoder:
-    """CDR JointState payloads → samples in ``joints`` order (``joint_map``: old → new names)."""
+    """CDR JointState payloads → samples in ``joints`` order (``rename``: a log joint's name
+    as the calibration knows it, ``twincd.io.options.LogOptions.rename``)."""
 
     joints: Sequence[str]
-    joint_map: Mapping[str, str] | None = None
+    rename: Callable[[str], str] | None = None
     counts: DecodeCounts = field(default_factory=DecodeCounts)
 
     def decode(self, data: bytes, log_time_ns: int, received_ns: int) -> Sample | None:
@@ -75,7 +77,7 @@ class JointDecoder:
             self.counts.undecodable += 1
             return None
         g = groups[0]
-        names = [(self.joint_map or {}).get(n, n) for n in g.names]
+        names = list(g.names) if self.rename is None else [self.rename(n) for n in g.names]
         where = {n: i for i, n in reversed(list(enumerate(names)))}  # first of a doubled name
         idx = [where.get(j, -1) for j in self.joints]
         if all(i < 0 for i in idx):
@@ -129,18 +131,25 @@ class Reorder:
         self._held.add(stamp)
         self.newest = stamp if self.newest is None else max(self.newest, stamp)
 
-    def ready(self, complete: Callable[[int], bool] | None = None) -> list[Sample]:
+    def ready(
+        self, complete: Callable[[int], bool] | None = None, now_ns: int | None = None
+    ) -> list[Sample]:
         """The samples that may leave now, in stamp order. ``complete(stamp)``: whether what
         joins the sample (the twin's effort of a log that carries it) has come; a sample waits
-        for it up to ``JOIN_WAIT_NS`` past the window."""
+        for it up to ``JOIN_WAIT_NS`` past the window. ``now_ns`` (the clock of the samples'
+        ``received_ns``): a sample that arrived the window (and the wait) ago leaves too."""
         out: list[Sample] = []
         if self.newest is None:
             return out
         limit = self.newest - self.window_ns
         while self._heap:
-            stamp = self._heap[0][0]
-            due = stamp <= limit and (
-                complete is None or complete(stamp) or stamp <= limit - JOIN_WAIT_NS
+            stamp, _, sample = self._heap[0]
+            held = -1 if now_ns is None else now_ns - sample.received_ns - self.window_ns
+            due = (stamp <= limit or held >= 0) and (
+                complete is None
+                or complete(stamp)
+                or stamp <= limit - JOIN_WAIT_NS
+                or held >= JOIN_WAIT_NS
             )
             if not (due or len(self._heap) > self.max_rows):
                 break

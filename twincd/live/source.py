@@ -23,7 +23,16 @@ from typing import Protocol
 
 from twincd.errors import TwincdError
 
-__all__ = ["Arrival", "Source", "SourceError", "SourceLost", "Wanted", "ros_type", "take_queued"]
+__all__ = [
+    "Arrival",
+    "Connection",
+    "Source",
+    "SourceError",
+    "SourceLost",
+    "Wanted",
+    "ros_type",
+    "take_queued",
+]
 
 
 class SourceError(TwincdError):
@@ -56,17 +65,30 @@ class Arrival:
     data: bytes
 
 
+@dataclass(frozen=True)
+class Connection:
+    """The source's connection changed: it went away (``up`` False; ``reason``), or it came
+    back (``up`` True). ``at`` is the local monotonic time (s) it was seen."""
+
+    up: bool
+    at: float
+    reason: str = ""
+
+
 class Source(Protocol):
     """A live transport: ``start`` connects and subscribes (``SourceError`` when it cannot
     within ``timeout_s``), ``receive`` returns what arrived (empty after ``timeout_s`` without
-    a message; ``SourceLost`` when the source went away and did not come back), ``close``
-    ends it. ``name`` names it in messages."""
+    a message; ``SourceLost`` when the source went away and did not come back), ``notices``
+    the changes of the connection since it was last called (a transport without connections,
+    DDS, has none), ``close`` ends it. ``name`` names it in messages."""
 
     name: str
 
     def start(self, wanted: Sequence[Wanted], timeout_s: float) -> None: ...
 
     def receive(self, timeout_s: float) -> list[Arrival]: ...
+
+    def notices(self) -> list[Connection]: ...
 
     def close(self) -> None: ...
 

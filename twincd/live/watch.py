@@ -1,11 +1,14 @@
 """``twincd.watch``: live collision detection on a source's joint states (``twincd watch``).
 
 ``watch(source, calibration, …)`` is an iterator of ``WatchEvent`` (an event, when it closes),
-``WatchStatus`` (every ``status_every_s``) and, last, one ``WatchSummary``. It runs the
-calibration's causal chain (``twincd.detection.online.OnlineDetector``, used in
+``WatchStatus`` (every ``status_every_s``), ``WatchNotice`` (the source went away or came
+back; it is sampled at another rate than the calibration) and, last, one ``WatchSummary``. It
+runs the calibration's causal chain (``twincd.detection.online.OnlineDetector``, used in
 ``twincd.live.detector`` only), so the events and flags are those of ``detect --causal`` on the
 same messages. Samples are decoded, reordered and cut into segments as
-``twincd.live.samples`` says.
+``twincd.live.samples`` says. How the source's messages are read (topics, the joint map or
+prefix, the robot's URDF) is the calibration's by default and may be given, as for every
+command; its robot's dynamics are checked by content.
 
 It ends at ``duration_s``, when ``stop`` is set, on KeyboardInterrupt (Ctrl-C, or SIGTERM raised
 as one), or after ``idle_timeout_s`` without a message; the summary says which. Errors
@@ -15,8 +18,10 @@ topic (or carries another type on it), or gives no usable JointState within
 
 Latency (``WatchStatus.latency_ms``, ``WatchSummary.latency_ms``): from the moment a message
 was taken from the transport to the moment its score was computed, i.e. the reorder window's
-hold plus the chain's time. The causal filter's own delay (how late a step shows in the
-score, ``filter_delay_ms``) comes on top.
+hold (at most the window after its arrival, even when no newer sample comes), a coarse grid's
+hold and the chain's time, over the samples scored as they came (not those scored only
+because a segment or the session ended). The causal filter's own delay (how late a step shows
+in the score, ``filter_delay_ms``) comes on top.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import OrderedDict, deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Union
@@ -33,20 +38,22 @@ import numpy as np
 
 from twincd.detection.events import Event
 from twincd.errors import CalibrationError
-from twincd.io.cdr import BOOL, JOINT_STATE
+from twincd.io.cdr import BOOL, JOINT_STATE, STRING
 from twincd.live.connect import open_source
 from twincd.live.detector import LiveDetector, Scored
 from twincd.live.samples import REORDER_WINDOW_NS, JointDecoder, Reorder, Sample, Segments
-from twincd.live.source import Arrival, Source, SourceError, SourceLost, Wanted
+from twincd.live.source import Arrival, Connection, Source, SourceError, SourceLost, Wanted
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
+    from twincd.io.options import LogOptions
     from twincd.live.record import SessionRecorder
 
 __all__ = [
     "CONNECT_TIMEOUT_S",
     "WatchEvent",
     "WatchItem",
+    "WatchNotice",
     "WatchStatus",
     "WatchSummary",
     "watch",
@@ -57,6 +64,8 @@ _POLL_S = 0.05
 # recent samples by stamp, for the session file: their scores may come a few pushes later (a
 # coarse grid holds them), and events are recorded at the log time of their last sample
 _KEEP_SAMPLES = 30_000
+# samples of the first segment whose stamps tell the source's rate (a second at 100 Hz)
+_RATE_SAMPLES = 100
 
 
 @dataclass(frozen=True)
@@ -88,6 +97,27 @@ class WatchStatus:
 
 
 @dataclass(frozen=True)
+class WatchNotice:
+    """Something the session says as it goes, in one line (``text``): ``kind`` "source gone"
+    (the source went away; it is waited for up to the connect timeout), "source back" (it
+    came back, ``away_s`` later) or "rate" (it is sampled at another rate than the
+    calibration: the filter and the gap rule follow the calibration's)."""
+
+    kind: str
+    text: str
+    elapsed_s: float
+    away_s: float | None = None
+
+    @property
+    def warning(self) -> bool:
+        """Whether it is a warning (else a note: the source is back)."""
+        return self.kind != "source back"
+
+    def to_dict(self) -> dict[str, object]:
+        return {"type": "notice", **self.__dict__}
+
+
+@dataclass(frozen=True)
 class WatchSummary:
     """The end of the session."""
 
@@ -106,12 +136,13 @@ class WatchSummary:
     latency_ms: dict[str, float] = field(default_factory=dict)  # p50, p95, p99, max
     filter_delay_ms: float = float("nan")
     error: str = ""
+    reconnects: int = 0  # times the source went away and came back
 
     def to_dict(self) -> dict[str, object]:
         return {"type": "summary", **self.__dict__}
 
 
-WatchItem = Union[WatchEvent, WatchStatus, WatchSummary]  # noqa: UP007 - Python 3.10 at run time
+WatchItem = Union[WatchEvent, WatchStatus, WatchNotice, WatchSummary]  # noqa: UP007 - Python 3.10
 
 
 class _Latency:
@@ -169,16 +200,19 @@ class _Session:
         self,
         cal: Calibration,
         source_name: str,
-        topic: str,
-        label_topic: str,
+        options: LogOptions,
+        robot: str | None,
         reorder_ns: int,
         recorder: SessionRecorder | None,
     ) -> None:
-        self.detector = LiveDetector(cal, source_name, twin=recorder is not None)
-        self.topic, self.label_topic = topic, label_topic
-        self.sim_topic = cal.options.sim_topic if self.detector.use_sim else None
+        self.source_name = source_name
+        self.detector = LiveDetector(cal, source_name, twin=recorder is not None, robot=robot)
+        self.topic, self.label_topic = options.topic, options.label_topic
+        # what a recorded session keeps of the other topics: labels and contact links, by type
+        self.extra = {options.label_topic: BOOL, options.link_topic: STRING}
+        self.sim_topic = options.sim_topic if self.detector.use_sim else None
         names = self.detector.joint_names
-        self.decoder = JointDecoder(names, cal.options.joint_map)
+        self.decoder = JointDecoder(names, options.rename)
         self.sim_decoder = JointDecoder(names)
         self.sim: dict[int, np.ndarray] = {}
         self.reorder = Reorder(reorder_ns)
@@ -187,6 +221,9 @@ class _Session:
         self.threshold = float(cal.require_threshold().value)
         self.recent: OrderedDict[int, Sample] = OrderedDict()  # kept when recording
         self.latency = _Latency()
+        self.received: deque[int] = deque()  # pushed samples not scored yet: their arrival
+        self.first_stamps: list[int] = []  # the first segment's, for the rate (``rate_notice``)
+        self.rate_said = False
         self.events = 0
         self.collision = False
         self.last_score = float("nan")
@@ -196,7 +233,7 @@ class _Session:
         wanted = [Wanted(self.topic, JOINT_STATE)]
         if self.sim_topic:
             wanted.append(Wanted(self.sim_topic, JOINT_STATE))
-        wanted.append(Wanted(self.label_topic, BOOL, required=False))
+        wanted += [Wanted(topic, msgtype, required=False) for topic, msgtype in self.extra.items()]
         return wanted
 
     def take(self, arrivals: Sequence[Arrival]) -> tuple[int, list[Event]]:
@@ -205,7 +242,7 @@ class _Session:
         events: list[Event] = []
         for a in arrivals:
             if self.recorder is not None:
-                msgtype = BOOL if a.topic == self.label_topic else JOINT_STATE
+                msgtype = self.extra.get(a.topic, JOINT_STATE)
                 self.recorder.message(a.topic, msgtype, a.log_time_ns, a.data)
             if a.topic == self.sim_topic:
                 s = self.sim_decoder.decode(a.data, a.log_time_ns, a.received_ns)
@@ -225,7 +262,7 @@ class _Session:
                 self.sim = {k: v for k, v in self.sim.items() if k >= sample.stamp_ns}
             self.reorder.add(sample)
         complete = (lambda stamp: stamp in self.sim) if self.sim_topic else None
-        events += self._push(self.reorder.ready(complete))
+        events += self._push(self.reorder.ready(complete, time.monotonic_ns()))
         if self.recorder is not None:
             self.recorder.tick()
         return usable, events
@@ -251,15 +288,37 @@ class _Session:
             while len(self.recent) > _KEEP_SAMPLES:
                 self.recent.popitem(last=False)
         log_times = np.array([s.log_time_ns for s in samples], dtype=np.int64)
+        if len(self.first_stamps) < _RATE_SAMPLES and self.segments.count == 1:
+            self.first_stamps += stamps[: _RATE_SAMPLES - len(self.first_stamps)].tolist()
+        self.received.extend(s.received_ns for s in samples)
         scored = self.detector.push(stamps, pos, vel, eff, sim, log_times)
-        self.latency.add([s.received_ns for s in samples], time.monotonic_ns())
+        # the samples scored now (a coarse grid may hold the newest back): their latency
+        arrived = [self.received.popleft() for _ in range(len(scored.stamp_ns))]
+        self.latency.add(arrived, time.monotonic_ns())
         self._record(scored)
         return self._events(scored)
 
     def _finish(self, restart: bool) -> list[Event]:
+        """The end of a segment (``restart``) or of the session: what the detector still
+        holds is scored because the stream ended, not as it came: no latency is counted."""
         scored = self.detector.restart() if restart else self.detector.finish()
+        self.received.clear()
         self._record(scored)
         return self._events(scored)
+
+    def rate_notice(self, elapsed_s: float) -> WatchNotice | None:
+        """Once the first samples are in: a notice when the source is sampled at another
+        rate than the calibration (``twincd.prepare.setup.other_rate``, as ``detect`` says
+        it of a log)."""
+        if self.rate_said or len(self.first_stamps) < _RATE_SAMPLES:
+            return None
+        from twincd.prepare.setup import other_rate
+        from twincd.signal import nominal_period
+
+        self.rate_said = True
+        own = nominal_period(np.sort(np.asarray(self.first_stamps, dtype=np.int64)))
+        text = other_rate(self.source_name, own, self.detector.period_s)
+        return None if text is None else WatchNotice("rate", text, elapsed_s)
 
     def _record(self, scored: Scored) -> None:
         n = len(scored.stamp_ns)
@@ -318,6 +377,11 @@ def watch(
     *,
     topic: str | None = None,
     label_topic: str | None = None,
+    link_topic: str | None = None,
+    sim_topic: str | None = None,
+    joint_map: Mapping[str, str] | None = None,
+    joint_prefix: str | None = None,
+    robot: str | None = None,
     record: str | Path | None = None,
     force: bool = False,
     duration_s: float | None = None,
@@ -328,15 +392,24 @@ def watch(
     stop: threading.Event | None = None,
 ) -> Iterator[WatchItem]:
     """Watch ``source`` (``ws://HOST:PORT``, ``ros2``, or a ``Source``) with ``calibration``
-    (see the module's docstring). ``topic`` and ``label_topic`` default to the calibration's
-    (one that contradicts it is a ``UsageError``); the label topic is subscribed to when it is
-    published, for ``record``: the session MCAP (``-o``)."""
+    (see the module's docstring). ``topic``, ``label_topic``, ``link_topic``, ``sim_topic``,
+    ``joint_map``, ``joint_prefix`` and ``robot`` (its URDF) default to the calibration's, as
+    for every command; the label and link topics are subscribed to when they are published,
+    for ``record``: the session MCAP (``-o``)."""
     from twincd.commands.settings import SetupOptions
 
     cal = _load(calibration)
-    # the calibration's topics unless given; a topic that contradicts them is an error, as for
-    # every command (the session file then reads as the calibration's logs do)
-    options = SetupOptions(topic=topic, label_topic=label_topic).resolve(cal).options
+    # how the source's messages are read: the calibration's way unless given, as for every
+    # command; the robot model found (beside the calibration, by its package) when not given
+    setup = SetupOptions(
+        topic=topic,
+        label_topic=label_topic,
+        link_topic=link_topic,
+        sim_topic=sim_topic,
+        joint_map=joint_map,
+        joint_prefix=joint_prefix,
+        robot=robot,
+    ).resolve(cal)
     src = open_source(source, connect_timeout_s) if isinstance(source, str) else source
     recorder: SessionRecorder | None = None
     session = None
@@ -345,14 +418,7 @@ def watch(
             from twincd.live.record import SessionRecorder
 
             recorder = SessionRecorder(Path(record), src.name, cal.joint_names, force)
-        session = _Session(
-            cal,
-            src.name,
-            options.topic,
-            options.label_topic,
-            reorder_ns,
-            recorder,
-        )
+        session = _Session(cal, src.name, setup.options, setup.robot, reorder_ns, recorder)
         yield from _run(
             src, session, duration_s, idle_timeout_s, connect_timeout_s, status_every_s, stop
         )
@@ -383,6 +449,7 @@ def _run(
     last_status = start
     ended = "stopped"
     error = ""
+    connection = _Reconnects(src, start)
     try:
         # the first usable JointState, within the connect timeout
         while samples == 0:
@@ -407,6 +474,7 @@ def _run(
             samples += got
             for e in events:
                 yield WatchEvent(e, s.segments.count)
+            yield from connection.notices()
         last_message = time.monotonic()
         while not (stop is not None and stop.is_set()):
             now = time.monotonic()
@@ -422,6 +490,10 @@ def _run(
             _, events = s.take(arrivals)
             for e in events:
                 yield WatchEvent(e, s.segments.count)
+            yield from connection.notices()
+            rate = s.rate_notice(round(time.monotonic() - start, 3))
+            if rate is not None:
+                yield rate
             if now - last_status >= status_every_s:
                 yield _status(s, start, now - last_status)
                 last_status = now
@@ -450,7 +522,38 @@ def _run(
         latency_ms=s.latency.summary(),
         filter_delay_ms=round(s.detector.filter_delay_s * 1e3, 3),
         error=error,
+        reconnects=connection.back,
     )
+
+
+class _Reconnects:
+    """The source's connection notices (``Source.notices``) as ``WatchNotice`` items, and how
+    often it came back."""
+
+    def __init__(self, src: Source, start: float) -> None:
+        self.src = src
+        self.start = start
+        self.back = 0
+        self._gone_at: float | None = None
+
+    def notices(self) -> Iterator[WatchNotice]:
+        for change in self.src.notices():
+            yield self._notice(change)
+
+    def _notice(self, change: Connection) -> WatchNotice:
+        elapsed = round(change.at - self.start, 3)
+        name = self.src.name
+        if not change.up:
+            self._gone_at = change.at
+            text = (
+                f"{name}: the source went away ({change.reason}); waiting for it to come back "
+                "(the samples it does not send are not judged)"
+            )
+            return WatchNotice("source gone", text, elapsed)
+        self.back += 1
+        away = None if self._gone_at is None else round(change.at - self._gone_at, 3)
+        gone = "" if away is None else f" after {away:g} s"
+        return WatchNotice("source back", f"{name}: the source is back{gone}", elapsed, away)
 
 
 def _status(s: _Session, start: float, interval: float) -> WatchStatus:

@@ -24,7 +24,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from twincd.live.source import Arrival, SourceError, SourceLost, Wanted, take_queued
+from twincd.live.source import Arrival, Connection, SourceError, SourceLost, Wanted, take_queued
 
 __all__ = ["DEFAULT_ENDPOINT", "ZenohSource", "key_type"]
 
@@ -61,6 +61,8 @@ class ZenohSource:
         self._wrong: list[str] = []  # "topic carries type" for a required topic
         self._lock = threading.Lock()
         self._connected_at = time.monotonic()
+        self._changes: list[Connection] = []  # for ``notices``
+        self._down = False  # no router or peer since the last check that saw one
 
     def start(self, wanted: Sequence[Wanted], timeout_s: float) -> None:
         try:
@@ -122,10 +124,16 @@ class ZenohSource:
                 option="topic",
             )
         out = take_queued(self._queue, timeout_s)
+        if out and self._down:  # messages again: the router is back
+            self._note(up=True)
         if not out and self._session is not None:
             info = self._session.info
             if list(info.routers_zid()) or list(info.peers_zid()):
                 self._connected_at = time.monotonic()
+                if self._down:
+                    self._note(up=True)
+            elif not self._down:
+                self._note(up=False, reason="no Zenoh router or peer")
             elif time.monotonic() - self._connected_at > self.connect_timeout_s:
                 raise SourceLost(
                     f"the Zenoh router went away and did not come back within "
@@ -134,6 +142,15 @@ class ZenohSource:
                     "restart it, or watch again",
                 )
         return out
+
+    def _note(self, up: bool, reason: str = "") -> None:
+        self._down = not up
+        self._changes.append(Connection(up, time.monotonic(), reason))
+
+    def notices(self) -> list[Connection]:
+        """The router going away (no router or peer), and coming back."""
+        changes, self._changes = self._changes, []
+        return changes
 
     def close(self) -> None:
         for sub in self._subscribers:

@@ -91,25 +91,44 @@ def sample_bounds(robot: RobotModel | None, joints: Sequence[str]) -> SampleBoun
     return SampleBounds(joints, robot.position_limits, robot.velocity_limits, robot.effort_limits)
 
 
-def check_urdf(robot: RobotModel, expected: str | None, allow: bool, source: str) -> None:
-    """The URDF a calibration was fitted with (its sha256, ``expected``) must be the one its
-    twin runs on: a changed file is refused, or with ``allow`` said once for the log.
-    Calibrations that record no sha256 (fitted on a log's own twin effort without a model, or
-    files that did not record it) are not checked."""
-    if not expected or robot.urdf_sha256 == expected:
+def check_robot(
+    robot: RobotModel,
+    dynamics: str | None,
+    urdf_sha256: str | None,
+    allow: bool,
+    source: str,
+) -> None:
+    """The robot model a calibration's twin runs on must be the one it was fitted with, judged
+    by content: its dynamics (``dynamics``: ``RobotModel.dynamics_sha256``), whatever the
+    URDF's path or the rest of the file. A calibration that records only the URDF file's
+    sha256 (``urdf_sha256``: written before twincd hashed the dynamics) is checked by the
+    file's bytes; one that records neither (fitted on a log's own twin effort) is not checked.
+    A difference is refused, or with ``allow`` said once for the log."""
+    if dynamics:
+        if robot.dynamics_sha256 == dynamics:
+            return
+        what = (
+            f"the robot model {robot.name} has other dynamics than the calibration was fitted "
+            f"with (dynamics sha256 {robot.dynamics_sha256[:12]}…, the calibration's "
+            f"{dynamics[:12]}…: another URDF, or one whose joints, inertias, kinematics or "
+            "limits changed)"
+        )
+    elif urdf_sha256 and robot.urdf_sha256 != urdf_sha256:
+        what = (
+            f"the URDF {robot.urdf_path} changed since the calibration was fitted "
+            f"(sha256 {robot.urdf_sha256[:12]}…, the calibration's {urdf_sha256[:12]}…)"
+        )
+    else:
         return
-    what = (
-        f"the URDF {robot.urdf_path} changed since the calibration was fitted "
-        f"(sha256 {robot.urdf_sha256[:12]}…, the calibration's {expected[:12]}…)"
-    )
     if allow:
         log.warning("%s: %s; using it as allowed", source, what)
         return
     raise CalibrationError(
         what,
         source,
-        "re-fit the calibration, or allow the change if it does not affect dynamics",
-        option="allow_urdf_change",
+        "give the robot's URDF the calibration was fitted with, re-fit the calibration, or "
+        "allow the change if it does not affect dynamics",
+        option="robot,allow_urdf_change",
     )
 
 

@@ -36,7 +36,7 @@ from twincd.prepare.chain import (
     BuiltChain,
     JointLayout,
     build_chain,
-    check_urdf,
+    check_robot,
     model_joints,
     require_default_robot,
     robot_for,
@@ -324,6 +324,7 @@ class PreparedStream:
         twin_names, model = self._twin_source(first.get("sim_effort"), names)
         regressor = self._regressor(twin_names)
         self.joint_names = self._output_joints(twin_names)
+        self._check_robot(model)
         self.period_s = self._period(first["stamp_ns"])
         layout = JointLayout(names, twin_names, self.joint_names)
         velocity = first["velocity"][:, layout.to_twin]
@@ -388,9 +389,21 @@ class PreparedStream:
             self.robot = model = robot_for(setup.robot or DEFAULT_ROBOT, names)
             twin_names = model.joint_names
             warn_ignored_joints(self.source, names, twin_names, "the robot model")
-        if self.robot is not None and (model is not None or self.regressor):
-            check_urdf(self.robot, setup.urdf_sha256, setup.allow_urdf_change, self.source)
         return twin_names, model
+
+    def _check_robot(self, model: RobotModel | None) -> None:
+        """The robot model that twins (``model``) or gives the regressor must have the
+        calibration's dynamics (``check_robot``), once the log's joints are known to be the
+        calibration's."""
+        setup = self.setup
+        if self.robot is not None and (model is not None or self.regressor):
+            check_robot(
+                self.robot,
+                setup.dynamics_sha256,
+                setup.urdf_sha256,
+                setup.allow_urdf_change,
+                self.source,
+            )
 
     def _regressor(self, twin_names: tuple[str, ...]) -> RobotModel | None:
         """The robot model whose joint-torque regressor the identified models need (None when
@@ -439,14 +452,9 @@ class PreparedStream:
 
         own = nominal_period(stamp_ns)
         calibrated = self.setup.period_s
-        if calibrated and own > 0 and abs(own / calibrated - 1) > 0.05:
-            log.warning(
-                "%s is sampled every %.4g ms, the calibration every %.4g ms; its filter and "
-                "gap rule follow the calibration",
-                self.source,
-                own * 1e3,
-                calibrated * 1e3,
-            )
+        text = other_rate(self.source, own, calibrated)
+        if text is not None:
+            log.warning("%s", text)
         return calibrated or own
 
     def __iter__(self) -> Iterator[Frame]:
@@ -558,6 +566,17 @@ def said_already() -> Iterator[None]:
         log.setLevel(level)
 
 
+def other_rate(source: str, own_s: float, calibrated_s: float | None) -> str | None:
+    """What to say of a log or a live source sampled every ``own_s`` when the calibration was
+    fitted at ``calibrated_s`` (more than 5 % apart; None: the same rate, or none recorded)."""
+    if not calibrated_s or own_s <= 0 or abs(own_s / calibrated_s - 1) <= 0.05:
+        return None
+    return (
+        f"{source} is sampled every {own_s * 1e3:.4g} ms, the calibration every "
+        f"{calibrated_s * 1e3:.4g} ms; its filter and gap rule follow the calibration"
+    )
+
+
 def edges_s(lowpass: LowPass, period_s: float) -> float:
     """How far from a segment's ends the filter's start-up leaves its values noisier than the
     middle's by ``SHORT_FACTOR`` or more (at its start only, causal): a log of twice this (once,
@@ -663,6 +682,8 @@ class CalibrationSettings(Protocol):
     @property
     def urdf_sha256(self) -> str | None: ...
     @property
+    def dynamics_sha256(self) -> str | None: ...
+    @property
     def period_s(self) -> float | None: ...
     @property
     def fast_hz(self) -> float | None: ...
@@ -685,8 +706,8 @@ class Setup:
     robot: str | None = None
     lowpass: LowPass = field(default_factory=LowPass)
     joint_names: tuple[str, ...] | None = None
-    urdf_sha256: str | None = None  # the calibration's: a changed URDF is refused
-    allow_urdf_change: bool = False  # a changed URDF gets a warning instead
+    urdf_sha256: str | None = None  # the calibration's (its file's bytes; older files)
+    allow_urdf_change: bool = False  # other dynamics (a changed URDF) get a warning instead
     period_s: float | None = None  # the calibration's sampling period
     block_size: int = DEFAULT_BLOCK
     # False: a truncated log is read up to the damage, with one warning (contract: Inputs)
@@ -695,6 +716,8 @@ class Setup:
     # the fast band's upper cut-off (None: the filter's band only; twincd.signal.bands): as far
     # as the sampling rate allows (a calibration records the one it was fitted with)
     fast_hz: float | None = None
+    # the calibration's robot dynamics (``RobotModel.dynamics_sha256``): other ones are refused
+    dynamics_sha256: str | None = None
 
     def block_size_for(self, regressor: bool) -> int:
         """Samples per block read: fewer when the regressor is filtered (``REGRESSOR_BLOCK``)."""
@@ -702,6 +725,9 @@ class Setup:
 
     @classmethod
     def from_calibration(cls, calibration: CalibrationSettings) -> Setup:
+        """What ``calibration`` learned (filter, joints, period, the robot's dynamics) with its
+        recorded way of reading logs (topics, joint names, the robot's URDF) as it is: a run
+        may read its logs otherwise (``twincd.SetupOptions.resolve``)."""
         return cls(
             options=calibration.options,
             robot=calibration.robot,
@@ -710,13 +736,15 @@ class Setup:
             urdf_sha256=calibration.urdf_sha256,
             period_s=calibration.period_s,
             fast_hz=calibration.fast_hz,
+            dynamics_sha256=calibration.dynamics_sha256,
         )
 
     def check_against(self, calibration: CalibrationSettings) -> None:
-        """A ``UsageError`` when this setup reads logs otherwise than ``calibration`` was
-        fitted on (filter, joints, period, robot, URDF, topics): a calibration judges only logs
-        read its way, and a contradiction is never silently resolved either way. A robot the
-        calibration does not name may be given (its logs carried their own twin effort)."""
+        """A ``UsageError`` when this setup contradicts what ``calibration`` learned (filter,
+        joints, period, the robot's dynamics): a calibration judges only logs prepared its way,
+        and a contradiction is never silently resolved either way. How a recording is read
+        (topics, joint names, where the URDF is) belongs to the run and is not compared; the
+        robot's dynamics are checked by content as logs are read (``check_robot``)."""
         recorded = Setup.from_calibration(calibration)
         differ = [
             name
@@ -726,12 +754,10 @@ class Setup:
                 ("period_s", self.period_s, recorded.period_s),
                 ("fast band", self.fast_hz, recorded.fast_hz),
                 ("urdf_sha256", self.urdf_sha256, recorded.urdf_sha256),
-                ("log options", self.options, recorded.options),  # named or not alike
+                ("dynamics_sha256", self.dynamics_sha256, recorded.dynamics_sha256),
             )
             if given != was
         ]
-        if recorded.robot is not None and self.robot != recorded.robot:
-            differ.append("robot")
         if differ:
             raise UsageError(
                 f"the setup's {', '.join(differ)} contradict(s) the calibration's",

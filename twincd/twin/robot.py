@@ -77,11 +77,68 @@ def list_robots() -> dict[str, Path]:
     return dict(sorted(names.items()))
 
 
+PACKAGE = "package://"
+
+
+def package_roots(package: str) -> list[Path]:
+    """Where the ROS package ``package`` may be installed: among example-robot-data's robots
+    (each ``<name>_description`` folder is one), in each ``share`` folder of
+    ``AMENT_PREFIX_PATH`` (ROS 2), and in each folder of ``ROS_PACKAGE_PATH`` (ROS 1)."""
+    roots = [robots_dir() / package]
+    roots += [prefix / "share" / package for prefix in _search_path("AMENT_PREFIX_PATH")]
+    for folder in _search_path("ROS_PACKAGE_PATH"):
+        roots += [folder / package] + ([folder] if folder.name == package else [])
+    return roots
+
+
+def _search_path(variable: str) -> list[Path]:
+    """The folders an environment variable lists (``os.pathsep``-separated)."""
+    return [Path(p) for p in os.environ.get(variable, "").split(os.pathsep) if p]
+
+
+def package_file(uri: str) -> Path | None:
+    """The file a ``package://PACKAGE/REST`` URI names on this machine (None: not found)."""
+    package, _, rest = uri.removeprefix(PACKAGE).partition("/")
+    if not package or not rest:
+        return None
+    return next((r / rest for r in package_roots(package) if (r / rest).is_file()), None)
+
+
+def package_uri(path: Path) -> str | None:
+    """``package://PACKAGE/REST`` for a file inside a package that ``package_roots`` finds
+    (example-robot-data's robots, an ``AMENT_PREFIX_PATH`` share, a ``ROS_PACKAGE_PATH``
+    folder): how another machine with that package finds it; None elsewhere."""
+    resolved = path.resolve()
+    roots = [robots_dir()]
+    roots += [prefix / "share" for prefix in _search_path("AMENT_PREFIX_PATH")]
+    roots += _search_path("ROS_PACKAGE_PATH")
+    for root in roots:
+        try:
+            parts = resolved.relative_to(root.resolve()).parts
+        except (ValueError, OSError):
+            continue
+        if len(parts) >= 2:
+            return PACKAGE + "/".join(parts)
+    return None
+
+
 def resolve_urdf(name_or_path: str) -> Path:
-    """A URDF path for an example-robot-data name or a path to a URDF file."""
+    """A URDF path for an example-robot-data name, a ``package://`` URI or a path to a URDF
+    file."""
     robots = list_robots()
     if name_or_path in robots:
         return robots[name_or_path]
+    if name_or_path.startswith(PACKAGE):
+        found = package_file(name_or_path)
+        if found is None:
+            raise RobotModelError(
+                "URDF not found in any installed package",
+                name_or_path,
+                "install the package (or set AMENT_PREFIX_PATH or ROS_PACKAGE_PATH), or give "
+                "the URDF's path",
+                option="robot",
+            )
+        return found
     path = Path(name_or_path)
     if path.suffix.lower() == ".urdf" or path.exists():
         if not path.is_file():
@@ -96,6 +153,28 @@ def resolve_urdf(name_or_path: str) -> Path:
         else "give a known example-robot-data name or a URDF path"
     )
     raise RobotModelError(f"unknown robot {name_or_path!r}", "robot", hint, option="robot")
+
+
+def locate_urdf(recorded: str, package: str | None, beside: Path | None) -> str | None:
+    """Where a robot model recorded as ``recorded`` (an example-robot-data name, a
+    ``package://`` URI or a URDF path) is on this machine: the name or URI when it resolves
+    here, the path where it exists; else a file of the recorded path, or of its name, beside
+    ``beside`` (a calibration's folder); else the file its ``package`` URI names. None:
+    nowhere."""
+    if recorded in list_robots():
+        return recorded
+    if recorded.startswith(PACKAGE):
+        return recorded if package_file(recorded) is not None else None
+    path = Path(recorded)
+    if path.is_file():
+        return recorded
+    if beside is not None:
+        for candidate in (beside / path, beside / path.name):
+            if candidate.is_file():
+                return str(candidate)
+    if package and package_file(package) is not None:
+        return package
+    return None
 
 
 def file_sha256(path: Path) -> str:
@@ -200,6 +279,12 @@ class RobotModel:
         return {n: v for n, v in out.items() if np.isfinite(v) and v > 0}
 
     @cached_property
+    def dynamics_sha256(self) -> str:
+        """What the twin computes with, hashed (``dynamics_hash``): a calibration identifies
+        its robot by it, not by the URDF file's bytes or path."""
+        return dynamics_hash(self.model)
+
+    @cached_property
     def position_limits(self) -> dict[str, tuple[float, float]]:
         """(lower, upper) position limits by joint name; joints without any are left out (a
         continuous joint, stored as cos/sin, or limits absent: not finite, or lower ≥ upper)."""
@@ -210,6 +295,56 @@ class RobotModel:
             if not joint.unbounded and np.isfinite(a) and np.isfinite(b) and a < b:
                 limits[joint.name] = (a, b)
         return limits
+
+
+# decimals the dynamics hash keeps (SI units): far below any value that changes a torque, far
+# above what parsing the same URDF with another build of Pinocchio might change
+_HASH_DECIMALS = 10
+
+
+def dynamics_hash(model: pin.Model) -> str:
+    """The sha256 of what inverse dynamics computes with on ``model`` (a robot reduced to the
+    twin's joints): per joint in model order its name, type, parent and placement, its motion
+    subspace, its body's inertia (mass, centre of mass, rotational inertia), its armature and
+    its position, velocity and effort limits; and gravity. Numbers are rounded to 10
+    decimals. Two URDF files that differ only in what the twin does not use (meshes,
+    comments, visual and collision elements, link names, the file's path) hash alike."""
+    import json
+
+    pin = load_pinocchio()
+
+    data = model.createData()
+    pin.computeJointJacobians(model, data, pin.neutral(model))
+
+    def numbers(values: Any) -> list[float]:
+        rounded = np.round(np.asarray(values, dtype=np.float64).ravel(), _HASH_DECIMALS) + 0.0
+        out: list[float] = rounded.tolist()
+        return out
+
+    joints = []
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        q = slice(joint.idx_q, joint.idx_q + joint.nq)
+        v = slice(joint.idx_v, joint.idx_v + joint.nv)
+        local = pin.getJointJacobian(model, data, jid, pin.ReferenceFrame.LOCAL)[:, v]
+        joints.append(
+            [
+                str(model.names[jid]),
+                str(joint.shortname()),
+                int(model.parents[jid]),
+                numbers(model.jointPlacements[jid].homogeneous[:3]),
+                numbers(local),
+                numbers(model.inertias[jid].toDynamicParameters()),
+                numbers(model.armature[v]),
+                numbers(model.lowerPositionLimit[q]),
+                numbers(model.upperPositionLimit[q]),
+                numbers(model.velocityLimit[v]),
+                numbers(model.effortLimit[v]),
+            ]
+        )
+    content = {"joints": joints, "gravity": numbers(model.gravity.linear)}
+    text = json.dumps(content, separators=(",", ":"), sort_keys=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 @lru_cache(maxsize=16)

@@ -54,7 +54,7 @@ class AffineCalibration(AffineModel):
             names = self.joint_names or getattr(self, "joint_names_", None)
             warn_ill_conditioned(names, stats.affine, sol.ill_conditioned, sol.a)
             labels = list(names or [f"#{i + 1}" for i in range(len(sol.a))])
-            for line in self.held_.messages(labels):
+            for line in self.held_.messages(labels, self.kind):
                 log.warning("%s", line)
         return self
 

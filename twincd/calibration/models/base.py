@@ -7,13 +7,14 @@ import logging
 import operator
 import time
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import replace
 from functools import reduce
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
 
 from twincd.calibration.affine import fit_mask, solve
-from twincd.calibration.excitation import Held, check_motion
+from twincd.calibration.excitation import Held, check_motion, independent_samples
 from twincd.calibration.models.constants import (
     AFFINE,
     COEFFICIENTS,
@@ -135,7 +136,12 @@ class ResidualModel:
         parts = []
         for log_ in logs:
             start = time.perf_counter()
-            parts.append(self.stats(model_inputs(log_), fit_mask(log_)))
+            part = self.stats(model_inputs(log_), fit_mask(log_))
+            if log_.period_s:  # the samples the filter leaves independent
+                cutoff = log_.lowpass.cutoff_hz
+                count = independent_samples(part.affine.n, cutoff, log_.period_s)
+                part = replace(part, independent=count)
+            parts.append(part)
             self.joint_names_ = log_.joint_names
             elapsed += time.perf_counter() - start
         if not parts:
@@ -146,12 +152,15 @@ class ResidualModel:
         return self
 
     def _solve_map(self, stats: FitStats) -> None:
-        sol = solve(stats.affine)
+        sol = solve(stats.affine, stats.independent)
         self.a_, self.b_, self.r2_, self.rmse_ = sol.a, sol.b, sol.r2, sol.rmse
         self.n_samples_ = stats.affine.n
         none = np.zeros_like(sol.held)
         resting = none if stats.resting is None else stats.resting
-        self.held_ = Held(sol.held, none, none, resting, sol.gain_share)
+        few = np.stack([sol.scarce, none, none, none], axis=1)
+        self.held_ = Held(
+            sol.held, none, none, resting, sol.gain_share, None, few, stats.independent
+        )
 
     def with_coefficients(
         self: M,

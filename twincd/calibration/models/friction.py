@@ -14,7 +14,7 @@ from twincd.calibration.models.solving import FrictionSolution, solve_friction
 from twincd.calibration.models.statistics import FitStats
 from twincd.errors import DataError
 from twincd.signal.features import ModelFeatures, ModelInputs
-from twincd.types import FloatArray
+from twincd.types import BoolArray, FloatArray
 
 
 def coulomb_columns(
@@ -59,16 +59,27 @@ class FrictionModel(ResidualModel):
                 "fit",
                 "prepare the logs with the model's fit_features",
             )
-        self._set_friction(solve_friction(stats.friction, stats.resting), stats)
+        self._set_friction(solve_friction(stats.friction, stats.resting, stats.independent), stats)
 
-    def _set_friction(self, fr: FrictionSolution, stats: FitStats) -> None:
+    def _set_friction(
+        self, fr: FrictionSolution, stats: FitStats, theta: BoolArray | None = None
+    ) -> None:
         self.a_, self.b_, self.c_, self.d_, self.epsilon_ = fr.a, fr.b, fr.c, fr.d, fr.epsilon
         self.r2_, self.rmse_ = fr.r2, fr.rmse
         self.n_samples_ = stats.affine.n
         held = np.zeros((len(fr.a), 3), dtype=bool) if fr.held is None else fr.held
         share = gain_share(stats.affine)
         resting = np.zeros(len(fr.a), dtype=bool) if stats.resting is None else stats.resting
-        self.held_ = Held(held[:, GAIN], held[:, COULOMB], held[:, VISCOUS], resting, share)
+        self.held_ = Held(
+            held[:, GAIN],
+            held[:, COULOMB],
+            held[:, VISCOUS],
+            resting,
+            share,
+            theta,
+            fr.scarce,
+            stats.independent,
+        )
 
     def predict(self, inputs: ModelInputs) -> FloatArray:
         out = super().predict(inputs)

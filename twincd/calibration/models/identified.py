@@ -39,8 +39,8 @@ class IdentifiedModel(FrictionModel):
                 "fit",
                 "prepare the logs with the robot model (fit_features)",
             )
-        ident = solve_identified(stats.identified, stats.resting)
-        self._set_friction(ident.friction, stats)
+        ident = solve_identified(stats.identified, stats.resting, stats.independent)
+        self._set_friction(ident.friction, stats, ident.theta_held)
         self.theta_ = ident.theta
 
     def predict(self, inputs: ModelInputs) -> FloatArray:

@@ -13,9 +13,12 @@ from twincd.calibration.excitation import (
     GAIN,
     PRIOR,
     VISCOUS,
+    affordable,
     conditioning,
     friction_held,
+    scarce,
     solve_held,
+    spanned,
     squared_error,
     undetermined,
 )
@@ -36,16 +39,21 @@ class FrictionSolution:
     # (D, 3) which of a, c, d the logs do not determine (held at ``excitation.PRIOR``), at the
     # chosen ε (``twincd.calibration.excitation``)
     held: BoolArray | None = None
+    # (D, 4) which of a, c, d, θ were held because the logs hold too few independent samples
+    scarce: BoolArray | None = None
 
 
 def _friction_prior() -> FloatArray:
     return np.array([PRIOR["a"], PRIOR["c"], PRIOR["d"]])
 
 
-def solve_friction(stats: FrictionStats, resting: BoolArray | None = None) -> FrictionSolution:
+def solve_friction(
+    stats: FrictionStats, resting: BoolArray | None = None, independent: float | None = None
+) -> FrictionSolution:
     """Least squares per joint and ε from merged statistics; per joint the ε of least error.
     Coefficients the logs do not determine (``excitation.friction_held``; ``resting``: the
-    joints that do not move) are held at their prior and the others fitted around them."""
+    joints that do not move; ``excitation.scarce``: more than the ``independent`` samples
+    determine) are held at their prior and the others fitted around them."""
     require_samples(stats.n, 5)
     cxx = stats.cross[..., :3, :3]  # (E, D, 3, 3)
     cxy = stats.cross[..., :3, 3]  # (E, D, 3)
@@ -56,6 +64,8 @@ def solve_friction(stats: FrictionStats, resting: BoolArray | None = None) -> Fr
     sse = np.maximum(cyy - np.einsum("eda,eda->ed", beta, cxy), 0.0)
     rmse = np.sqrt(sse / stats.n)
     held = friction_held(stats.n, stats.mean[..., :3], stats.cross[..., :3, :3], resting, rmse)
+    few = scarce(~held, 0, independent)
+    held |= few
     if held.any():  # fitted again around the held ones (the shortcut for the error is LS's)
         beta = solve_held(cxx, cxy, held, _friction_prior(), ridge)
         sse = np.where(held.any(axis=-1), squared_error(cyy, cxy, cxx, beta), sse)
@@ -76,13 +86,23 @@ def solve_friction(stats: FrictionStats, resting: BoolArray | None = None) -> Fr
         r2=r2,
         rmse=np.sqrt(err / stats.n),
         held=held[best, joints],
+        scarce=_with_theta(few[best, joints]),
     )
+
+
+def _with_theta(few: BoolArray, theta: BoolArray | None = None) -> BoolArray:
+    """(D, 4) the a, c, d (``few``, (D, 3)) and θ (``theta``, (D,); none) held for want of
+    samples."""
+    held_theta = np.zeros(len(few), dtype=bool) if theta is None else theta
+    return np.concatenate([few, held_theta[:, None]], axis=1)
 
 
 @dataclass(frozen=True)
 class IdentifiedSolution:
     friction: FrictionSolution
     theta: FloatArray  # (D, P): per joint, the regressor's weights
+    # (D,) joints whose θ the logs' motion does not determine: held at 0 (the URDF's)
+    theta_held: BoolArray | None = None
 
 
 def _ridge_solve(
@@ -111,24 +131,29 @@ def _squared_error(
 
 
 def solve_identified(
-    stats: IdentifiedStats, resting: BoolArray | None = None
+    stats: IdentifiedStats, resting: BoolArray | None = None, independent: float | None = None
 ) -> IdentifiedSolution:
     """Ridge least squares per joint and ε on standardised columns; per joint the ε of least
     training error (as ``solve_friction``). Coefficients the logs do not determine are held at
     their prior (a, c, d as ``solve_friction`` judges them on the same columns; a correction θ
-    of an inertial parameter whose regressor column stays at one level, at 0)."""
+    of an inertial parameter whose regressor column stays at one level, at 0; every θ of a
+    joint, at the URDF's, and then d, c, a, where the ``independent`` samples are too few for
+    them, ``excitation.scarce``)."""
     require_samples(stats.n, 5)
     p, e = stats.params, len(EPSILON_GRID)
+    diagonal = np.diagonal(stats.cross, axis1=1, axis2=2)
     # the regressor's columns the intercept reproduces (zero columns excepted: never live)
-    share = conditioning(
-        stats.n,
-        stats.mean[:, :, None],
-        np.diagonal(stats.cross, axis1=1, axis2=2)[:, :, None, None],
-    )[:, :, 0]  # (D, K): each column's spread over its RMS
-    flat = undetermined(share) & (np.diagonal(stats.cross, axis1=1, axis2=2) > 0)
+    share = conditioning(stats.n, stats.mean[:, :, None], diagonal[:, :, None, None])[:, :, 0]
+    flat = undetermined(share) & (diagonal > 0)
+    # θ as a whole, where the logs do not hold samples for it and the other coefficients
+    live = ~flat[:, 1 : p + 1] & (diagonal[:, 1 : p + 1] > 0)
+    directions = spanned(stats.cross[:, 1 : p + 1, 1 : p + 1], live)  # (D,)
+    theta_held = affordable(independent) < 4 + directions  # b, a, c, d and θ's directions
+    flat[:, 1 : p + 1] |= theta_held[:, None]
     sse = []
     betas = []
     helds = []
+    fews = []
     for i in range(e):
         # columns: τ̂̃, Ỹ (P), q̇̃, this ε's Coulomb feature; target τ̃ (the last)
         use = np.r_[0 : p + 2, p + 2 + i]
@@ -147,6 +172,9 @@ def solve_identified(
             resting,
             np.sqrt(error / stats.n),
         )  # (D, 3)
+        few = scarce(~held, np.where(theta_held, 0, directions), independent)
+        held |= few
+        fews.append(few)
         if held.any():  # fitted again around the held ones
             dead[:, 0] = held[:, GAIN]
             dead[:, -1] = held[:, COULOMB]
@@ -177,5 +205,6 @@ def solve_identified(
         r2=r2,
         rmse=np.sqrt(err / stats.n),
         held=np.array(helds)[best, joints],
+        scarce=_with_theta(np.array(fews)[best, joints], theta_held),
     )
-    return IdentifiedSolution(friction, coef[:, 1 : p + 1])
+    return IdentifiedSolution(friction, coef[:, 1 : p + 1], theta_held)

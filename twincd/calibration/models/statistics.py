@@ -480,6 +480,9 @@ class FitStats:
     friction: FrictionStats | None = None
     identified: IdentifiedStats | None = None
     motion: MotionStats | None = None  # how far each joint moved (``excitation``)
+    # how many independent samples the filtered samples hold (``excitation.independent_samples``;
+    # None: not known, and no coefficient is held for want of them)
+    independent: float | None = None
 
     @property
     def resting(self) -> BoolArray | None:
@@ -535,6 +538,7 @@ class FitStats:
             both(self.friction, other.friction),
             both(self.identified, other.identified),
             both(self.motion, other.motion),
+            both(self.independent, other.independent),
         )
 
 

@@ -213,7 +213,7 @@ class LogStream:
         self.block_size = block_size
         self.reorder = reorder
         self.counts = StreamCounts()
-        self._joint_map = dict(options.joint_map or {})
+        self._rename = options.rename  # log joint names → the model's
         self._reader = TopicReader(self.path, strict=strict, batch_size=batch_size)
         self._known_from = "the calibration" if joints is not None else known_from
         try:
@@ -395,7 +395,7 @@ class LogStream:
         return none
 
     def _mapped(self, names: Sequence[str]) -> tuple[str, ...]:
-        return tuple(dict.fromkeys(self._joint_map.get(n, n) for n in names))
+        return tuple(dict.fromkeys(self._rename(n) for n in names))
 
     def _sim_names(self) -> tuple[str, ...]:
         """The joints of the log's own twin effort in the messages read ahead."""
@@ -510,7 +510,7 @@ class LogStream:
         if cols is None:
             where: dict[str, int] = {}
             for i, n in enumerate(names):
-                mapped = self._joint_map.get(n, n)
+                mapped = self._rename(n)
                 if mapped in where and names[where[mapped]] != n:
                     clash = names[where[mapped]]
                     raise JointMismatchError(
