@@ -17,6 +17,7 @@ from .options import (
     Causal,
     Cutoff,
     Debug,
+    FastCutoff,
     FilterKind,
     FilterOrder,
     Force,
@@ -132,6 +133,7 @@ def fit(
     joint_map: JointMap = None,
     joint_prefix: JointPrefix = None,
     cutoff: Cutoff = None,
+    fast_cutoff: FastCutoff = None,
     filter_order: FilterOrder = None,
     filter_kind: FilterKind = None,
     causal: Causal = None,
@@ -164,7 +166,8 @@ def fit(
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
         link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
-        cutoff_hz=cutoff, filter_order=filter_order, filter_kind=filter_kind, causal=causal,
+        cutoff_hz=cutoff, fast_cutoff_hz=fast_cutoff, filter_order=filter_order,
+        filter_kind=filter_kind, causal=causal,
         strict=strict
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)

@@ -82,6 +82,7 @@ FLAGS: dict[str, str] = {
     "output": "--output",
     "model": "--model",
     "cutoff_hz": "--cutoff",
+    "fast_cutoff_hz": "--fast-cutoff",
     "filter_order": "--filter-order",
     "causal": "--causal/--zero-phase",
     "sigma": "-k/--sigma",

@@ -19,6 +19,7 @@ from .options import (
     Causal,
     Cutoff,
     Debug,
+    FastCutoff,
     FilterKind,
     FilterOrder,
     Force,
@@ -126,6 +127,7 @@ def evaluate(
     joint_map: JointMap = None,
     joint_prefix: JointPrefix = None,
     cutoff: Cutoff = None,
+    fast_cutoff: FastCutoff = None,
     filter_order: FilterOrder = None,
     filter_kind: FilterKind = None,
     causal: Causal = None,
@@ -156,7 +158,8 @@ def evaluate(
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
         link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
-        cutoff_hz=cutoff, filter_order=filter_order, filter_kind=filter_kind, causal=causal,
+        cutoff_hz=cutoff, fast_cutoff_hz=fast_cutoff, filter_order=filter_order,
+        filter_kind=filter_kind, causal=causal,
         strict=strict, allow_urdf_change=allow_urdf_change
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)

@@ -11,6 +11,7 @@ import typer
 from twincd.defaults import (
     DEFAULT_CAUSAL_CUTOFF_HZ,
     DEFAULT_CUTOFF_HZ,
+    DEFAULT_FAST_CUTOFF_HZ,
     DEFAULT_LABEL_TOPIC,
     DEFAULT_LINK_TOPIC,
     DEFAULT_ORDER,
@@ -149,6 +150,16 @@ Cutoff = Annotated[
         "--cutoff",
         help=f"Low-pass cut-off in Hz (default {DEFAULT_CUTOFF_HZ:g}; "
         f"{DEFAULT_CAUSAL_CUTOFF_HZ:g} with --causal).",
+        min=0.0,
+    ),
+]
+FastCutoff = Annotated[
+    float | None,
+    typer.Option(
+        "--fast-cutoff",
+        help=f"Upper cut-off in Hz of the fast band a strike shows in (default "
+        f"{DEFAULT_FAST_CUTOFF_HZ:g}, as far as the sampling rate allows; 0: the filter's band "
+        "only). Models scored by depth only.",
         min=0.0,
     ),
 ]

@@ -22,7 +22,7 @@ def fitted(twin_dataset, tmp_path_factory):
 def test_fit_writes_the_calibration_and_prints_the_table(fitted):
     cal, result = fitted
     doc = json.loads(cal.read_text())
-    assert doc["schema"] == "twincd.calibration/2"
+    assert doc["schema"] == "twincd.calibration/3"
     assert doc["filter"] == {
         "cutoff_hz": 2.0,
         "order": 3,
@@ -197,3 +197,42 @@ def test_fit_without_a_model_fits_the_best_the_logs_allow(
     judged = json.loads(rerun.stdout)["methods"][0]
     assert judged["threshold"] == pytest.approx(expected["value"], rel=1e-9)
     assert expected["false_alarm_budget"]["per_hour"] == budget["per_hour"]
+
+
+def test_the_fast_band_is_asked_for_by_its_cut_off(twin_dataset, tmp_path):
+    """fit's fast band: 10 Hz by default (as far as 100 Hz samples allow), another cut-off by
+    --fast-cutoff, none with 0 (the filter's band alone, as a /2 calibration); the paper's
+    model sums one band and refuses one; a calibration is not run with another."""
+    from twincd import Calibration, fit_calibration
+
+    train = twin_dataset / "train"
+    fast: dict[str, float | None] = {}
+    for name, args in (
+        ("default", ()),
+        ("five", ("--fast-cutoff", "5")),
+        ("none", ("--fast-cutoff", "0")),
+    ):
+        cal = tmp_path / f"{name}.json"
+        result = run("fit", train, "-o", cal, *args)
+        assert result.exit_code == 0, result.output
+        fast[name] = Calibration.load(cal).fast_hz
+        doc = json.loads(cal.read_text())
+        assert doc["score"]["bands"] == (1 if name == "none" else 2)
+    assert fast == {"default": 10.0, "five": 5.0, "none": None}
+    # the library takes it as the CLI does
+    assert fit_calibration([train], fast_cutoff_hz=5.0).calibration.fast_hz == 5.0
+    refused = run(
+        "fit", train, "-o", tmp_path / "affine.json", "--model", "affine", "--fast-cutoff", "5"
+    )
+    assert_one_line_error(refused, "sums one band")
+    assert (
+        run(
+            "fit", train, "-o", tmp_path / "a.json", "--model", "affine", "--fast-cutoff", "0"
+        ).exit_code
+        == 0
+    )
+    assert run("threshold", twin_dataset / "val", "-c", tmp_path / "five.json").exit_code == 0
+    contradicted = run(
+        "evaluate", twin_dataset / "test", "-c", tmp_path / "five.json", "--fast-cutoff", "10"
+    )
+    assert_one_line_error(contradicted, "contradicts the calibration's 5 Hz")

@@ -18,6 +18,9 @@ DEFAULT_CUTOFF_HZ = 1.0
 # 0.862 / 0.866 and 6 / 4 false alarms at 1 / 1.5 Hz.
 DEFAULT_CRITICAL_CUTOFF_HZ = 1.5
 DEFAULT_CAUSAL_CUTOFF_HZ = 3.0
+# the fast band's upper edge: where a hand strike's energy still is (a 0.1–0.7 s controller
+# answer, 1–10 Hz), chosen on injected contacts of three real arms (docs/models-and-results.md)
+DEFAULT_FAST_CUTOFF_HZ = 10.0
 
 DEFAULT_K_SIGMA = 4.0  # the paper's μ + 4σ
 # `threshold`'s budget for the default models (scored by the depth statistic): false alarms per

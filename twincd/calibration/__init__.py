@@ -17,6 +17,7 @@ from twincd.calibration.file import (
     Threshold,
     calibration_from_fit,
     upgrade_v1,
+    upgrade_v2,
 )
 from twincd.calibration.fitting import LogFit, fit_log, merge_fits
 from twincd.calibration.models import (
@@ -53,4 +54,5 @@ __all__ = [
     "merge_fits",
     "solve",
     "upgrade_v1",
+    "upgrade_v2",
 ]

@@ -27,7 +27,8 @@ log = logging.getLogger("twincd")
 if TYPE_CHECKING:
     from twincd.prepare.setup import PreparedLog, Setup
 
-SCHEMA = "twincd.calibration/2"
+SCHEMA = "twincd.calibration/3"
+SCHEMA_V2 = "twincd.calibration/2"  # still read, through ``upgrade_v2``
 SCHEMA_V1 = "twincd.calibration/1"  # still read, through ``upgrade_v1``
 # the coefficients ``fit.joints.<joint>.held`` may name (``twincd.calibration.excitation``)
 HELD_KEYS = ("a", "c", "d", "theta")
@@ -256,8 +257,9 @@ class Calibration:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str = "") -> Calibration:
-        """A calibration of schema ``SCHEMA``, or of ``twincd.calibration/1`` through
-        ``upgrade_v1``; every number validated (a ``CalibrationError`` naming the field)."""
+        """A calibration of schema ``SCHEMA``, or of ``twincd.calibration/2`` or ``/1`` through
+        ``upgrade_v2`` (and ``upgrade_v1``); every number validated (a ``CalibrationError``
+        naming the field)."""
         where = source or "calibration"
         if not isinstance(d, Mapping):
             raise CalibrationError(
@@ -267,11 +269,13 @@ class Calibration:
             )
         schema = d.get("schema")
         if schema == SCHEMA_V1:
-            d = upgrade_v1(d, where)
+            d = upgrade_v2(upgrade_v1(d, where))
+        elif schema == SCHEMA_V2:
+            d = upgrade_v2(d)
         elif schema != SCHEMA:
             raise CalibrationError(
-                f"unsupported calibration schema {schema!r} (this twincd reads {SCHEMA} and "
-                f"{SCHEMA_V1})",
+                f"unsupported calibration schema {schema!r} (this twincd reads {SCHEMA}, "
+                f"{SCHEMA_V2} and {SCHEMA_V1})",
                 where,
                 "re-run `twincd fit` with this version",
             )
@@ -431,7 +435,7 @@ def _read(d: Mapping[str, Any], source: str, where: str) -> Calibration:
             ),
         ),
         threshold=_threshold(d["threshold"], where),
-        score=read_score(d.get("score"), names, where),
+        score=read_score(d["score"], names, where),
         created=str(d["created"]),
         twincd_version=str(d["twincd_version"]),
         source=source,
@@ -486,14 +490,22 @@ def _threshold(th: Mapping[str, Any] | None, where: str) -> Threshold | None:
     return threshold
 
 
+def upgrade_v2(d: Mapping[str, Any]) -> dict[str, Any]:
+    """A ``twincd.calibration/2`` file's content as ``SCHEMA``'s: the same keys, and the score
+    /2 files gave every model, its own band alone (``score: null``: ``twincd.calibration.score``;
+    a /3 file's threshold is one of the bands' combined score, a /2 file's of the one band).
+    Nothing is validated here: ``Calibration.from_dict`` validates the result."""
+    return {**d, "schema": SCHEMA, "score": None}
+
+
 def upgrade_v1(d: Mapping[str, Any], where: str = "calibration") -> dict[str, Any]:
-    """A ``twincd.calibration/1`` file's content as ``SCHEMA``'s: the same key paths, with what
+    """A ``twincd.calibration/1`` file's content as ``/2``'s: the same key paths, with what
     /1 files could leave out written as /1 read it (a model scored by the sum has its
     ``statistic``; no ``log_options``: the default topics; no ``fit``: none recorded; a
     threshold without its ``estimator``: the mean and standard deviation; no sampling rate:
     none recorded). Nothing is validated here: ``Calibration.from_dict`` validates the result."""
     out = {key: value for key, value in d.items() if key != "schema"}
-    out = {"schema": SCHEMA, **out}
+    out = {"schema": SCHEMA_V2, **out}
     defaults = LogOptions()
     sections: dict[str, Any] = {}
     for key in ("robot", "filter", "model", "fit", "log_options", "threshold"):

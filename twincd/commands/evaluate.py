@@ -128,6 +128,7 @@ def evaluate_logs(
                 k_sigma=k_sigma,
                 repeats=repeats,
                 progress=bar,
+                fast_cutoff_hz=settings.get("fast_cutoff_hz"),
                 run=run,
                 batch=max(1, getattr(executor, "workers", 1) or 1),
             )

@@ -42,6 +42,7 @@ class Settings(TypedDict, total=False):
     filter_order: int | None
     filter_kind: str | None
     causal: bool | None
+    fast_cutoff_hz: float | None  # fit: the fast band's upper cut-off (0: none)
     strict: bool  # refuse a truncated log instead of reading up to the damage
     allow_urdf_change: bool  # accept a robot model whose dynamics differ from the calibration's
 

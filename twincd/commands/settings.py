@@ -11,6 +11,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from twincd.defaults import (
     DEFAULT_CAUSAL_CUTOFF_HZ,
     DEFAULT_CRITICAL_CUTOFF_HZ,
@@ -44,6 +46,9 @@ class SetupOptions:
     filter_order: int | None = None
     filter_kind: str | None = None  # None: Butterworth without a calibration
     causal: bool | None = None
+    # fit: the fast band's upper cut-off (0: none; None: DEFAULT_FAST_CUTOFF_HZ for a model
+    # scored by depth, none for the others; twincd.signal.bands)
+    fast_cutoff_hz: float | None = None
     strict: bool = False  # refuse a truncated log instead of reading up to the damage
     allow_urdf_change: bool = False  # accept a robot model of other dynamics (warned)
 
@@ -130,6 +135,16 @@ class SetupOptions:
                 _contradiction(option, f"{label} {given_f:g}", f"{was_f:g}", cal)
         if self.filter_kind is not None and self.filter_kind != lp.kind:
             _contradiction("filter_kind", f"filter kind {self.filter_kind}", lp.kind, cal)
+        if self.fast_cutoff_hz is not None and cal.period_s is not None:
+            from twincd.signal.bands import fast_band_at
+
+            band = fast_band_at(lp, self.fast_cutoff_hz or None, cal.period_s)
+            given_hz = None if band is None else band.high.cutoff_hz
+            if given_hz != cal.fast_hz:
+                was_hz = "no fast band" if cal.fast_hz is None else f"{cal.fast_hz:g} Hz"
+                _contradiction(
+                    "fast_cutoff_hz", f"fast band cut-off {self.fast_cutoff_hz:g} Hz", was_hz, cal
+                )
 
 
 def fit_setup(options: SetupOptions, model: str | None = None) -> tuple[Setup, str | None]:
@@ -140,8 +155,7 @@ def fit_setup(options: SetupOptions, model: str | None = None) -> tuple[Setup, s
     can be) filter without overshoot (``critical``) at ``DEFAULT_CRITICAL_CUTOFF_HZ``: their
     residual is at the noise floor, where a Butterworth filter's ringing around a push shows
     as alarms before and after it (``filter_kind_for``)."""
-    from twincd.calibration.fitting import filter_kind_for, scored_by_depth
-    from twincd.signal.bands import FAST_CUTOFF_HZ
+    from twincd.calibration.fitting import filter_kind_for
 
     if options.filter_kind is None:
         kind = filter_kind_for(model)
@@ -149,9 +163,35 @@ def fit_setup(options: SetupOptions, model: str | None = None) -> tuple[Setup, s
         if kind == "critical" and options.cutoff_hz is None and not options.causal:
             options = replace(options, cutoff_hz=DEFAULT_CRITICAL_CUTOFF_HZ)
     setup = options.resolve()
-    if scored_by_depth(model):  # a strike's band too (twincd.signal.bands)
-        setup = replace(setup, fast_hz=FAST_CUTOFF_HZ)
-    return setup, model
+    return replace(setup, fast_hz=fast_cutoff(model, options.fast_cutoff_hz)), model
+
+
+def fast_cutoff(model: str | None, asked: float | None) -> float | None:
+    """The fast band's upper cut-off a fit of ``model`` judges (None: none): ``asked`` (0: none)
+    or, not asked, ``DEFAULT_FAST_CUTOFF_HZ`` for a model scored by depth (a strike's band,
+    ``twincd.signal.bands``) and none for the others, whose score sums one band."""
+    from twincd.calibration.fitting import scored_by_depth
+    from twincd.defaults import DEFAULT_FAST_CUTOFF_HZ
+
+    if asked is not None and (not np.isfinite(asked) or asked < 0):
+        raise UsageError(
+            f"fast band cut-off {asked:g} Hz is not a frequency",
+            "fast_cutoff_hz",
+            "give a cut-off in Hz, or 0 for no fast band",
+            option="fast_cutoff_hz",
+        )
+    if not scored_by_depth(model):
+        if asked:
+            raise UsageError(
+                f"model {model} sums one band: it has no fast band",
+                "fast_cutoff_hz",
+                "leave --fast-cutoff out, or fit a model scored by depth (the default)",
+                option="fast_cutoff_hz",
+            )
+        return None
+    if asked is None:
+        return DEFAULT_FAST_CUTOFF_HZ
+    return asked or None
 
 
 def _contradiction(option: str, given: str, recorded: object, calibration: Calibration) -> None:

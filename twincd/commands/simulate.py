@@ -22,7 +22,14 @@ if TYPE_CHECKING:
     from twincd.prepare.simulate import SimulateResult
 
 # settings of the filter and the calibration: simulate writes the twin's effort as computed
-_NOT_FOR_SIMULATE = ("cutoff_hz", "filter_order", "filter_kind", "causal", "allow_urdf_change")
+_NOT_FOR_SIMULATE = (
+    "cutoff_hz",
+    "filter_order",
+    "filter_kind",
+    "causal",
+    "fast_cutoff_hz",
+    "allow_urdf_change",
+)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -527,17 +527,20 @@ def _fitted(
     val: Sequence[Path],
     k_sigma: float,
     run: Mapper,
+    fast_cutoff_hz: float | None = None,
 ) -> Calibration:
     """The calibration a calibrated ``method`` (one of our models, or the paper's) makes of the
     training logs, as ``fit --model`` makes it with this evaluation's filter (``fit_logs``: its
     noise cross-fitted and its fast band for a model scored by depth), thresholded at μ + kσ of
     the validation logs (each band's, ``threshold -k``): so ``evaluate -m KIND --train --val``
-    scores as ``evaluate -c`` with that calibration."""
+    scores as ``evaluate -c`` with that calibration. ``fast_cutoff_hz``: ``fit --fast-cutoff``
+    for the models scored by depth (the others have one band)."""
     from twincd.calibration.fitting import fit_logs, scored_by_depth
-    from twincd.signal.bands import FAST_CUTOFF_HZ
+    from twincd.commands.settings import fast_cutoff
 
     kind = method.model_kind
-    reading = replace(setup, fast_hz=FAST_CUTOFF_HZ if scored_by_depth(kind) else None)
+    asked = fast_cutoff_hz if scored_by_depth(kind) else None
+    reading = replace(setup, fast_hz=fast_cutoff(kind, asked))
     try:
         calibration = fit_logs(train, reading, kind, run)
     except DataError as exc:  # the logs this method cannot fit on (no robot model, …)
@@ -739,6 +742,7 @@ def evaluate(
     progress: Progress = _no_progress,
     run: Mapper | None = None,
     batch: int = 1,
+    fast_cutoff_hz: float | None = None,
 ) -> Evaluation:
     """Every method in ``methods`` over the same test logs; isolation is judged where the
     test logs carry the contact link on ``setup.options.link_topic`` (a link topic named
@@ -747,7 +751,8 @@ def evaluate(
     ``run(func, paths, description)`` maps a per-log function over logs, results in the order
     of ``paths`` (default: one after another here; the CLI passes one that runs them on local
     processes or a cluster, ``--keep-going`` leaving failed logs out). ``batch``: test logs
-    prepared at once for the methods that score whole logs (the executor's workers)."""
+    prepared at once for the methods that score whole logs (the executor's workers).
+    ``fast_cutoff_hz``: the fast band of the models fitted here (``fit --fast-cutoff``)."""
     if not test_paths:
         raise UsageError("no test logs given", "evaluate", "pass labelled logs with collisions")
     # each set's logs once (a log given twice would count its events twice)
@@ -790,7 +795,7 @@ def evaluate(
                 args = (calibration, setup, tests, val, k_sigma, own_rule, link_topic, run)
                 results[name], tested = _evaluate_own(name, method, *args)
             elif how == "fitted":
-                fitted = _fitted(method, setup, train, val, k_sigma, run)
+                fitted = _fitted(method, setup, train, val, k_sigma, run, fast_cutoff_hz)
                 args = (
                     fitted,
                     setup_for(fitted, setup),

@@ -5,12 +5,12 @@ A contact's torque adds to the measured effort, so it shows in the residual r = 
 The calibration's low-pass filter (critically damped, 1.5 Hz: the **slow** band) keeps a push of
 seconds whole and the residual's fast noise out, but it turns a 0.2 s, 27 N·m strike into a bump
 of a few N·m. The **fast** band is the residual between that cut-off and a faster one,
-LP_fast(r − LP_slow(r)): what the slow band leaves out, up to ``FAST_CUTOFF_HZ``, where a strike's
-energy is and the model's own mismatch (slow: a path the fit never saw, a payload) is not. (The
-slow part is taken out before the fast filter, not after: at a segment's end the two filters
-extrapolate a slow trend differently, and their difference there was a false band-pass edge.) Each
-band has its own noise (``twincd.calibration.score``) and the score is one number per sample over
-both.
+LP_fast(r − LP_slow(r)): what the slow band leaves out, up to ``DEFAULT_FAST_CUTOFF_HZ``
+(``twincd.defaults``), where a strike's energy is and the model's own mismatch (slow: a path
+the fit never saw, a payload) is not. (The slow part is taken out before the fast filter, not
+after: at a segment's end the two filters extrapolate a slow trend differently, and their
+difference there was a false band-pass edge.) Each band has its own noise
+(``twincd.calibration.score``) and the score is one number per sample over both.
 
 A band is defined relative to the rate its filters run at (the samples', or a coarse grid's,
 ``twincd.prepare.grid``): the fast cut-off is at most ``FAST_RATE_FRACTION`` of that rate, and a
@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
+from twincd.defaults import DEFAULT_FAST_CUTOFF_HZ
 from twincd.signal.filters import LowPass
 from twincd.signal.stream import DEFAULT_GAP_FACTOR, SegmentedStage
 from twincd.types import FloatArray, IntArray
 
 __all__ = [
-    "FAST_CUTOFF_HZ",
     "FAST_MIN_RATIO",
     "FAST_RATE_FRACTION",
     "Band",
@@ -42,9 +42,6 @@ __all__ = [
     "slow_band",
 ]
 
-# the fast band's upper edge: where a hand strike's energy still is (a 0.1–0.7 s controller
-# answer, 1–10 Hz), chosen on injected contacts of three real arms (docs/models-and-results.md)
-FAST_CUTOFF_HZ = 10.0
 # ... and at most this fraction of the rate the filters run at (10 Hz at 100 Hz)
 FAST_RATE_FRACTION = 0.1
 # a fast band whose upper edge is not at least this many times the slow cut-off is dropped
@@ -112,7 +109,7 @@ def fast_cutoff_hz(lowpass: LowPass, run_period_s: float) -> float | None:
     """The fast band's upper cut-off for filters that run every ``run_period_s`` under the slow
     ``lowpass`` (None: the rate has no room for one, ``FAST_MIN_RATIO``)."""
     fs = 1.0 / run_period_s
-    high = min(FAST_CUTOFF_HZ, FAST_RATE_FRACTION * fs)
+    high = min(DEFAULT_FAST_CUTOFF_HZ, FAST_RATE_FRACTION * fs)
     high = min(high, 0.95 * _critical_limit(fs))
     if high < FAST_MIN_RATIO * lowpass.cutoff_hz or not math.isfinite(high):
         return None
