@@ -174,7 +174,7 @@ def test_file_round_trip_and_layout(tmp_path):
 def test_other_schema_and_broken_files_are_calibration_errors(tmp_path):
     cal = make_calibration()
     doc = cal.to_dict()
-    doc["schema"] = "twincd.calibration/3"
+    doc["schema"] = "twincd.calibration/99"
     (tmp_path / "v3.json").write_text(json.dumps(doc))
     with pytest.raises(CalibrationError, match="schema"):
         Calibration.load(tmp_path / "v3.json")

@@ -185,7 +185,7 @@ def fast_cutoff(model: str | None, asked: float | None) -> float | None:
             raise UsageError(
                 f"model {model} sums one band: it has no fast band",
                 "fast_cutoff_hz",
-                "leave --fast-cutoff out, or fit a model scored by depth (the default)",
+                "leave the fast band out, or fit a model scored by depth (the default)",
                 option="fast_cutoff_hz",
             )
         return None

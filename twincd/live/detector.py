@@ -67,6 +67,7 @@ class LiveDetector:
         self.use_sim: bool = bool(self._detector.use_sim)
         self.twin = twin and not self.use_sim  # τ̂ to compute for the session file
         self._twin_chain: Chain | None = None
+        self._log_times: dict[int, int] = {}  # stamp → log time of samples not out yet
         self._warm_up()
         self.samples = 0
         self.skipped = 0
@@ -119,8 +120,14 @@ class LiveDetector:
             times = stamp_ns if log_time_ns is None else log_time_ns
             own = getattr(out, "twin", None)
             if own is not None:  # the detector's τ̂ of its samples, at their log times
-                at = dict(zip(np.asarray(stamp_ns).tolist(), np.asarray(times).tolist()))
-                logged = [at[t] for t in own["stamp_ns"].tolist()]
+                # (a sample may come out of a later push: held for its grid cell or the
+                # derivative's window, its log time waits with it)
+                at = self._log_times
+                at.update(zip(np.asarray(stamp_ns).tolist(), np.asarray(times).tolist()))
+                done = own["stamp_ns"].tolist()
+                logged = [at.pop(t) for t in done]
+                if done:  # samples older than the last out were dropped (absurd, not finite)
+                    self._log_times = {t: v for t, v in at.items() if t > done[-1]}
                 scored.twin = own.with_columns(log_time_ns=np.asarray(logged, dtype=np.int64))
             else:
                 scored.twin = self._twin(stamp_ns, times, position, velocity, effort)
