@@ -117,7 +117,8 @@ def test_a_calibration_that_records_the_file_s_sha256_is_checked_the_old_way(
     commented = xarm_urdf(tmp_path / "commented.urdf", comment=True)
     refused = run("detect", log, "-c", legacy, "--robot", commented, "-q")
     assert_one_line_error(refused, "changed since the calibration was fitted")
-    shipped = run("detect", SAMPLE / "test" / "test_000.mcap", "-c", SAMPLE / "calibration.json")
+    v2 = SAMPLE.parent / "tests" / "data" / "calibrations_v2" / "calibration.json"  # a /2 file
+    shipped = run("detect", SAMPLE / "test" / "test_000.mcap", "-c", v2)
     assert "checked byte for byte" in shipped.stderr
     assert "warning" not in shipped.stderr  # a note, not a warning: --json's are unchanged
 

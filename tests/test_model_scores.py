@@ -17,6 +17,7 @@ from support.streaming import detect_frames
 
 from twincd.calibration import Calibration, Threshold
 from twincd.calibration.models import ResidualModel
+from twincd.calibration.score import Score
 from twincd.commands import fit_calibration
 from twincd.detection import OnlineDetector, detect_log, detect_streamed
 from twincd.errors import DataError, UsageError
@@ -89,7 +90,7 @@ def test_batch_and_whole_log_score_the_calibration_s_own_model(
     other = changed(shipped, change)
     setup = Setup.from_calibration(shipped)  # read the original's way: allowed, and no θ in it
     assert_differ(batch_scores(other, setup), batch_scores(shipped, setup))
-    whole = [detect_log(setup.prepare(LOG, c.model.features), c).scores for c in (other, shipped)]
+    whole = [detect_log(c.prepare(LOG, setup), c).scores for c in (other, shipped)]
     assert_differ(*whole)
     np.testing.assert_allclose(whole[1], batch_scores(shipped, setup), rtol=1e-9, atol=1e-12)
 
@@ -150,8 +151,11 @@ def test_a_setup_that_contradicts_the_calibration_is_refused(shipped: Calibratio
 
 
 def test_samples_prepared_for_another_model_are_refused(shipped: Calibration) -> None:
-    """Ỹθ filtered with another θ is never added to this model's prediction."""
+    """Ỹθ filtered with another θ is never added to this model's prediction, nor another
+    model's residual scored as this one's."""
     other = changed(shipped, "theta zeroed")
     setup = Setup.from_calibration(shipped)
-    with pytest.raises(DataError, match="another θ"):
-        detect_log(setup.prepare(LOG, shipped.model.features), other)
+    with pytest.raises(DataError, match="prepared for another model"):
+        detect_log(shipped.prepare(LOG, setup), other)
+    with pytest.raises(DataError, match="another θ"):  # prepared for a fit, with its θ
+        detect_log(setup.prepare(LOG, shipped.model.features), replace(other, score=Score()))

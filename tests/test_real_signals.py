@@ -183,7 +183,9 @@ def test_a_urdf_edited_after_fit_is_refused_unless_allowed(tmp_path: Path) -> No
 def test_the_live_detector_checks_the_urdf(caplog: pytest.LogCaptureFixture) -> None:
     from twincd.detection import OnlineDetector
 
-    cal = Calibration.load(SAMPLES / "calibration.causal.json")
+    # a file of the release before, which records the URDF file's sha256 only
+    cal = Calibration.load(SAMPLES.parent / "tests/data/calibrations_v2/calibration.causal.json")
+    assert cal.dynamics_sha256 is None
     OnlineDetector(cal)  # the URDF it was fitted with
     edited = replace(cal, urdf_sha256="0" * 64)
     with pytest.raises(CalibrationError, match="changed since the calibration was fitted"):

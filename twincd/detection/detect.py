@@ -11,12 +11,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.calibration.models import model_inputs
+from twincd.calibration.models import ResidualModel, model_inputs
 from twincd.detection.events import Event, EventRules, EventTracker, LabelSpans, false_alarms
 from twincd.detection.isolation import isolator_for
 from twincd.errors import DataError
 from twincd.prepare.frames import Frame, FrameSink
-from twincd.signal.features import ModelInputs
+from twincd.signal.features import FittedModel, ModelInputs
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
@@ -167,6 +167,13 @@ def detect_log(
             log.source,
             "prepare the log for the calibration's model: calibration.prepare(path)",
         )
+    if log.model is not None and not _same_model(log.model, calibration, log.joint_names):
+        raise DataError(
+            "this log was prepared for another model than the calibration's (its residual is "
+            "that model's)",
+            log.source,
+            "prepare the log for the calibration's model: calibration.prepare(path)",
+        )
     stage = ScoringStage(calibration, log.joint_names, log.coulomb_eps, rules)
     stage.regressor_theta = log.features.theta
     scored = {  # prepared for the model: its residual in each band
@@ -189,6 +196,14 @@ def detect_log(
     events += stage.finish()
     stage.counts.warn(log.source)
     return LogDetection(log, out["residual"], out["score"], out["flag"], stage.threshold, events)
+
+
+def _same_model(model: FittedModel, calibration: Calibration, names: Sequence[str]) -> bool:
+    """Whether ``model`` is the calibration's: the same kind and coefficients."""
+    if model is calibration.model:
+        return True
+    own = calibration.model
+    return isinstance(model, ResidualModel) and model.to_dict(names) == own.to_dict(names)
 
 
 # ------------------------------------------------------------------ a log streamed

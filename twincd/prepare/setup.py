@@ -119,6 +119,7 @@ class PreparedLog:
     residual_fast: FloatArray | None = None
     predicted: FloatArray | None = None
     fast_off: FloatArray | None = None
+    model: FittedModel | None = None  # the fitted model of ``residual``
 
     @property
     def source(self) -> str:
@@ -551,6 +552,7 @@ class PreparedStream:
             residual_fast=whole.get("residual_fast"),
             predicted=whole.get("predicted"),
             fast_off=whole.get("fast_off"),
+            model=self.model if "residual" in whole else None,
         )
 
 
