@@ -105,6 +105,16 @@ def render(found: Inspection) -> None:
             soft_wrap=True,
             markup=False,
         )
+    off = found.drives_off
+    if off.samples:
+        spans = ", ".join(f"{a:.3f}–{b:.3f}" for a, b in off.spans_s)
+        more = ", …" if off.spans > len(off.spans_s) else ""
+        say(
+            f"  drives off: {off.samples} sample(s) whose efforts are all exactly 0, left out, "
+            f"at {spans}{more} s",
+            soft_wrap=True,
+            markup=False,
+        )
     labels = (
         f"{found.label_messages} message(s)"
         if found.label_messages

@@ -127,9 +127,14 @@ def test_a_gripper_node_on_other_joints_is_never_dropped(tmp_path: Path, writer:
     assert not [w for w in got["warnings"] if "second publisher" in w]
 
 
-def test_motors_off_zeros_in_place_of_samples_are_kept(tmp_path: Path) -> None:
+@pytest.mark.parametrize("writer", ["rosbags", "twincd"])
+def test_drives_off_are_left_out_and_said(tmp_path: Path, writer: str) -> None:
     """A driver whose motors are off publishes zero efforts in place of its samples (a real
-    Doosan does, for 23 s): the one publisher, kept (its effort is what it is)."""
+    Doosan does, for 23 s at rest, while its twin asks 60 N·m of joint 2): nothing measured
+    there, so not judged (before: one 23 s event, and fitted, a joint's noise tripled). The
+    samples are left out, their span said by detect and inspect; the rest is judged as before,
+    the stretch a gap (no event at its ends); streamed live alike; simulate still writes the
+    twin's effort of every sample (it compares none)."""
     seen = [0]
 
     def off(msg: Any) -> None:
@@ -137,10 +142,50 @@ def test_motors_off_zeros_in_place_of_samples_are_kept(tmp_path: Path) -> None:
             msg.effort = np.zeros_like(msg.effort)
         seen[0] += 1
 
-    log = rewrite(CLEAN, tmp_path / "off.mcap", off)
-    got = detect(log)
-    assert got["logs"][0]["samples"] == detect(CLEAN)["logs"][0]["samples"]
+    log = rewrite(CLEAN, tmp_path / "off.mcap", off, writer=writer)
+    got, want = detect(log), detect(CLEAN)
+    assert got["logs"][0]["samples"] == want["logs"][0]["samples"] - 300
+    assert got["logs"][0]["events"] == []
+    (line,) = [w for w in got["warnings"] if "efforts are all exactly 0" in w]
+    assert "300 sample(s)" in line and "10.000–12.990 s" in line and "drives were off" in line
     assert not [w for w in got["warnings"] if "second publisher" in w]
+    found = json.loads(run("inspect", log, "--json").stdout)["logs"][0]
+    assert found["drives_off"] == {"samples": 300, "spans": 1, "spans_s": [[10.0, 12.99]]}
+    assert "drives off: 300 sample(s)" in run("inspect", log).stdout
+    # live, in blocks of any size: the same samples judged, nothing flagged
+    from types import SimpleNamespace
+
+    from support.streaming import pushed
+
+    from twincd import Calibration, OnlineDetector, Setup
+
+    cal = Calibration.load(SAMPLES / "calibration.causal.json")
+    read = Setup.from_calibration(cal).prepare(CLEAN).states
+    effort = read.effort.copy()
+    effort[1000:1300] = 0.0
+    states = SimpleNamespace(
+        stamp_ns=read.stamp_ns, position=read.position, velocity=read.velocity, effort=effort
+    )
+    n = len(read.stamp_ns)
+    live = OnlineDetector(cal)
+    outs = pushed(live, states, [slice(a, a + 137) for a in range(0, n, 137)])
+    events = [e for out in outs for e in out.events] + live.close()
+    assert events == [] and live.counts.judged == n - 300 and live.skipped == 300
+    simulated = run("simulate", log, "-o", tmp_path / "twin.mcap")
+    assert simulated.exit_code == 0, simulated.output
+    assert "exactly 0" not in simulated.stderr
+
+
+def test_a_log_whose_efforts_are_all_zero_is_named(tmp_path: Path) -> None:
+    """Every effort exactly 0 (the drives off throughout, or a driver that fills the field with
+    zeros): a clear error, not a log too short."""
+
+    def off(msg: Any) -> None:
+        msg.effort = np.zeros_like(msg.effort)
+
+    log = rewrite(CLEAN, tmp_path / "zeros.mcap", off)
+    refused = run("detect", log, "-c", CALIBRATION)
+    assert_one_line_error(refused, "every sample's efforts are exactly 0 on every joint")
 
 
 # ---------------------------------------------------------------- ros2_control's DynamicJointState

@@ -23,7 +23,7 @@ import numpy as np
 from twincd.defaults import DEFAULT_ROBOT
 from twincd.errors import TwincdError
 from twincd.io.options import LogOptions
-from twincd.signal.bounds import Dropped
+from twincd.signal.bounds import DrivesOff, Dropped
 from twincd.signal.moments import Moments
 from twincd.types import FloatArray, IntArray
 
@@ -100,6 +100,8 @@ class Inspection:
     absurd: Dropped = field(default_factory=Dropped)
     # messages of a second publisher on the arm's joints (zeros between the live samples)
     other_publisher: int = 0
+    # samples left out as drives off (every effort exactly 0), with their spans
+    drives_off: DrivesOff = field(default_factory=DrivesOff)
     warnings: list[str] = field(default_factory=list)
     problem: str | None = None
     # the error behind ``problem`` (its traceback is what ``--debug`` shows); not in to_dict
@@ -409,6 +411,7 @@ def _read_samples(
                     ok &= np.isfinite(block.sim_effort).all(axis=1)
                 usable += int(np.count_nonzero(ok))
         found.absurd = bounds.dropped
+        found.drives_off = bounds.off
         found.other_publisher = stream.counts.other_publisher
         bounds.warn(found.path)
     if acc.first is None:

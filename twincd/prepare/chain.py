@@ -80,15 +80,24 @@ def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) ->
     return load_robot(robot, keep=joints)
 
 
-def sample_bounds(robot: RobotModel | None, joints: Sequence[str]) -> SampleBounds:
+def sample_bounds(
+    robot: RobotModel | None, joints: Sequence[str], drives_off: bool = True
+) -> SampleBounds:
     """The causal bound on a stream's absurd samples (``twincd.signal.bounds``) from the robot
-    model's limits (none without a model): the one rule batch, causal, live and ``inspect``
-    apply."""
+    model's limits (none without a model), and its samples with the drives off (unless not
+    ``drives_off``: a command that compares no effort): the one rule batch, causal, live and
+    ``inspect`` apply."""
     from twincd.signal.bounds import SampleBounds
 
     if robot is None:
-        return SampleBounds(joints, {})
-    return SampleBounds(joints, robot.position_limits, robot.velocity_limits, robot.effort_limits)
+        return SampleBounds(joints, {}, drives_off=drives_off)
+    return SampleBounds(
+        joints,
+        robot.position_limits,
+        robot.velocity_limits,
+        robot.effort_limits,
+        drives_off=drives_off,
+    )
 
 
 def check_robot(

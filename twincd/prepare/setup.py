@@ -335,7 +335,7 @@ class PreparedStream:
         self.velocity_from_position = fill
         robot = self.robot
         self.checks = SignalChecks(twin_names, robot.position_limits if robot else {})
-        self.bounds = sample_bounds(robot, twin_names)
+        self.bounds = sample_bounds(robot, twin_names, drives_off=self.need_effort)
         setup = self.setup
         built = build_chain(
             setup.lowpass,
@@ -509,6 +509,13 @@ class PreparedStream:
                 self.dropped_bad,
             )
         bounds.warn(self.source)
+        if not self.samples and bounds.off.samples:
+            raise DataError(
+                "every sample's efforts are exactly 0 on every joint: the drives were off "
+                "throughout, or the driver measures no effort",
+                self.source,
+                "record the arm with its drives on and its effort measured",
+            )
         require_enough_samples(self.samples, self.source)
         warn_unwrapped(self.source, built.unwrap, built.layout.twin)
         checks.warn(self.source)

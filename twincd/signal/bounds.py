@@ -23,6 +23,14 @@ alone. Limits a URDF does not give (and every limit without a robot model) are t
 costs each block's column extremes; only rows beyond a bound are judged one by one.
 
 The dropped samples are counted with their times, and ``warning`` says so in one line.
+
+**Drives off** (``drives_off``): a sample whose efforts are all exactly 0 on every joint (two or
+more) measures nothing: a real arm's drives report some current on some joint at every instant,
+gravity's at least, and a driver whose motors are off publishes zeros in their place (a
+Doosan's log 22 s long, at rest, while its twin asks 60 N·m of joint 2). Compared with the twin,
+such a stretch is one long event, and fitted, it triples a joint's noise: it is left out, its
+spans counted and said in one line (``off_warning``). Not for a command that does not compare
+efforts (``simulate``: a simulation's log without efforts is its input).
 """
 
 from __future__ import annotations
@@ -44,6 +52,7 @@ __all__ = [
     "FALLBACK_EFFORT",
     "FALLBACK_VELOCITY",
     "VELOCITY_BOUND",
+    "DrivesOff",
     "Dropped",
     "SampleBounds",
 ]
@@ -55,6 +64,23 @@ FALLBACK_EFFORT = 1000.0  # N·m: a joint whose model gives no effort limit
 EXAMPLES = 8  # times of dropped samples kept for the warning and inspect
 
 CHANNELS = ("position", "velocity", "effort", "sim_effort")
+
+
+@dataclass
+class DrivesOff:
+    """The samples left out as drives off so far: how many, and the first spans' first and
+    last times (seconds from the first sample judged)."""
+
+    samples: int = 0
+    spans: int = 0
+    spans_s: list[list[float]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "samples": self.samples,
+            "spans": self.spans,
+            "spans_s": [list(s) for s in self.spans_s],
+        }
 
 
 @dataclass
@@ -89,8 +115,12 @@ class SampleBounds:
         position_limits: Mapping[str, tuple[float, float]],
         velocity_limits: Mapping[str, float] | None = None,
         effort_limits: Mapping[str, float] | None = None,
+        drives_off: bool = True,
     ) -> None:
         self.joint_names = tuple(joint_names)
+        self.drives_off = drives_off and len(self.joint_names) >= 2
+        self.off = DrivesOff()
+        self._off_open = False  # the last sample read was off: its span goes on
         names = self.joint_names
         inf = (-math.inf, math.inf)
         lower = np.array([position_limits.get(n, inf)[0] for n in names], dtype=np.float64)
@@ -136,6 +166,9 @@ class SampleBounds:
             for b in beyond.values():
                 suspects |= b.any(axis=1)
             ok = self._judge(stamp_ns, columns, beyond, np.flatnonzero(suspects))
+        effort = columns.get("effort")
+        if self.drives_off and effort is not None:
+            ok &= ~self._off_rows(stamp_ns, effort, ok)
         kept = np.flatnonzero(ok)
         if len(kept):
             last = int(kept[-1])
@@ -144,6 +177,35 @@ class SampleBounds:
         self._read = {c: v[-1].copy() for c, v in columns.items()}
         self._read_ns = int(stamp_ns[-1])
         return ok
+
+    def _off_rows(self, stamp_ns: IntArray, effort: FloatArray, ok: BoolArray) -> BoolArray:
+        """The rows (among ``ok``) whose efforts are all exactly 0, their spans noted."""
+        if not (effort[:, 0] == 0).any():  # most blocks: none, at the cost of one column
+            self._off_open = False
+            return np.zeros(len(effort), dtype=bool)
+        off: BoolArray = (effort == 0).all(axis=1) & ok
+        rows = np.flatnonzero(off)
+        if not len(rows):
+            self._off_open = False
+            return off
+        self.off.samples += len(rows)
+        first = self.first_ns or int(stamp_ns[0])
+        # spans: runs of off rows, the first one continuing the last block's open span
+        breaks = np.flatnonzero(np.diff(rows) > 1)
+        starts = np.r_[rows[0], rows[breaks + 1]]
+        ends = np.r_[rows[breaks], rows[-1]]
+        spans = self.off.spans_s
+        for k, (a, b) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+            end_s = round((int(stamp_ns[b]) - first) * 1e-9, 6)
+            if k == 0 and a == 0 and self._off_open:
+                if self.off.spans <= len(spans):  # the open span is among those kept
+                    spans[-1][1] = end_s
+                continue
+            self.off.spans += 1
+            if len(spans) < EXAMPLES:
+                spans.append([round((int(stamp_ns[a]) - first) * 1e-9, 6), end_s])
+        self._off_open = bool(off[-1])
+        return off
 
     def _outside(self, channel: str, values: FloatArray) -> bool:
         """Whether any value of the block lies beyond its joint's bound (NaN never does): the
@@ -258,7 +320,20 @@ class SampleBounds:
             "not motion"
         )
 
+    def off_warning(self, source: str) -> str | None:
+        """One line on the samples left out as drives off, or None."""
+        off = self.off
+        if not off.samples:
+            return None
+        spans = ", ".join(f"{a:.3f}–{b:.3f}" for a, b in off.spans_s)
+        more = ", …" if off.spans > len(off.spans_s) else ""
+        return (
+            f"{source}: leaving out {off.samples} sample(s) whose efforts are all exactly 0 at "
+            f"{spans}{more} s from the first sample: the drives were off (or the driver "
+            "measures no effort there), nothing to compare with the twin"
+        )
+
     def warn(self, source: str) -> None:
-        line = self.warning(source)
-        if line is not None:
-            log.warning("%s", line)
+        for line in (self.warning(source), self.off_warning(source)):
+            if line is not None:
+                log.warning("%s", line)
