@@ -2,12 +2,13 @@
 
 A contact's truth is exact when it is added to the *measured effort* of a clean log: a half-sine
 strike or a trapezoid push (ramps of min(0.1 s, d/4)) of a given length and size on one or two
-joints chosen at random, with random signs, and its span as the label. This study does that on
-the real arms' recordings, read from ``../shared/data/`` beside the repository when present (or
-``--data``; they are not part of the project, and nothing derived from them is written into it),
-and on ``twincd synth`` plants, and runs twincd on them as a user does — ``fit`` → ``threshold``
-→ ``detect``, the library's command functions (``twincd.fit_calibration``,
-``threshold_calibration``, ``detect_files``) with the CLI's defaults — for each configuration:
+joints chosen at random (the same draws at every size), with random signs, and its span as
+the label. This study does that on the real arms' recordings, read from ``../shared/data/``
+beside the repository when present (or ``--data``; they are not part of the project, and
+nothing derived from them is written into it), and on ``twincd synth`` plants, and runs
+twincd on them as a user does — ``fit`` → ``threshold`` → ``detect``, the library's command
+functions (``twincd.fit_calibration``, ``threshold_calibration``, ``detect_files``) with the
+CLI's defaults — for each configuration:
 
     python studies/inject_contacts.py                              # every arm and configuration
     python studies/inject_contacts.py --arms doosan --configs default cutoff-1.5
@@ -99,7 +100,7 @@ AFTER_NS = 200_000_000  # an event up to 200 ms after a contact still finds it
 JITTER_S = 1.0  # a random shift before each contact, so contacts meet every phase of motion
 WELCH_S = 4.0  # Welch segment length (rounded to a power of two in samples)
 NEAR_RAW = 0.4  # the near-raw calibration's cut-off, × the rate
-PLAN_VERSION = 3
+PLAN_VERSION = 4
 NEAR_END_S = 1.0  # contacts this close to a log's end are also counted apart
 CUTOFFS = ("1", "1.5", "3", "5", "10")
 BUDGET = "--false-alarms-per-hour 1"
@@ -385,14 +386,23 @@ def plan_rotation(
     arm: Arm, r: int, tests: list[TestLog], wanted: list[tuple[str, float, float]], seed: int
 ) -> list[dict[str, Any]]:
     """Place ``wanted`` contacts in copies of the rotation's test logs: first fit, a random
-    shift before each, ≥ GAP_S apart, as many copies (passes over the test logs) as needed."""
-    rng = np.random.default_rng([seed, zlib.crc32(arm.name.encode()), r])
+    shift before each, ≥ GAP_S apart, as many copies (passes over the test logs) as needed.
+    One or two joints at random, random signs, drawn alike for every size of a contact (so
+    sizes compare on the same joints)."""
+    arm_seed = zlib.crc32(arm.name.encode())
+    rng = np.random.default_rng([seed, arm_seed, r])
     joints = len(twincd.read_log(tests[0].path).joint_names)
     queue = []
+    seen: dict[tuple[str, float, float], int] = {}
     for shape, d, a in wanted:
-        k = int(rng.integers(1, 3))
-        picked = rng.choice(joints, size=k, replace=False)
-        signs = rng.choice([-1.0, 1.0], size=k)
+        # the k-th contact of a shape and length has the same joints and signs at every size
+        k = seen[shape, d, a] = seen.get((shape, d, a), -1) + 1
+        draw = np.random.default_rng(
+            [seed, arm_seed, r, zlib.crc32(shape.encode()), round(d * 1e3), k]
+        )
+        n = int(draw.integers(1, 3))
+        picked = draw.choice(joints, size=n, replace=False)
+        signs = draw.choice([-1.0, 1.0], size=n)
         queue.append((shape, d, a, [int(j) for j in picked], [float(s) for s in signs]))
     order = rng.permutation(len(queue))
     queue = [queue[i] for i in order]
