@@ -436,6 +436,7 @@ def check(work: Path, plan: Plan) -> None:
         _, val = cal_logs(plan, c, root)
         cal = where / "cal.json"
         fit = where / "fit.json"
+        where.mkdir(exist_ok=True)
         if not fit.exists():
             twincd("fit", *cal_logs(plan, c, root)[0], "-o", fit, "-q", "--force")
         twincd("threshold", *val, "-c", fit, "-o", cal, "-q", "--force")
