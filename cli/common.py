@@ -99,14 +99,29 @@ FLAGS: dict[str, str] = {
 }
 
 
-def flag_hint(option: str | None) -> str:
+# per command, settings whose flag is not that command's own (declared here: no command
+# rewrites FLAGS when it runs)
+COMMAND_FLAGS: dict[str, dict[str, str]] = {"watch": {"causal": "fit --causal"}}
+
+
+def flag_hint(option: str | None, command: str | None = None) -> str:
     """``(option --robot)`` for ``option="robot"``, ``(options --train, --val)`` for
-    ``"train,val"``; an unmapped name becomes ``--name-with-dashes``; empty for None."""
+    ``"train,val"``; an unmapped name becomes ``--name-with-dashes``; empty for None.
+    ``command``: the subcommand's name (``COMMAND_FLAGS``; None: the one running, if any)."""
     names = [n.strip() for n in (option or "").split(",") if n.strip()]
     if not names:
         return ""
-    flags = [FLAGS.get(n, "--" + n.replace("_", "-")) for n in names]
+    known = {**FLAGS, **COMMAND_FLAGS.get(command or _running_command(), {})}
+    flags = [known.get(n, "--" + n.replace("_", "-")) for n in names]
     return f"({'option' if len(flags) == 1 else 'options'} {', '.join(flags)})"
+
+
+def _running_command() -> str:
+    """The name of the subcommand running (empty outside one)."""
+    import click
+
+    ctx = click.get_current_context(silent=True)
+    return (ctx.info_name or "") if ctx is not None else ""
 
 
 def error_line(exc: TwincdError) -> str:

@@ -33,8 +33,6 @@ from .options import (
 if TYPE_CHECKING:
     from twincd.live import WatchEvent, WatchNotice, WatchStatus, WatchSummary
 
-FLAGS_WATCH = {"connect_timeout": "--connect-timeout", "causal": "fit --causal"}
-
 
 @contextlib.contextmanager
 def _stop_on_signals(stop: threading.Event) -> Iterator[None]:
@@ -160,9 +158,6 @@ def watch(
     from twincd.live import WatchEvent, WatchNotice, WatchStatus, WatchSummary
     from twincd.live import watch as live_watch
 
-    from .common import FLAGS
-
-    FLAGS.update(FLAGS_WATCH)
     stop = threading.Event()
     status_shown = False
     terminal = stderr.is_terminal and not quiet

@@ -21,7 +21,14 @@ each candidate rule from the validation scores alone and counts the fresh record
 it (the events' own rules, as `detect` applies them); ``check`` runs what a user runs —
 ``twincd threshold`` then ``twincd detect --json`` on the fresh recording — and prints the table
 the docs quote; ``firm`` checks the rule once an hour of clean validation data lets it measure
-the tail. ``--rates 100`` or ``--rates 1000`` limits a phase to one rate.
+the tail; ``scales`` sets every calibration's threshold as ``twincd threshold`` does (both
+bands, the fit's cross-fitted clean data, the raise on its own logs) once per candidate scale of
+the assumed tail (``--scales``: s₀ of ``BULK_TAIL_SCALE``), and counts the combined score's
+events on the fresh recording at each (each log is scored once per calibration and cached).
+``--rates 100`` or ``--rates 1000`` limits a phase to one rate.
+
+    python studies/choose_budget.py scales --work ~/.cache/twincd-budget --rates 100 \
+        --scales 0.35,0.5,0.55,0.6,0.65,0.7
 """
 
 from __future__ import annotations
@@ -136,6 +143,8 @@ REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "doosan_
 
 
 def score_log(path: Path, cal_path: Path) -> Scores:
+    """The calibration model's own band scored on one log (``score`` and ``rules``: the rules of
+    a one-band score; ``scales`` judges the combined score of every band)."""
     from twincd.calibration import Calibration, clean_rows
     from twincd.prepare.setup import Setup
     from twincd.signal.features import ModelInputs
@@ -143,14 +152,14 @@ def score_log(path: Path, cal_path: Path) -> Scores:
     cal = Calibration.load(cal_path)
     joints = len(cal.joint_names)
     setup = Setup.from_calibration(cal)
-    parts: list[tuple[FloatArray, BoolArray, NDArray[np.int64]]] = []
+    parts: list[tuple[FloatArray, BoolArray, NDArray[np.int64], BoolArray]] = []
     with setup.open(path, model=cal.model) as stream:
         for frame in stream:
             theta = stream.features.theta
             s = cal.model.scores(
                 ModelInputs.of(frame, stream.coulomb_eps, stream.regressor_mask, theta)
             )
-            judged = clean_rows(frame.get("labels"), frame.n, frame.get("edge"))
+            judged = clean_rows(frame.get("labels"), frame.n)
             lab = frame.get("labels")
             lab = np.zeros(frame.n, bool) if lab is None else np.asarray(lab, bool)
             parts.append((np.asarray(s, np.float64), judged, np.asarray(frame["stamp_ns"]), lab))
@@ -454,6 +463,87 @@ def check(work: Path, plan: Plan) -> None:
           f"({events_} events in {hours:.3g} h)")  # fmt: skip
 
 
+def fresh_bands(path: Path, cal_path: Path) -> tuple[FloatArray, NDArray[np.int64], float]:
+    """Each band's score (bands × samples) of one log under a calibration, its stamps and
+    period: what the combined score is made of, at any levels."""
+    from twincd.calibration import Calibration
+    from twincd.commands.settings import SetupOptions
+
+    cal = Calibration.load(cal_path)
+    setup = SetupOptions().resolve(cal).for_logs([path])
+    model, score = cal.model, cal.score
+    out, stamps = [], []
+    with setup.open(path, model=model, jump=score.jump) as stream:
+        for frame in stream:
+            velocity = np.asarray(frame["velocity"], dtype=np.float64)
+            bands, _ = score.band_scores(
+                model,
+                frame["residual"],
+                velocity,
+                frame.get("residual_fast"),
+                frame.get("edge_factor"),
+                frame.get("fast_off"),
+            )
+            out.append(np.vstack(bands))
+            stamps.append(np.asarray(frame["stamp_ns"], dtype=np.int64))
+        period = stream.period_s
+    return np.hstack(out), np.concatenate(stamps), period
+
+
+def scales(work: Path, plan: Plan, candidates: list[float]) -> None:
+    """Per candidate s₀ of the assumed tail's scale, what ``twincd threshold`` would set on each
+    calibration's validation logs and the fit's cross-fitted clean data, and the combined
+    score's events on the fresh recording there."""
+    import pickle
+
+    from twincd.calibration import Calibration, tail
+    from twincd.calibration.threshold import score_log, threshold_from_parts
+    from twincd.commands.settings import SetupOptions
+    from twincd.detection.files import record_false_alarms, tally_false_alarms
+
+    chosen = tail.BULK_TAIL_SCALE
+    got: dict[float, list[tuple[int, int, float]]] = {c: [] for c in candidates}
+    for seed, c, where in calibrations(work, plan):
+        root = plant_dir(work, plan, seed)
+        train, val = cal_logs(plan, c, root)
+        where.mkdir(exist_ok=True)
+        fit = where / "fit.json"
+        if not fit.exists():
+            twincd("fit", *train, "-o", fit, "-q", "--force")
+        cal = Calibration.load(fit)
+        setup = SetupOptions().resolve(cal).for_logs(val)
+        cache = where / "scales.pkl"  # the study's own cache, from this calibration
+        if cache.exists():
+            parts, bands, stamps, period = pickle.loads(cache.read_bytes())
+        else:
+            parts = [score_log(p, cal, setup) for p in val]
+            bands, stamps, period = fresh_bands(root / "fresh.mcap", fit)
+            cache.write_bytes(pickle.dumps((parts, bands, stamps, period)))
+        for s0 in candidates:
+            tail.BULK_TAIL_SCALE = (s0, chosen[1])
+            try:
+                th_cal = threshold_from_parts(parts, cal)
+                tallies = [tally_false_alarms(p, th_cal, setup) for p in val]
+                th_cal = record_false_alarms(th_cal, tallies)
+            finally:
+                tail.BULK_TAIL_SCALE = chosen
+            th = th_cal.require_threshold()
+            combined = th_cal.score.combine(list(bands))
+            fresh = Scores(combined, np.ones(len(combined), bool), period, stamps)
+            got[s0].append((events(fresh, th.value, th.mu), allowed(plan.fresh_s / 3600), th.value))
+        print(f"{plan.rate_hz} Hz seed {seed} cal {c}: done", file=sys.stderr)
+    hours = plan.fresh_s / 3600
+    print(f"\n{plan.rate_hz} Hz, seeds {plan.seeds[0]}–{plan.seeds[-1]}: {len(got[candidates[0]])} "
+          f"calibrations, {hours:.3g} h fresh each")  # fmt: skip
+    for s0, rows in got.items():
+        keep = sum(n <= a for n, a, _ in rows)
+        total = sum(n for n, _, _ in rows)
+        ths = [t for *_, t in rows]
+        print(f"  s0 = {s0:<5g} keep {keep:2d}/{len(rows)}  events {total:4d} in "
+              f"{hours * len(rows):.3g} h  threshold median {np.median(ths):.3g} "
+              f"[{min(ths):.3g}, {max(ths):.3g}]")  # fmt: skip
+
+
 FIRM_SEEDS = (10, 11, 12, 13, 14)
 
 
@@ -493,12 +583,15 @@ def firm(work: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("phase", choices=["make", "score", "rules", "check", "firm"])
+    ap.add_argument("phase", choices=["make", "score", "rules", "check", "firm", "scales"])
     ap.add_argument("--work", type=Path, required=True, help="folder for logs and scores")
     ap.add_argument(
         "--rates",
         default="100,1000",
         help="comma-separated: 100, 1000 (100c, 1000c: confirmation seeds; 100f: the final set)",
+    )
+    ap.add_argument(
+        "--scales", default="0.35,0.5,0.55,0.6,0.65,0.7", help="scales: the candidate s₀"
     )
     args = ap.parse_args()
     sets = {"c": CONFIRM, "f": FINAL}
@@ -512,6 +605,10 @@ def main() -> int:
         return 0
     if args.phase == "firm":
         firm(args.work)
+        return 0
+    if args.phase == "scales":
+        for plan in plans:
+            scales(args.work, plan, [float(x) for x in args.scales.split(",")])
         return 0
     if args.phase == "score":
         score_real(args.work)

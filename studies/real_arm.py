@@ -11,12 +11,20 @@ rotations with its spread (min–max), and the pooled counts:
     python studies/real_arm.py                          # the defaults, twin from the URDF
     python studies/real_arm.py --fit-args "--model affine" --threshold-args "-k 4"
     python studies/real_arm.py --no-urdf                # twin = the controller's model torque
+    python studies/real_arm.py --segments 3 4           # threshold and test on 3–4 s segments
 
 Figures: collisions found (pooled and per rotation), median delay, false alarms in the whole
 collision-free time of the six test logs, events per found push (``evaluate``'s
 ``events_per_detected``: detect's events that touch a labelled push, over the pushes found), AUC,
 and how often a found push's event names a link (the recordings label none, so not whether
 it is right).
+
+Real datasets often come as segments of a few seconds: ``--segments LOW HIGH`` cuts the
+threshold log and the test log into consecutive segments of LOW–HIGH seconds (lengths drawn
+with a fixed seed; labels kept), thresholds on the one's segments and tests on the other's, the
+fit still on the four whole logs. A push cut by a segment's end counts once per segment it
+touches; a segment cut from a stretch with the drives off (every effort exactly 0: twincd
+refuses such a log, it measures nothing) is left out.
 """
 
 from __future__ import annotations
@@ -65,12 +73,45 @@ def rotate(i: int, work: Path, args: argparse.Namespace) -> Rotation:
     cal = work / f"cal{i}.json"
     twin = ["--robot", URDF] if not args.no_urdf else ["--sim-topic", "/controller/model_effort"]
     must(twincd("fit", *train, *twin, "-o", cal, "-q", *shlex.split(args.fit_args)))
-    must(twincd("threshold", val, "-c", cal, "-q", *shlex.split(args.threshold_args)))
-    doc = json.loads(must(twincd("evaluate", test, "-c", cal, "--json", "-q")))
-    found = json.loads(must(twincd("detect", test, "-c", cal, "--json", "-q"), ok=(0, 1)))
-    delays, links = found_pushes(test, found["logs"][0]["events"])
+    vals, tests = [val], [test]
+    if args.segments:
+        vals = segments(val, work / f"val{i}", *args.segments, seed=2 * i)
+        tests = segments(test, work / f"test{i}", *args.segments, seed=2 * i + 1)
+    must(twincd("threshold", *vals, "-c", cal, "-q", *shlex.split(args.threshold_args)))
+    doc = json.loads(must(twincd("evaluate", *tests, "-c", cal, "--json", "-q")))
+    found = json.loads(must(twincd("detect", *tests, "-c", cal, "--json", "-q"), ok=(0, 1)))
+    delays: list[float] = []
+    links: list[str | None] = []
+    for path, judged in zip(tests, found["logs"], strict=True):
+        d, lk = found_pushes(path, judged["events"])
+        delays, links = delays + d, links + lk
     clean_s = (doc["samples"] - doc["positives"]) * PERIOD_S
     return Rotation(test.name, doc["methods"][0], clean_s, delays, links)
+
+
+def segments(log: Path, folder: Path, low: float, high: float, seed: int) -> list[Path]:
+    """``log`` cut into consecutive segments of ``low``–``high`` seconds (the last one what
+    is left, when at least ``low``), each a log of its own with its labels."""
+    import numpy as np
+    from inject_contacts import write_log
+
+    from twincd.prepare.setup import read_log
+
+    states = read_log(log)
+    assert states.labels is not None
+    t = states.t_s
+    rng = np.random.default_rng(seed)
+    out, start = [], float(t[0])
+    while start + low <= float(t[-1]) + 1e-9:
+        end = start + float(rng.uniform(low, high))
+        rows = (t >= start) & (t < end)
+        start = end
+        if not np.any(states.effort[rows]):  # drives off throughout: no effort to judge
+            continue
+        path = folder / f"{log.name}_{len(out):03d}.mcap"
+        write_log(path, states, rows, states.effort[rows], states.labels[rows])
+        out.append(path)
+    return out
 
 
 def found_pushes(log: Path, events: list[dict[str, Any]]) -> tuple[list[float], list[str | None]]:
@@ -109,6 +150,13 @@ def main() -> int:
     parser.add_argument("--threshold-args", default="", help="extra options of twincd threshold")
     parser.add_argument("--no-urdf", action="store_true", help="twin = the controller's torque")
     parser.add_argument("--json", type=Path, help="also write the per-rotation figures here")
+    parser.add_argument(
+        "--segments",
+        nargs=2,
+        type=float,
+        metavar=("LOW", "HIGH"),
+        help="threshold and test on segments of LOW–HIGH s cut from the logs",
+    )
     args = parser.parse_args()
     if not all(p.is_dir() for p in LOGS):
         print(f"the real arm's recordings are not at {DATA}: nothing to study")

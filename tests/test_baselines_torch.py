@@ -6,20 +6,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.needs import need
+from test_baselines_learning import auc, data
+from test_baselines_mob import pushed_log
 
-torch = pytest.importorskip("torch")
-
-from test_baselines_learning import auc, data  # noqa: E402
-from test_baselines_mob import pushed_log  # noqa: E402
-
-from twincd.errors import NotFittedError  # noqa: E402
-from twincd.evaluation.baselines.autoencoder import PointAE, WindowAE  # noqa: E402
-from twincd.evaluation.baselines.lstm import LstmMob, training_pieces  # noqa: E402
-from twincd.evaluation.baselines.windows import (  # noqa: E402
+from twincd.errors import NotFittedError
+from twincd.evaluation.baselines.autoencoder import PointAE, WindowAE
+from twincd.evaluation.baselines.lstm import LstmMob, training_pieces
+from twincd.evaluation.baselines.windows import (
     DEFAULT_MAX_TRAIN_UNITS,
     DEFAULT_SUBSAMPLE_SEED,
 )
-from twincd.evaluation.methods import make_method  # noqa: E402
+from twincd.evaluation.methods import make_method
+
+torch = need("torch")
 
 pytestmark = pytest.mark.torch
 

@@ -19,12 +19,13 @@ from typing import Any
 import numpy as np
 import pytest
 from support.clitools import assert_one_line_error, run
-
-pytest.importorskip("distributed")
+from support.needs import need
 
 from twincd.errors import ClusterError, LogReadError, TwincdError, UsageError
 from twincd.executors.cluster import DaskExecutor
 from twincd.executors.local import Bound
+
+need("distributed")
 
 TESTS = Path(__file__).parent
 START_TIMEOUT_S = 60

@@ -141,6 +141,14 @@ def test_flag_hint() -> None:
     assert flag_hint("some_new_setting") == "(option --some-new-setting)"
 
 
+def test_a_command_s_own_flags_are_declared_not_patched_in() -> None:
+    """watch names a causal calibration by fit's flag; other commands by their own, whichever
+    ran first in the process."""
+    assert flag_hint("causal", "watch") == "(option fit --causal)"
+    assert flag_hint("causal", "detect") == "(option --causal/--zero-phase)"
+    assert flag_hint("causal") == "(option --causal/--zero-phase)"  # outside a command
+
+
 @pytest.mark.parametrize(
     ("exc", "line"),
     [

@@ -16,13 +16,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-
-pytest.importorskip("foxglove")
-pytest.importorskip("websockets")
-
 from conftest import build_twin_log
 from support.clitools import assert_one_line_error, run
+from support.needs import need
 from support.replay import FakeClock, Replay, Scripted, read_messages
+
+need("foxglove")
+need("websockets")
 
 SPEED = 16.0  # replay this much faster than recorded: 16 s of log in 1 s
 
