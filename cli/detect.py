@@ -114,10 +114,14 @@ def detect(
     if json_:
         json_document(done, done.to_dict())
     for result in [] if json_ else done.logs:
+        coverage = result.coverage()
         if result.events:
             stdout.print(events_table(result))
+            if coverage:
+                stdout.print(f"{result.source}: {coverage}")
         elif result.too_short:
             stdout.print(f"{result.source}: too short to judge ({result.samples} samples)")
         else:
-            stdout.print(f"{result.source}: no collision ({result.samples} samples)")
+            more = f"; {coverage}" if coverage else ""
+            stdout.print(f"{result.source}: no collision ({result.samples} samples{more})")
     finish(done)

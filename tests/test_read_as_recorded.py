@@ -304,3 +304,37 @@ def test_an_unreadable_log_is_refused_for_real(tmp_path: Path) -> None:
         assert_one_line_error(run("fit", folder, "-o", tmp_path / "c.json"), "Permission denied")
     finally:
         folder.chmod(0o755)
+
+
+# ---------------------------------------------------------------- coverage said
+
+
+@pytest.mark.parametrize("writer", ["rosbags", "twincd"])
+def test_a_hole_in_the_recording_is_said_everywhere(
+    tmp_path: Path, writer: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A 10 s hole mid-log (the recorder stalled) is not judged: detect says so in its line,
+    in --json (``unjudged_spans``, ``unjudged_s``), in JUnit (the case's system-out) and in the
+    job summary; a log without a hole says nothing of the kind."""
+    seen = [0]
+
+    def hole(msg: Any) -> bool:
+        seen[0] += 1
+        return not 1000 < seen[0] <= 2000  # 10.00–19.99 s at 100 Hz
+
+    log = rewrite(CLEAN, tmp_path / "hole.mcap", hole, writer=writer)
+    got = detect(log)["logs"][0]
+    ((start, end),) = got["unjudged_spans"]
+    assert start == pytest.approx(9.99, abs=1e-6) and end == pytest.approx(20.0, abs=1e-6)
+    assert got["unjudged_s"] == pytest.approx(10.01, abs=1e-6)
+    whole = detect(CLEAN)["logs"][0]
+    assert whole["unjudged_spans"] == [] and whole["unjudged_s"] == 0
+    said = "10 s not judged: 1 gap(s), 9.99–20.00 s"
+    assert said in run("detect", log, "-c", CALIBRATION).stdout
+    assert "not judged" not in run("detect", CLEAN, "-c", CALIBRATION).stdout
+    junit, summary = tmp_path / "junit.xml", tmp_path / "summary.md"
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(summary))
+    result = run("detect", log, "-c", CALIBRATION, "--junit", junit)
+    assert result.exit_code in (0, 1), result.output
+    assert f"<system-out>{said}</system-out>" in junit.read_text()
+    assert said in summary.read_text()

@@ -17,7 +17,8 @@ from twincd.detection.isolation import isolator_for
 from twincd.errors import DataError
 from twincd.prepare.frames import Frame, FrameSink
 from twincd.signal.features import FittedModel, ModelInputs
-from twincd.types import BoolArray, FloatArray
+from twincd.signal.stream import DEFAULT_GAP_FACTOR
+from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
@@ -228,6 +229,11 @@ class DetectionSummary:
     clean_flagged: int = 0  # of those, the flagged ones
     period_s: float = 0.0  # the log's nominal sampling period
     labels: LabelSpans = field(default_factory=LabelSpans)  # labelled spans, when labelled
+    # the log's stretches without a sample to judge: (last stamp before, first stamp after) of
+    # each interval over DEFAULT_GAP_FACTOR periods, a gap in the recording or samples left
+    # out (absurd, drives off, not finite), ns
+    unjudged: list[tuple[int, int]] = field(default_factory=list)
+    _last_ns: int | None = None  # the last sample's stamp so far
 
     @property
     def clean_s(self) -> float:
@@ -247,13 +253,48 @@ class DetectionSummary:
             "collision_samples": self.collision_samples,
             "judged_samples": self.judged_samples,
             "too_short": self.too_short,
+            "unjudged_spans": self.unjudged_spans_s(),
+            "unjudged_s": round(self.unjudged_s, 6),
             "events": [e.to_dict() for e in self.events],
         }
+
+    def unjudged_spans_s(self) -> list[list[float]]:
+        """Each stretch without a sample to judge, [from, to] in seconds from the first
+        sample."""
+        first = self.first_stamp_ns
+        return [
+            [round((a - first) * 1e-9, 6), round((b - first) * 1e-9, 6)] for a, b in self.unjudged
+        ]
+
+    @property
+    def unjudged_s(self) -> float:
+        """The time without a sample to judge (s): the gaps' lengths."""
+        return sum(b - a for a, b in self.unjudged) * 1e-9
+
+    def coverage(self) -> str | None:
+        """One clause on the time not judged ("10.0 s not judged: 1 gap, 12.30–22.30 s"), or
+        None when every stretch of the log was judged."""
+        if not self.unjudged:
+            return None
+        spans = self.unjudged_spans_s()
+        shown = ", ".join(f"{a:.2f}–{b:.2f} s" for a, b in spans[:3])
+        more = ", …" if len(spans) > 3 else ""
+        return f"{self.unjudged_s:.3g} s not judged: {len(spans)} gap(s), {shown}{more}"
 
     @property
     def too_short(self) -> bool:
         """No sample could be judged (a log with samples always has some judged)."""
         return self.samples > 0 and self.judged_samples == 0
+
+    def _note_gaps(self, stamps: IntArray) -> None:
+        """The gaps between this block's samples and the last block's, once the period is
+        known."""
+        if self.period_s > 0:
+            before = stamps[:-1] if self._last_ns is None else np.r_[self._last_ns, stamps[:-1]]
+            after = stamps[1:] if self._last_ns is None else stamps
+            wide = np.flatnonzero(after - before > DEFAULT_GAP_FACTOR * self.period_s * 1e9)
+            self.unjudged += [(int(before[i]), int(after[i])) for i in wide]
+        self._last_ns = int(stamps[-1])
 
     def add(self, frame: Frame, events: list[Event]) -> None:
         self.events.extend(events)
@@ -261,6 +302,7 @@ class DetectionSummary:
             return
         if not self.samples:
             self.first_stamp_ns = int(frame["stamp_ns"][0])
+        self._note_gaps(np.asarray(frame["stamp_ns"], dtype=np.int64))
         self.samples += frame.n
         self.collision_samples += int(frame["flag"].sum())
         self.judged_samples += frame.n

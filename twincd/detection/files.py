@@ -46,6 +46,7 @@ def detect_streamed(
             stage.regressor_mask = stream.regressor_mask
             stage.regressor_theta = stream.features.theta
             out, closed = stage.push(frame)
+            summary.period_s = stream.period_s  # known from the first block on
             _deliver(summary, sinks, out, closed)
         _deliver(summary, sinks, Frame(), stage.finish())
         summary.joint_names = stream.joint_names

@@ -116,9 +116,10 @@ def _detect_verdict(summaries: Sequence[DetectionSummary]) -> tuple[bool, str]:
 
 
 def _log_line(s: DetectionSummary) -> str:
+    coverage = s.coverage()
     return (
         f"{len(s.events)} collision event(s), {s.collision_samples} of {s.samples} "
-        f"samples flagged (threshold {s.threshold:.6g})"
+        f"samples flagged (threshold {s.threshold:.6g})" + (f"; {coverage}" if coverage else "")
     )
 
 

@@ -29,6 +29,7 @@ class Case:
     skipped: str | None = None
     seconds: float = 0.0
     kind: str = "collision"  # the failure's type: what was found
+    output: str = ""  # the case's <system-out>: what a reader should know beside the verdict
 
 
 def junit_xml(suite: str, cases: Sequence[Case]) -> str:
@@ -69,6 +70,8 @@ def junit_xml(suite: str, cases: Sequence[Case]) -> str:
             failure.text = case.details
         elif case.skipped is not None:
             ET.SubElement(element, "skipped", {"message": case.skipped})
+        if case.output:
+            ET.SubElement(element, "system-out").text = case.output
     ET.indent(root)
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, "unicode") + "\n"
 
@@ -83,7 +86,7 @@ def detection_cases(summaries: Sequence[DetectionSummary]) -> list[Case]:
             lines = [" | ".join(event_columns(s))]
             lines += [" | ".join(row) for row in event_rows(s)]
             details = "\n".join(lines)
-        cases.append(Case("twincd.detect", s.source, failure, details))
+        cases.append(Case("twincd.detect", s.source, failure, details, output=s.coverage() or ""))
     return cases
 
 
