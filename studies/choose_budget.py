@@ -467,7 +467,7 @@ def fresh_bands(path: Path, cal_path: Path) -> tuple[FloatArray, NDArray[np.int6
     """Each band's score (bands × samples) of one log under a calibration, its stamps and
     period: what the combined score is made of, at any levels."""
     from twincd.calibration import Calibration
-    from twincd.commands.settings import SetupOptions
+    from twincd.prepare.settings import SetupOptions
 
     cal = Calibration.load(cal_path)
     setup = SetupOptions().resolve(cal).for_logs([path])
@@ -498,8 +498,8 @@ def scales(work: Path, plan: Plan, candidates: list[float]) -> None:
 
     from twincd.calibration import Calibration, tail
     from twincd.calibration.threshold import score_log, threshold_from_parts
-    from twincd.commands.settings import SetupOptions
     from twincd.detection.files import record_false_alarms, tally_false_alarms
+    from twincd.prepare.settings import SetupOptions
 
     chosen = tail.BULK_TAIL_SCALE
     got: dict[float, list[tuple[int, int, float]]] = {c: [] for c in candidates}

@@ -36,7 +36,6 @@ if TYPE_CHECKING:
         simulate_logs,
         threshold_calibration,
     )
-    from twincd.commands.settings import SetupOptions
     from twincd.detection import OnlineDetector
     from twincd.detection.detect import detect_log as detect
     from twincd.errors import TwincdError
@@ -44,6 +43,7 @@ if TYPE_CHECKING:
     from twincd.io.logs import expand_logs
     from twincd.io.options import LogOptions
     from twincd.live import watch
+    from twincd.prepare.settings import SetupOptions
     from twincd.prepare.setup import Setup, read_log
 
 from twincd.version import __version__
@@ -54,7 +54,7 @@ _EXPORTS = {
     "read_log": "twincd.prepare.setup",
     "expand_logs": "twincd.io.logs",
     "Setup": "twincd.prepare.setup",
-    "SetupOptions": "twincd.commands.settings",
+    "SetupOptions": "twincd.prepare.settings",
     "Calibration": "twincd.calibration",
     "fit_calibration": "twincd.commands",
     "threshold_calibration": "twincd.commands",

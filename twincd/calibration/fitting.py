@@ -32,7 +32,7 @@ from twincd.calibration.models import (
     model_class,
     speed_bin,
 )
-from twincd.errors import DataError
+from twincd.errors import DataError, UsageError
 from twincd.prepare.frames import Frame
 from twincd.prepare.setup import PreparedStream, Setup, agreed_joints
 from twincd.signal.features import ModelFeatures, ModelInputs
@@ -461,3 +461,30 @@ def fit_logs(paths: Sequence[Path], setup: Setup, model: str | None, each: Each)
     parts: list[LogFit] = each(work, paths, "train logs")
     calibration = merge_fits(parts, setup, model)
     return crossfit_calibration(calibration, parts, setup, each) if crossfit else calibration
+
+
+def fast_cutoff(model: str | None, asked: float | None) -> float | None:
+    """The fast band's upper cut-off a fit of ``model`` judges (None: none): ``asked`` (0: none)
+    or, not asked, ``DEFAULT_FAST_CUTOFF_HZ`` for a model scored by depth (a strike's band,
+    ``twincd.signal.bands``) and none for the others, whose score sums one band."""
+    from twincd.defaults import DEFAULT_FAST_CUTOFF_HZ
+
+    if asked is not None and (not np.isfinite(asked) or asked < 0):
+        raise UsageError(
+            f"fast band cut-off {asked:g} Hz is not a frequency",
+            "fast_cutoff_hz",
+            "give a cut-off in Hz, or 0 for no fast band",
+            option="fast_cutoff_hz",
+        )
+    if not scored_by_depth(model):
+        if asked:
+            raise UsageError(
+                f"model {model} sums one band: it has no fast band",
+                "fast_cutoff_hz",
+                "leave the fast band out, or fit a model scored by depth (the default)",
+                option="fast_cutoff_hz",
+            )
+        return None
+    if asked is None:
+        return DEFAULT_FAST_CUTOFF_HZ
+    return asked or None

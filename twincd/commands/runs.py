@@ -14,8 +14,8 @@ from twincd.errors import TwincdError
 from twincd.executors.run import LogFailure, LogRun, run_logs, warn_failure
 
 if TYPE_CHECKING:
-    from twincd.commands.settings import SetupOptions
     from twincd.executors.local import MapExecutor, Progress
+    from twincd.prepare.settings import SetupOptions
     from twincd.signal.filters import LowPass
 
 T = TypeVar("T")
@@ -88,7 +88,7 @@ def filter_settings(lowpass: LowPass) -> Settings:
 
 
 def setup_options(settings: Settings) -> SetupOptions:
-    from twincd.commands.settings import SetupOptions
+    from twincd.prepare.settings import SetupOptions
 
     return SetupOptions(**settings)
 

@@ -535,8 +535,7 @@ def _fitted(
     the validation logs (each band's, ``threshold -k``): so ``evaluate -m KIND --train --val``
     scores as ``evaluate -c`` with that calibration. ``fast_cutoff_hz``: ``fit --fast-cutoff``
     for the models scored by depth (the others have one band)."""
-    from twincd.calibration.fitting import fit_logs, scored_by_depth
-    from twincd.commands.settings import fast_cutoff
+    from twincd.calibration.fitting import fast_cutoff, fit_logs, scored_by_depth
 
     kind = method.model_kind
     asked = fast_cutoff_hz if scored_by_depth(kind) else None

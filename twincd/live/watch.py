@@ -396,7 +396,7 @@ def watch(
     ``joint_map``, ``joint_prefix`` and ``robot`` (its URDF) default to the calibration's, as
     for every command; the label and link topics are subscribed to when they are published,
     for ``record``: the session MCAP (``-o``)."""
-    from twincd.commands.settings import SetupOptions
+    from twincd.prepare.settings import SetupOptions
 
     cal = _load(calibration)
     # how the source's messages are read: the calibration's way unless given, as for every
