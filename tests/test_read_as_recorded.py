@@ -338,3 +338,31 @@ def test_a_hole_in_the_recording_is_said_everywhere(
     assert result.exit_code in (0, 1), result.output
     assert f"<system-out>{said}</system-out>" in junit.read_text()
     assert said in summary.read_text()
+
+
+@pytest.mark.parametrize("writer", ["rosbags", "twincd"])
+def test_a_push_inside_a_hole_is_counted_apart_by_evaluate(tmp_path: Path, writer: str) -> None:
+    """A labelled push whose label messages all fall in a hole of the joint states marks no
+    sample: evaluate counts it apart ("not judged", ``events_not_judged``) and says so, never
+    silently dropping it from the pushes."""
+    seen = [0]
+
+    def hole(msg: Any) -> bool:
+        seen[0] += 1
+        return not 1400 < seen[0] <= 1600  # 14.00–15.99 s: the press at ≈ 14.9–15.2 s
+
+    test = SAMPLES / "test" / "test_000.mcap"
+    log = rewrite(test, tmp_path / "hole.mcap", hole, writer=writer)
+
+    def evaluated(path: Path) -> tuple[dict[str, Any], list[str]]:
+        result = run("evaluate", path, "-c", CALIBRATION, "--json")
+        assert result.exit_code == 0, result.output
+        doc = json.loads(result.stdout)
+        return doc["methods"][0], doc["warnings"]
+
+    whole, _ = evaluated(test)
+    holed, warnings = evaluated(log)
+    assert whole["events_not_judged"] == 0
+    assert holed["events_not_judged"] == 1
+    assert holed["events_total"] == whole["events_total"] - 1
+    assert any("1 labelled push(es) fell where no sample was judged" in w for w in warnings)

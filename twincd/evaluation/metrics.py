@@ -215,6 +215,9 @@ class EventCounts:
     isolation_named: int = 0  # of those, with a link named
     isolation_right: int = 0  # of those named, the right one
     has_links: bool = False
+    # labelled pushes that no judged sample falls in (the label's messages say them, in a hole
+    # of the recording): counted apart, never among events_total
+    events_not_judged: int = 0
 
     def __add__(self, other: EventCounts) -> EventCounts:
         return EventCounts(
@@ -231,6 +234,7 @@ class EventCounts:
             self.isolation_named + other.isolation_named,
             self.isolation_right + other.isolation_right,
             self.has_links or other.has_links,
+            self.events_not_judged + other.events_not_judged,
         )
 
     @property
@@ -253,6 +257,7 @@ class EventCounts:
             "events_per_detected": (
                 self.events_on_labels / self.events_detected if self.events_detected else None
             ),
+            "events_not_judged": self.events_not_judged,
         }
         if self.has_links:
             out.update(

@@ -90,6 +90,7 @@ EVENT_KEYS = (
     "false_alarms",
     "false_alarms_per_hour",
     "events_per_detected",
+    "events_not_judged",
     "force_events_total",
     "force_events_detected",
     "force_delay_ms_median",

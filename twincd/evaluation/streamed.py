@@ -13,8 +13,9 @@ it over logs.
 
 from __future__ import annotations
 
+import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -23,12 +24,36 @@ import numpy as np
 from twincd.detection.detect import ScoringStage
 from twincd.detection.events import Event
 from twincd.evaluation.metrics import EventCounts, EventTally, ScoredUnits
+from twincd.io.labels import read_label_spans
 from twincd.io.links import read_link_messages
-from twincd.types import FloatArray
+from twincd.types import FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.prepare.setup import Setup
+
+log = logging.getLogger("twincd")
+
+
+class UnseenPushes:
+    """The labelled pushes (spans of the label's messages, ``read_label_spans``) that no judged
+    sample falls in, sample blocks pushed by log time as they come."""
+
+    def __init__(self, spans: IntArray) -> None:
+        self.spans = spans
+        self.seen = np.zeros(len(spans), dtype=bool)
+
+    def push(self, log_time_ns: IntArray) -> None:
+        if not len(self.spans):
+            return
+        t = np.asarray(log_time_ns, dtype=np.int64)
+        at = np.searchsorted(self.spans[:, 0], t, side="right") - 1
+        inside = (at >= 0) & (t < self.spans[np.maximum(at, 0), 1])
+        self.seen[at[inside]] = True
+
+    @property
+    def unseen(self) -> int:
+        return int(np.count_nonzero(~self.seen))
 
 
 @dataclass(frozen=True)
@@ -92,6 +117,8 @@ def judge_log(
     source = str(Path(path))
     setup.check_against(calibration)
     links = read_link_messages(path, link_topic, setup.strict) if link_topic else None
+    spans = read_label_spans(path, setup.options.label_topic, setup.strict)
+    pushes = None if spans is None else UnseenPushes(spans)
     tally = EventTally(None if links is None else links.values)
     stage = ScoringStage(calibration)
     events: list[Event] = []
@@ -114,6 +141,8 @@ def judge_log(
             label = np.zeros(out.n, dtype=bool) if truth is None else np.asarray(truth, bool)
             positives += int(np.count_nonzero(label))
             held = None if links is None else links.held(frame["log_time_ns"])
+            if pushes is not None:
+                pushes.push(frame["log_time_ns"])
             tally.push(frame["stamp_ns"], label, out["flag"], held)
             if keep:
                 score = np.asarray(out["score"], dtype=np.float64)
@@ -124,12 +153,22 @@ def judge_log(
         samples = stream.samples
     stage.counts.warn(source, by=method)
     isolation = links is not None and isolates and robot is not None
+    counts = tally.finish(events, isolation)
+    if pushes is not None and pushes.unseen:
+        counts = replace(counts, events_not_judged=pushes.unseen)
+        log.warning(
+            "%s: %d labelled push(es) fell where no sample was judged (a hole in the log): "
+            "not judged, counted apart from the %d pushes judged",
+            source,
+            pushes.unseen,
+            counts.events_total,
+        )
     return JudgedLog(
         source=source,
         samples=samples,
         positives=positives,
         labelled=labelled,
         units=ScoredUnits(positive.sorted(), negative.sorted()),
-        events=tally.finish(events, isolation),
+        events=counts,
         score_s=score_s,
     )
