@@ -17,6 +17,7 @@ from .options import (
     Causal,
     Cutoff,
     Debug,
+    End,
     FastCutoff,
     FilterKind,
     FilterOrder,
@@ -34,6 +35,7 @@ from .options import (
     Robot,
     Scheduler,
     SimTopic,
+    Start,
     Strict,
     Topic,
     settings,
@@ -140,6 +142,8 @@ def fit(
     model: Model = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
+    start: Start = None,
+    end: End = None,
     strict: Strict = False,
     keep_going: KeepGoing = False,
     force: Force = False,
@@ -168,7 +172,7 @@ def fit(
         link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
         cutoff_hz=cutoff, fast_cutoff_hz=fast_cutoff, filter_order=filter_order,
         filter_kind=filter_kind, causal=causal,
-        strict=strict
+        strict=strict, start=start, end=end
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = fit_calibration(
@@ -195,6 +199,8 @@ def threshold(
     joint_prefix: JointPrefix = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
+    start: Start = None,
+    end: End = None,
     strict: Strict = False,
     keep_going: KeepGoing = False,
     allow_urdf_change: AllowUrdfChange = False,
@@ -224,7 +230,7 @@ def threshold(
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
         joint_map=joint_map, joint_prefix=joint_prefix, link_topic=link_topic, strict=strict,
-        allow_urdf_change=allow_urdf_change
+        allow_urdf_change=allow_urdf_change, start=start, end=end
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = threshold_calibration(

@@ -17,6 +17,7 @@ from .options import (
     CalibrationIn,
     Causal,
     Debug,
+    End,
     Force,
     Jobs,
     JointMap,
@@ -33,6 +34,7 @@ from .options import (
     Robot,
     Scheduler,
     SimTopic,
+    Start,
     Strict,
     Topic,
     settings,
@@ -82,6 +84,8 @@ def detect(
     causal: Causal = None,
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
+    start: Start = None,
+    end: End = None,
     strict: Strict = False,
     keep_going: KeepGoing = False,
     allow_urdf_change: AllowUrdfChange = False,
@@ -104,7 +108,7 @@ def detect(
     asked = settings(
         robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
         link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix, causal=causal,
-        strict=strict, allow_urdf_change=allow_urdf_change
+        strict=strict, allow_urdf_change=allow_urdf_change, start=start, end=end
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = detect_files(

@@ -19,6 +19,7 @@ from .options import (
     Causal,
     Cutoff,
     Debug,
+    End,
     FastCutoff,
     FilterKind,
     FilterOrder,
@@ -38,6 +39,7 @@ from .options import (
     Robot,
     Scheduler,
     SimTopic,
+    Start,
     Strict,
     Topic,
     settings,
@@ -134,6 +136,8 @@ def evaluate(
     jobs: Jobs = 0,
     scheduler: Scheduler = None,
     link_topic: LinkTopic = None,
+    start: Start = None,
+    end: End = None,
     strict: Strict = False,
     keep_going: KeepGoing = False,
     allow_urdf_change: AllowUrdfChange = False,
@@ -160,7 +164,7 @@ def evaluate(
         link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
         cutoff_hz=cutoff, fast_cutoff_hz=fast_cutoff, filter_order=filter_order,
         filter_kind=filter_kind, causal=causal,
-        strict=strict, allow_urdf_change=allow_urdf_change
+        strict=strict, allow_urdf_change=allow_urdf_change, start=start, end=end
     )  # fmt: skip
     run = run_options(quiet, jobs, scheduler, keep_going)
     done = evaluate_logs(

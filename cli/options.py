@@ -104,6 +104,23 @@ NoSummary = Annotated[
     ),
 ]
 Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.", metavar="")]
+Start = Annotated[
+    str | None,
+    typer.Option(
+        "--start",
+        help="Judge each log from this time on: seconds from its first sample (12.5), or @ and "
+        "seconds since the epoch (@1695811234.5). Earlier samples still warm the filters.",
+        metavar="S",
+    ),
+]
+End = Annotated[
+    str | None,
+    typer.Option(
+        "--end",
+        help="Judge each log up to this time (as --start); later samples are not read.",
+        metavar="S",
+    ),
+]
 Strict = Annotated[
     bool,
     typer.Option(

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from twincd.errors import LogReadError
-from twincd.io.links import hold_links, read_links
+from twincd.io.links import LinkMessages, read_links
 
 
 def test_links_are_held_like_labels():
     msgs = np.array([30, 10, 50], dtype=np.int64)  # out of order on purpose
-    held = hold_links(msgs, ["link4", "", ""], np.array([5, 10, 29, 30, 49, 50, 99]))
+    held = LinkMessages.of(msgs, ["link4", "", ""]).hold(np.array([5, 10, 29, 30, 49, 50, 99]))
     assert held == ("", "", "", "link4", "link4", "", "")
 
 

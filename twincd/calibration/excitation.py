@@ -349,8 +349,3 @@ class Held:
             f"their prior (the twin as it is: θ at the URDF's, c and d at 0, a at 1): {which}. "
             "Fit on longer logs of the arm moving (a minute or more)"
         )
-
-
-def no_held(joints: int) -> Held:
-    z = np.zeros(joints, dtype=bool)
-    return Held(z, z, z, z, np.ones(joints))

@@ -45,6 +45,8 @@ class Settings(TypedDict, total=False):
     fast_cutoff_hz: float | None  # fit: the fast band's upper cut-off (0: none)
     strict: bool  # refuse a truncated log instead of reading up to the damage
     allow_urdf_change: bool  # accept a robot model whose dynamics differ from the calibration's
+    start: float | str | None  # the window judged: seconds from a log's first sample, or "@" and
+    end: float | str | None  # seconds since the epoch (twincd.io.window)
 
 
 class RunOptions(TypedDict, total=False):

@@ -42,11 +42,6 @@ class LinkMessages:
         return tuple(self.values[i] if i >= 0 else "" for i in self.held(log_time_ns).tolist())
 
 
-def hold_links(message_ns: IntArray, links: list[str], log_time_ns: IntArray) -> tuple[str, ...]:
-    """Each sample's link: the last message at or before its log time ("" before the first)."""
-    return LinkMessages.of(message_ns, links).hold(log_time_ns)
-
-
 def read_links(
     path: str | Path, topic: str, log_time_ns: IntArray, strict: bool = False
 ) -> tuple[str, ...] | None:

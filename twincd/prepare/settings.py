@@ -19,6 +19,7 @@ from twincd.errors import UsageError
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.io.options import LogOptions
+    from twincd.io.window import TimeWindow
     from twincd.prepare.setup import Setup
 
 __all__ = ["SetupOptions"]
@@ -48,6 +49,16 @@ class SetupOptions:
     fast_cutoff_hz: float | None = None
     strict: bool = False  # refuse a truncated log instead of reading up to the damage
     allow_urdf_change: bool = False  # accept a robot model of other dynamics (warned)
+    # the stretch of each log judged (``twincd.io.window``): seconds from its first sample, or
+    # "@" and seconds since the epoch; the run's own, never recorded in a calibration
+    start: float | str | None = None
+    end: float | str | None = None
+
+    def window(self) -> TimeWindow | None:
+        """The time window asked for (None: the whole log)."""
+        from twincd.io.window import TimeWindow
+
+        return TimeWindow.of(self.start, self.end)
 
     def log_options(self, defaults: LogOptions | None = None) -> LogOptions:
         """The topics and joint names given; those not given fall back to ``defaults``. A
@@ -97,6 +108,7 @@ class SetupOptions:
             robot=calibration.robot_model(self.robot),
             strict=self.strict,
             allow_urdf_change=self.allow_urdf_change,
+            window=self.window(),
         )
 
     def _without_calibration(self) -> Setup:
@@ -110,7 +122,9 @@ class SetupOptions:
             causal=bool(self.causal),
             kind="butterworth" if self.filter_kind is None else self.filter_kind,
         )
-        return Setup(self.log_options(), self.robot, lowpass, strict=self.strict)
+        return Setup(
+            self.log_options(), self.robot, lowpass, strict=self.strict, window=self.window()
+        )
 
     def _check_filter(self, cal: Calibration) -> None:
         """A ``UsageError`` for the first filter setting given that the calibration's filter

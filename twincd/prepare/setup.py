@@ -32,6 +32,7 @@ from twincd.errors import DataError, JointMismatchError, UsageError
 from twincd.io.logs import JointStates
 from twincd.io.options import LogOptions
 from twincd.io.stream import iter_blocks, warn_ignored_joints
+from twincd.io.window import TimeWindow
 from twincd.prepare.chain import (
     BuiltChain,
     JointLayout,
@@ -493,7 +494,22 @@ class PreparedStream:
                 yield frame
 
         first_ns = last_ns = None
+        low, high = (
+            (None, None) if self.setup.window is None
+            else self.setup.window.bounds_ns(int(first["stamp_ns"][0]))
+        )  # fmt: skip
+        read_to = int(first["stamp_ns"][0])
         for out in built.chain.run(clean(frames())):
+            if low is not None and high is not None and out.n:
+                stamps = out["stamp_ns"]
+                read_to = int(stamps[-1])
+                if int(stamps[0]) > high:
+                    break  # past the window: nothing more to judge, nor to read
+                inside = (stamps >= low) & (stamps <= high)
+                if not inside.any():
+                    continue  # before the window: it warmed the filters
+                if not inside.all():
+                    out = Frame({k: v[inside] for k, v in out.items()})
             if out.n:
                 first_ns = int(out["stamp_ns"][0]) if first_ns is None else first_ns
                 last_ns = int(out["stamp_ns"][-1])
@@ -507,6 +523,17 @@ class PreparedStream:
                 "%s: dropped %d sample(s) with NaN or infinite values",
                 self.source,
                 self.dropped_bad,
+            )
+        if self.setup.window is not None and not self.samples:
+            start_ns = int(first["stamp_ns"][0])
+            span = (read_to - start_ns) * 1e-9
+            raise DataError(
+                f"no sample of the log lies in the window {self.setup.window} (its samples run "
+                f"0–{span:.3f} s from the first, whose stamp is @{start_ns * 1e-9:.3f})",
+                self.source,
+                "give a window within the log (seconds from its first sample, "
+                "or @ and seconds since the epoch)",
+                option="start,end",
             )
         bounds.warn(self.source)
         if not self.samples and bounds.off.samples:
@@ -727,6 +754,9 @@ class Setup:
     fast_hz: float | None = None
     # the calibration's robot dynamics (``RobotModel.dynamics_sha256``): other ones are refused
     dynamics_sha256: str | None = None
+    # the stretch of each log judged (``twincd.io.window``; None: all of it): the run's own,
+    # never a calibration's
+    window: TimeWindow | None = None
 
     def block_size_for(self, regressor: bool) -> int:
         """Samples per block read: fewer when the regressor is filtered (``REGRESSOR_BLOCK``)."""
