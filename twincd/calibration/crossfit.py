@@ -215,11 +215,12 @@ def crossfit_log(
     # each column kept as it will be stored (float32, bool) block by block: a 20 min 1 kHz log
     # keeps 120 000 rows, whose float64 blocks and their concatenation were 75 MB of peak memory
     kept: dict[str, list[np.ndarray]] = {}
-    rows = 0
+    read = 0  # rows read so far: they decide which are kept, so any chunking keeps the same
     with said_already(), setup.open(path, model=model, jump=jump) as stream:
         for frame in stream:
             step = _step(stream.period_s)
-            keep = (np.arange(frame.n) + rows) % step == 0 if step > 1 else slice(None)
+            keep = (np.arange(frame.n) + read) % step == 0 if step > 1 else slice(None)
+            read += frame.n
             for c in ("stamp_ns", "residual", "velocity", "edge_factor", "residual_fast"):
                 if c in frame:
                     dtype = np.int64 if c == "stamp_ns" else np.float32
@@ -229,7 +230,6 @@ def crossfit_log(
                 kept.setdefault("fast_off", []).append(off)
             if "labels" in frame:
                 kept.setdefault("labels", []).append(np.asarray(frame["labels"][keep], bool))
-            rows += len(kept["stamp_ns"][-1])  # rows kept so far decide the phase: any chunking
         period = stream.period_s * _step(stream.period_s)
     # column by column, each column's blocks freed as it is joined: never two copies of all
     whole: dict[str, np.ndarray] = {c: np.concatenate(kept.pop(c)) for c in list(kept)}
@@ -359,7 +359,15 @@ def crossfit_calibration(
     folds = crossfit_plan(parts)
     models = fold_models(calibration, parts, folds)
     fast_hz = None if fast is None else fast.high.cutoff_hz
-    scoring = replace(Reading.from_calibration(calibration), fast_hz=fast_hz)
+    # the fit's own way of reading (its window, strictness), smaller blocks: this pass holds the
+    # first pass's statistics and what it keeps beside a detect's stream
+    scoring = replace(
+        Reading.from_calibration(calibration),
+        fast_hz=fast_hz,
+        window=setup.window,
+        strict=setup.strict,
+        block_size=setup.block_size // 2,
+    )
     work: Bound[Path, CrossScored] = Bound(crossfit_log, scoring, models, folds, jump)
     done = each(work, [Path(p.source) for p in parts], "cross-fitting")
     return cross_fitted(calibration, done, fast, jump)
