@@ -182,9 +182,29 @@ def command(func: Callable[..., Any]) -> Callable[..., Any]:
         except TYPER_EXITS:
             raise
         except Exception as exc:
+            stop = _stopped_by(exc)
+            if stop is not None:  # a signal that landed where Python wraps what it raises
+                sys.stderr.write(f"twincd: {'terminated' if stop == 143 else 'interrupted'}\n")
+                raise typer.Exit(stop) from None
             fail(InternalError.from_exception(exc), debug)
 
     return wrapper
+
+
+def _stopped_by(exc: BaseException) -> int | None:
+    """143 or 130 when ``exc`` was caused by SIGTERM (``Terminated``) or Ctrl-C: a signal that
+    arrives while a class is being created comes back wrapped ("Error calling __set_name__"),
+    which is not a defect of twincd. None otherwise."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        seen.add(id(cause))
+        if isinstance(cause, Terminated):
+            return 143
+        if isinstance(cause, KeyboardInterrupt):
+            return 130
+        cause = cause.__cause__ or cause.__context__
+    return None
 
 
 class _QuietStdout:

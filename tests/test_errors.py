@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 import typer
-from twincd_cli.common import fail, flag_hint
+from twincd_cli.common import command, fail, flag_hint
 
-from twincd.errors import LogReadError, RobotModelError, TwincdError, UsageError
+from twincd.errors import LogReadError, RobotModelError, Terminated, TwincdError, UsageError
 
 LIBRARY = Path(__file__).resolve().parents[1] / "twincd"
 # a command-line flag: -c, --robot (not "non-negative", "IV-B", "{n}-sample")
@@ -169,3 +169,19 @@ def test_fail_adds_the_flag_on_one_line(
         fail(exc, debug=False)
     assert done.value.exit_code == exc.exit_code
     assert capsys.readouterr().err == line + "\n"
+
+
+@pytest.mark.parametrize(("stop", "code"), [(Terminated(), 143), (KeyboardInterrupt(), 130)])
+def test_a_signal_python_wraps_is_still_the_signal(stop: BaseException, code: int) -> None:
+    """SIGTERM landing while a class is created comes back as "RuntimeError: Error calling
+    __set_name__" (Python wraps it): exit 143 (Ctrl-C: 130), not an internal error's 3."""
+
+    def run_it(quiet: bool = True, debug: bool = False) -> None:
+        try:
+            raise stop
+        except BaseException as inner:
+            raise RuntimeError("Error calling __set_name__ on 'Field' instance 'data'") from inner
+
+    with pytest.raises(typer.Exit) as done:
+        command(run_it)(quiet=True, debug=False)
+    assert done.value.exit_code == code
