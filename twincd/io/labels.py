@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from twincd.errors import LogReadError
 from twincd.io.cdr import BOOL
 from twincd.types import IntArray
 
@@ -23,25 +22,18 @@ OPEN_END = np.iinfo(np.int64).max  # a span still on at the log's last message
 def read_label_spans(path: str | Path, topic: str, strict: bool = False) -> IntArray | None:
     """(k, 2) log times [on, off) of each span the label ``topic`` held True (``OPEN_END``: to
     the end); None: the log lacks ``topic``. ``strict`` as for every reader."""
-    from twincd.io.stream import BoolBatch, TopicReader
+    from twincd.io.links import read_small_topic
+    from twincd.io.stream import BoolBatch
 
-    with TopicReader(Path(path), strict=strict) as reader:
-        msgtype = reader.topics.get(topic)
-        if msgtype is None:
-            return None
-        if msgtype != BOOL:
-            raise LogReadError(
-                f"label topic {topic} is {msgtype}, not {BOOL}",
-                str(path),
-                "pick another label topic",
-                option="label_topic",
-            )
-        times: list[IntArray] = []
-        values: list[np.ndarray] = []
-        for _, batch in reader.batches([topic]):
-            if isinstance(batch, BoolBatch):
-                times.append(batch.log_time_ns)
-                values.append(batch.value)
+    batches = read_small_topic(path, topic, BOOL, "label", strict)
+    if batches is None:
+        return None
+    times: list[IntArray] = []
+    values: list[np.ndarray] = []
+    for batch in batches:
+        if isinstance(batch, BoolBatch):
+            times.append(batch.log_time_ns)
+            values.append(batch.value)
     if not times:
         return np.zeros((0, 2), dtype=np.int64)
     t = np.concatenate(times).astype(np.int64)

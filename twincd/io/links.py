@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,24 +57,38 @@ def read_link_messages(path: str | Path, topic: str, strict: bool = False) -> Li
     Read by the block stream's topic reader, the one every command reads a log with (a log
     that reads for ``detect`` reads here alike); ``strict``: a damaged log is an error, else
     read up to the damage as the joint states were."""
-    from twincd.io.stream import StringBatch, TopicReader
+    from twincd.io.stream import StringBatch
 
-    with TopicReader(Path(path), strict=strict) as reader:
-        msgtype = reader.topics.get(topic)
-        if msgtype is None:
-            return None
-        if msgtype != STRING:
-            raise LogReadError(
-                f"link topic {topic} is {msgtype}, not {STRING}",
-                str(path),
-                "pick another link topic",
-                option="link_topic",
-            )
-        stamps: list[IntArray] = []
-        links: list[str] = []
-        for _, batch in reader.batches([topic]):
-            if isinstance(batch, StringBatch):
-                stamps.append(batch.log_time_ns)
-                links.extend(batch.values)
+    batches = read_small_topic(path, topic, STRING, "link", strict)
+    if batches is None:
+        return None
+    stamps: list[IntArray] = []
+    links: list[str] = []
+    for batch in batches:
+        if isinstance(batch, StringBatch):
+            stamps.append(batch.log_time_ns)
+            links.extend(batch.values)
     times = np.concatenate(stamps) if stamps else np.zeros(0, dtype=np.int64)
     return LinkMessages.of(times, links)
+
+
+def read_small_topic(
+    path: str | Path, topic: str, msgtype: str, what: str, strict: bool = False
+) -> list[Any] | None:
+    """Every batch of a small ``topic`` of type ``msgtype`` (a few messages per push: links,
+    labels), read by the topic reader every command reads a log with; None: the log lacks
+    ``topic``; another type is an error naming the ``what`` topic (``--{what}-topic``)."""
+    from twincd.io.stream import TopicReader
+
+    with TopicReader(Path(path), strict=strict) as reader:
+        found = reader.topics.get(topic)
+        if found is None:
+            return None
+        if found != msgtype:
+            raise LogReadError(
+                f"{what} topic {topic} is {found}, not {msgtype}",
+                str(path),
+                f"pick another {what} topic",
+                option=f"{what}_topic",
+            )
+        return [batch for _, batch in reader.batches([topic])]
