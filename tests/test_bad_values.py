@@ -157,6 +157,61 @@ def test_corrupt_rows_do_not_move_a_threshold(tmp_path: Path) -> None:
     assert abs(values[0] / values[1] - 1) < 0.05, values
 
 
+def start_garbage(msg: Any, shift: tuple[float, ...]) -> None:
+    """What a real UR10e's recorder published between its first real rows: another state,
+    every value within the limits (joints 1.5 rad away), efforts of 250 N·m."""
+    msg.position = msg.position + np.resize(np.array(shift), len(msg.position))
+    msg.effort = np.full_like(msg.effort, 250.0)
+
+
+def test_rows_jumping_within_the_limits_are_dropped(tmp_path: Path) -> None:
+    """A recorder's start-up rows, within every limit but 1.5 rad from the real ones and back
+    (a real UR10e log's first 0.2 s, once its only false alarm): dropped and named as jumps;
+    the events, at the defaults and at --causal, are the clean log's."""
+    shifts = [(1.5, -1.5, 0.0), (0.0, 1.5, -1.5), (-1.5, 0.0, 1.5)]
+    edits = {
+        i: (lambda m, s=shifts[k % 3]: start_garbage(m, s))
+        for k, i in enumerate((1, 3, 4, 6, 9, 10, 14))
+    }
+    log = glitched(PRESSES, tmp_path / "start.mcap", edits)
+    same = rewrite(PRESSES, tmp_path / "same.mcap")
+    for cal in (CALIBRATION, CAUSAL):
+        docs = [strict_json(run("detect", p, "-c", cal, "--json").stdout) for p in (log, same)]
+        (line,) = [w for w in docs[0]["warnings"] if "absurd" in w]
+        assert "dropping 7 sample(s)" in line and "positions jumping faster than" in line
+        spans = [[(e["start_ns"], e["end_ns"]) for e in d["logs"][0]["events"]] for d in docs]
+        assert spans[0] and spans[0] == spans[1]
+    absurd = strict_json(run("inspect", log, "--json").stdout)["logs"][0]["absurd"]
+    assert absurd["samples"] == 7 and absurd["times_s"][0] == pytest.approx(0.01)
+    assert set(absurd["joints"]) == {"jump"}
+
+
+def test_a_stream_that_starts_with_a_glitch_is_kept_from_the_run_after_it() -> None:
+    """The first sample, with nothing before it, is kept on the bounds alone; when it was a
+    glitch within the limits, the samples after it are dropped as jumps only until ``STEP_RUN``
+    of them move consistently, and kept from there, in any chunking; real motion at twice a
+    joint's velocity limit, or a continuous joint's wrap, is never a jump."""
+    from twincd.signal.bounds import STEP_RUN, SampleBounds
+
+    n = 200
+    stamps = np.arange(n, dtype=np.int64) * 10_000_000
+    t = stamps * 1e-9
+    q = np.stack([0.3 * np.sin(t), 2.0 * t - 2.0, np.unwrap(4.0 * t) % (2 * np.pi) - np.pi], 1)
+    q[0, 0] += 1.5  # the glitch
+    limits = {"a": (-3.0, 3.0), "b": (-3.0, 3.0)}  # c: continuous
+    speeds = {"a": 1.0, "b": 1.0, "c": 1.0}  # b moves at twice its limit
+
+    def keep(edges: list[int]) -> np.ndarray:
+        bounds = SampleBounds("abc", limits, speeds, {})
+        parts = [slice(a, b) for a, b in zip([0, *edges], [*edges, n], strict=True)]
+        return np.concatenate([bounds.keep(stamps[p], position=q[p]) for p in parts])
+
+    whole = keep([])
+    assert whole[0] and not whole[1:STEP_RUN].any() and whole[STEP_RUN:].all()
+    for edges in ([1], [2, 3], [4, 5, 6], list(range(1, 20))):
+        np.testing.assert_array_equal(keep(edges), whole)
+
+
 # ---------------------------------------------------------------- batch = causal = live
 
 

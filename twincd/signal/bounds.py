@@ -62,8 +62,14 @@ EFFORT_BOUND = 20.0  # × the effort limit (URDF limits are often nominal: a rea
 FALLBACK_VELOCITY = 10.0  # rad/s: a joint whose model gives no velocity limit
 FALLBACK_EFFORT = 1000.0  # N·m: a joint whose model gives no effort limit
 EXAMPLES = 8  # times of dropped samples kept for the warning and inspect
+# a jump within the limits: further than the margin plus STEP_SPEED × the velocity limit × the
+# time since the last sample kept; STEP_RUN samples each within a step of the one before re-anchor
+STEP_SPEED = 2.0
+STEP_MARGIN = 0.1  # rad
+STEP_RUN = 5
 
 CHANNELS = ("position", "velocity", "effort", "sim_effort")
+KINDS = (*CHANNELS, "jump")  # the kinds of absurd value named (``Dropped.joints``)
 
 
 @dataclass
@@ -141,6 +147,13 @@ class SampleBounds:
         }
         self._jump = {"position": margin, "velocity": speed, "effort": effort, "sim_effort": effort}
         self._speed = speed  # the position's allowance per second since the last kept sample
+        # the jump within the limits: per joint with limits, the band where it is judged and
+        # the allowance per second (NaN bounds: a joint without limits is never judged)
+        self._step_low = np.where(limited, lower - STEP_MARGIN, np.nan)
+        self._step_high = np.where(limited, upper + STEP_MARGIN, np.nan)
+        self._step_speed = STEP_SPEED * _limit(velocity_limits or {}, names, FALLBACK_VELOCITY)
+        self._run = 0  # samples read up to the last, each within a step of the one before
+        self._last_dropped = False  # the last sample read was dropped
         self._kept: dict[str, FloatArray] | None = None  # the last sample kept, per channel
         self._kept_ns = 0
         self._read: dict[str, FloatArray] | None = None  # the last sample read, per channel
@@ -161,11 +174,14 @@ class SampleBounds:
         # each column's extremes first (a read of the block, no temporaries): the usual block
         # lies within every bound, and no row needs a look of its own
         beyond = {c: self._beyond(c, v) for c, v in columns.items() if self._outside(c, v)}
-        if beyond:
-            suspects = np.zeros(n, dtype=bool)
+        stepped, run = self._steps(stamp_ns, columns.get("position"))
+        if beyond or stepped.any() or self._last_dropped:
+            must = stepped.copy()  # judged one by one
+            must[0] |= self._last_dropped  # its previous sample is gone: judged alone
+            suspects = must.copy()
             for b in beyond.values():
                 suspects |= b.any(axis=1)
-            ok = self._judge(stamp_ns, columns, beyond, np.flatnonzero(suspects))
+            ok = self._judge(stamp_ns, columns, beyond, (suspects, must), run)
         effort = columns.get("effort")
         if self.drives_off and effort is not None:
             ok &= ~self._off_rows(stamp_ns, effort, ok)
@@ -176,7 +192,37 @@ class SampleBounds:
             self._kept_ns = int(stamp_ns[last])
         self._read = {c: v[-1].copy() for c, v in columns.items()}
         self._read_ns = int(stamp_ns[-1])
+        self._last_dropped = not bool(ok[-1])
         return ok
+
+    def _steps(self, stamp_ns: IntArray, position: FloatArray | None) -> tuple[BoolArray, IntArray]:
+        """(n,) the samples that jumped (``_stepped``) from the sample read before them, and (n,)
+        how many samples up to each were read each within a step of the one before (itself
+        counted; carried from the last block)."""
+        n = len(stamp_ns)
+        run = np.arange(1, n + 1) + self._run
+        stepped: BoolArray = np.zeros(n, dtype=bool)
+        if position is not None and np.isfinite(self._step_low).any():
+            before = self._read.get("position") if self._read else None
+            prev = np.vstack([position[:1] if before is None else before[None], position[:-1]])
+            prev_ns = np.r_[self._read_ns if before is not None else stamp_ns[0], stamp_ns[:-1]]
+            dt = np.maximum(stamp_ns - prev_ns, 0).astype(np.float64)[:, None] * 1e-9
+            stepped = np.asarray(self._stepped(position, prev, dt).any(axis=1))
+            if stepped.any():
+                starts = np.maximum.accumulate(np.where(stepped, np.arange(n), -1))
+                run = np.where(starts >= 0, np.arange(n) - starts + 1, run)
+        self._run = int(run[-1]) if n else self._run
+        return stepped, run
+
+    def _stepped(self, values: FloatArray, ref: FloatArray, dt_s: FloatArray | float) -> BoolArray:
+        """Where a joint with limits, within them on ``values`` and ``ref``, lies further from
+        ``ref`` than ``STEP_MARGIN`` plus ``STEP_SPEED`` × its velocity limit over ``dt_s``."""
+        low, high = self._step_low, self._step_high
+        with np.errstate(invalid="ignore"):  # NaN: no limits, or no value
+            inside = (values >= low) & (values <= high) & (ref >= low) & (ref <= high)
+            far = np.abs(values - ref) > STEP_MARGIN + self._step_speed * dt_s
+        out: BoolArray = inside & far
+        return out
 
     def _off_rows(self, stamp_ns: IntArray, effort: FloatArray, ok: BoolArray) -> BoolArray:
         """The rows (among ``ok``) whose efforts are all exactly 0, their spans noted."""
@@ -228,12 +274,15 @@ class SampleBounds:
         stamp_ns: IntArray,
         columns: dict[str, FloatArray],
         beyond: dict[str, BoolArray],
-        suspects: IntArray,
+        suspects: tuple[BoolArray, BoolArray],
+        run: IntArray,
     ) -> BoolArray:
-        """Rows beyond a bound: dropped when the value also jumped from the last sample kept
-        (rows within every bound are always kept). A suspect row whose previous row is kept and
-        within a jump of it is kept without a look of its own (a log in other units is such a
-        run), so only rows after a jump or after a dropped row are judged one by one."""
+        """Rows beyond a bound: dropped when the value also jumped from the last sample kept;
+        rows that jumped within the limits (``_stepped``) from it, unless ``run`` says they end
+        a run of steady samples. A row beyond a bound whose previous row is kept and within a
+        jump of it is kept without a look of its own (a log in other units is such a run), so
+        only rows after a jump or after a dropped row are judged one by one. ``suspects``: the rows
+        that may be dropped, and those among them judged one by one whatever the look says."""
         n = len(stamp_ns)
         ok = np.ones(n, dtype=bool)
         steady = np.zeros(n, dtype=bool)  # within a jump of the previous row on every bound
@@ -242,7 +291,8 @@ class SampleBounds:
             v = columns[c]
             steady[1:] |= (out[1:] & self._far(c, v[1:], v[:-1], dt)).any(axis=1)
         steady[1:] = ~steady[1:]
-        visit = [int(i) for i in suspects if not steady[i]]
+        maybe, must = suspects
+        visit = np.flatnonzero(maybe & (~steady | must)).tolist()
         heapq.heapify(visit)
         popped, last_kept = -1, -1  # the last row judged, and the last row kept up to it
         while visit:
@@ -260,10 +310,15 @@ class SampleBounds:
                     joints = joints & self._far(c, columns[c][i], ref[c], dt_i)
                 if joints.any():
                     bad[c] = np.flatnonzero(joints).tolist()
+            if "position" in ref and "position" in columns and run[i] < STEP_RUN:
+                dt_i = max(int(stamp_ns[i]) - ref_ns, 0) * 1e-9
+                jumped = self._stepped(columns["position"][i], ref["position"], dt_i)
+                if jumped.any():
+                    bad["jump"] = np.flatnonzero(jumped).tolist()
             if bad:
                 ok[i] = False
                 self._note(int(stamp_ns[i]), bad)
-                if i + 1 < n and steady[i + 1] and any(b[i + 1].any() for b in beyond.values()):
+                if i + 1 < n:
                     heapq.heappush(visit, i + 1)  # its previous row is gone: judge it alone
             popped, last_kept = i, i if ok[i] else before
         return ok
@@ -308,10 +363,9 @@ class SampleBounds:
             "velocity": f"velocities over {VELOCITY_BOUND:g} × the velocity limit",
             "effort": f"efforts over {EFFORT_BOUND:g} × the effort limit",
             "sim_effort": f"twin efforts over {EFFORT_BOUND:g} × the effort limit",
+            "jump": f"positions jumping faster than {STEP_SPEED:g} × the velocity limit",
         }
-        kinds = "; ".join(
-            f"{what[c]} on {', '.join(d.joints[c])}" for c in CHANNELS if c in d.joints
-        )
+        kinds = "; ".join(f"{what[c]} on {', '.join(d.joints[c])}" for c in KINDS if c in d.joints)
         more = ", …" if d.samples > len(d.times_s) else ""
         times = ", ".join(f"{t:.3f}" for t in d.times_s)
         return (
