@@ -87,7 +87,7 @@ ThresholdOut = Annotated[
 def fit_table(cal: Calibration) -> Table:
     held = cal.fit.held or ((),) * len(cal.joint_names)
     c = cal.model.coefficients()
-    a, b, cs, ds, eps = c["a"], c["b"], c["c"], c["d"], c["epsilon"]
+    a, b, cs, ds, eps = c["a"], c["b"], c.get("c"), c.get("d"), c.get("epsilon")
     assert a is not None and b is not None
     caption = (
         "* held: not determined by these logs' motion (see the warning above); θ*: the "

@@ -231,7 +231,7 @@ def test_broken_theta_is_refused(identified_cal: Path) -> None:
     with refused(doc, "lacks its coefficient") as missing:
         for coeff in missing["model"]["joints"].values():
             del coeff["theta"]
-    with refused(doc, "only identified models") as stray:
+    with refused(doc, "theta, which it does not learn") as stray:
         stray["model"]["kind"] = "friction-whitened"
 
 

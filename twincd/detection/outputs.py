@@ -1,8 +1,8 @@
 """Per-sample detection outputs, written while a log streams (contract: Topics twincd writes): the
-input copied
-losslessly into MCAP plus ``/twincd/residual``, ``/twincd/score``, ``/twincd/collision`` and
-``/twincd/event`` channels, or one CSV/JSONL row per sample. Every output is written to a
-temporary file and renamed into place only when the log has been processed completely."""
+input copied losslessly into MCAP plus twincd's channels (``twincd.detection.channels``:
+``/twincd/residual``, ``/twincd/score``, ``/twincd/collision`` and ``/twincd/event``), or one
+CSV/JSONL row per sample with those channels' columns. Every output is written to a temporary
+file and renamed into place only when the log has been processed completely."""
 
 from __future__ import annotations
 
@@ -12,22 +12,24 @@ import io
 import json
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, Any
 
 import numpy as np
 
+from twincd.detection.channels import (
+    COLLISION_TOPIC,
+    EVENT_TOPIC,
+    RESIDUAL_TOPIC,
+    SAMPLE_CHANNELS,
+    SCORE_TOPIC,
+    event_payloads,
+    table_columns,
+    table_header,
+)
 from twincd.detection.detect import LogDetection
 from twincd.detection.events import Event
 from twincd.errors import OutputError, UsageError
 from twincd.prepare.frames import Frame, FrameSink
-
-if TYPE_CHECKING:
-    pass
-
-RESIDUAL_TOPIC = "/twincd/residual"
-SCORE_TOPIC = "/twincd/score"
-COLLISION_TOPIC = "/twincd/collision"
-EVENT_TOPIC = "/twincd/event"
 
 OUTPUT_SUFFIXES = (".mcap", ".csv", ".jsonl")
 
@@ -156,91 +158,60 @@ class McapSink:
         from twincd.io.mcap import AugmentedMcap
 
         self.joint_names = list(joint_names)
-        replaced = (RESIDUAL_TOPIC, SCORE_TOPIC, COLLISION_TOPIC, EVENT_TOPIC)
+        replaced = (*(c.topic for c in SAMPLE_CHANNELS), EVENT_TOPIC)
         self._out = AugmentedMcap(source, target, replaced, output="detect", partial=partial)
 
     def __enter__(self) -> McapSink:
-        from twincd.io.cdr import JOINT_STATE
+        from twincd.io.cdr import STRING
 
         self._out.__enter__()
-        self._residual = self._out.add_channel(RESIDUAL_TOPIC, JOINT_STATE)
-        self._score = self._out.add_channel(SCORE_TOPIC, "std_msgs/msg/Float64")
-        self._collision = self._out.add_channel(COLLISION_TOPIC, "std_msgs/msg/Bool")
-        self._event = self._out.add_channel(EVENT_TOPIC, "std_msgs/msg/String")
+        self._channels = [self._out.add_channel(c.topic, c.msgtype) for c in SAMPLE_CHANNELS]
+        self._event = self._out.add_channel(EVENT_TOPIC, STRING)
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self._out.__exit__(*exc)
 
     def write(self, frame: Frame, events: list[Event]) -> None:
-        from twincd.io.cdr import bool_block, float64_block, joint_state_block, serialize
-
         if frame.n:
             t = frame["log_time_ns"]
-            residual = joint_state_block(
-                frame["stamp_ns"],
-                self.joint_names,
-                frame["position"],
-                frame["velocity"],
-                frame["residual"],
-            )
-            self._out.write(self._residual, t, residual)
-            # Float64 and Bool have no header: their log time ties them to the sample
-            self._out.write(self._score, t, float64_block(frame["score"]))
-            self._out.write(self._collision, t, bool_block(frame["flag"]))
+            for channel, cid in zip(SAMPLE_CHANNELS, self._channels, strict=True):
+                self._out.write(cid, t, channel.encode(frame, self.joint_names))
         if events:
-            from twincd.io.cdr import typestore
-
-            string = typestore().types["std_msgs/msg/String"]
-            payloads = [
-                serialize(string(data=json.dumps(e.to_dict())), "std_msgs/msg/String")
-                for e in events
-            ]
             # an event is published when it ends: at its last sample's time
             times = np.array([e.end_ns for e in events], dtype=np.int64)
-            self._out.write(self._event, times, payloads)
-
-
-def _columns(joint_names: Sequence[str]) -> list[str]:
-    return ["stamp_ns", "score", "collision"] + [f"residual_{n}" for n in joint_names]
+            self._out.write(self._event, times, event_payloads(events))
 
 
 class CsvSink:
-    """One CSV row per sample; collision as 0/1 so that any tool reads it."""
+    """One CSV row per sample (``table_header``'s columns); a flag as 0/1 so that any tool
+    reads it, every float as Python writes it back exactly."""
 
     def __init__(self, text: IO[str], joint_names: Sequence[str]) -> None:
         self._writer = csv.writer(text, lineterminator="\n")
-        self._writer.writerow(_columns(joint_names))
-
-    def write(self, frame: Frame, events: list[Event]) -> None:
-        if not frame.n:
-            return
-        rows = zip(
-            frame["stamp_ns"].tolist(),
-            map(repr, frame["score"].tolist()),
-            frame["flag"].astype(int).tolist(),
-            *(map(repr, col) for col in frame["residual"].T.tolist()),
-            strict=True,
-        )
-        self._writer.writerows(rows)
-
-
-class JsonlSink:
-    """One JSON object per sample."""
-
-    def __init__(self, text: IO[str], joint_names: Sequence[str]) -> None:
-        self._text = text
-        self._keys = _columns(joint_names)
+        self._writer.writerow(table_header(joint_names))
 
     def write(self, frame: Frame, events: list[Event]) -> None:
         if not frame.n:
             return
         columns = [
-            frame["stamp_ns"].tolist(),
-            frame["score"].tolist(),
-            frame["flag"].tolist(),
-            *frame["residual"].T.tolist(),
+            map(repr, c.tolist()) if c.dtype.kind == "f" else c.astype(np.int64).tolist()
+            for c in table_columns(frame)
         ]
+        self._writer.writerows(zip(*columns, strict=True))
+
+
+class JsonlSink:
+    """One JSON object per sample, keyed by ``table_header``'s columns."""
+
+    def __init__(self, text: IO[str], joint_names: Sequence[str]) -> None:
+        self._text = text
+        self._keys = table_header(joint_names)
+
+    def write(self, frame: Frame, events: list[Event]) -> None:
+        if not frame.n:
+            return
+        columns = [c.tolist() for c in table_columns(frame)]
         for values in zip(*columns, strict=True):
             self._text.write(json.dumps(dict(zip(self._keys, values, strict=True))) + "\n")
 

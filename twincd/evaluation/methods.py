@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from twincd.calibration.models.constants import AFFINE
+from twincd.calibration.models.kinds import MODEL_KINDS
 from twincd.errors import UsageError
 from twincd.prepare.setup import PreparedLog
 from twincd.types import BoolArray, FloatArray, IntArray
@@ -25,7 +27,7 @@ if TYPE_CHECKING:
 
 
 # contract: Methods, in the paper's Table II order (ours first)
-METHOD_NAMES = (
+PAPER_METHODS = (
     "proposed",
     "naive-diff",
     "naive-mob",
@@ -34,13 +36,10 @@ METHOD_NAMES = (
     "lstm-mob",
     "window-ocsvm",
     "window-ae",
-    # our own calibration models (contract: The calibration file ``model``), beyond the paper
-    "affine-whitened",
-    "friction",
-    "friction-whitened",
-    "identified",
-    "identified-whitened",
 )
+# then our own calibration models (contract: The calibration file ``model``), beyond the paper:
+# every kind of the models' registry but the paper's (``twincd.evaluation.own.OWN_KINDS``)
+METHOD_NAMES = PAPER_METHODS + tuple(kind for kind in MODEL_KINDS if kind != AFFINE)
 
 
 class MethodSkipped(Exception):
@@ -109,13 +108,9 @@ BUILTIN: dict[str, str] = {
     "lstm-mob": "twincd.evaluation.baselines.lstm:LstmMob",
     "window-ocsvm": "twincd.evaluation.baselines.ocsvm:WindowOcsvm",
     "window-ae": "twincd.evaluation.baselines.autoencoder:WindowAE",
-    "affine-whitened": "twincd.evaluation.own:AffineWhitened",
-    "friction": "twincd.evaluation.own:Friction",
-    "friction-whitened": "twincd.evaluation.own:FrictionWhitened",
-    "identified": "twincd.evaluation.own:Identified",
-    "identified-whitened": "twincd.evaluation.own:IdentifiedWhitened",
 }
-_REGISTRY: dict[str, str] = dict(BUILTIN)
+OWN = "twincd.evaluation.own:model_method"  # a model kind's method: model_method(kind)
+_REGISTRY: dict[str, str] = dict(BUILTIN) | dict.fromkeys(METHOD_NAMES[len(PAPER_METHODS) :], OWN)
 
 
 def register(name: str, target: str) -> None:
@@ -131,8 +126,11 @@ def make_method(name: str, **params: Any) -> ScoringMethod:
             f"unknown method {name!r}", "methods", f"choose from {', '.join(available())}, all"
         )
     module, attr = target.split(":")
-    factory: Callable[..., ScoringMethod] = getattr(importlib.import_module(module), attr)
-    return factory(**params)
+    factory: Callable[..., Any] = getattr(importlib.import_module(module), attr)
+    if target == OWN:
+        factory = factory(name)  # the model kind's class
+    method: ScoringMethod = factory(**params)
+    return method
 
 
 def available() -> list[str]:

@@ -1,9 +1,11 @@
-"""Our own calibration models as ``evaluate`` methods (contract: Methods): each calibration model of
-``twincd.calibration.models`` other than the seed's is a method of the same name, fitted on the
-training logs from the same mergeable statistics as ``twincd fit --model NAME``."""
+"""Our own calibration models as ``evaluate`` methods (contract: Methods): each calibration model
+kind of the registry (``twincd.calibration.models.MODEL_KINDS``) other than the seed's is a method
+of the same name (``model_method``), fitted on the training logs from the same mergeable
+statistics as ``twincd fit --model NAME``."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Any
 
@@ -11,7 +13,9 @@ import numpy as np
 
 from twincd.calibration import Calibration
 from twincd.calibration.models import (
+    AFFINE,
     EPSILON_GRID,
+    MODEL_KINDS,
     ResidualModel,
     depth_order,
     make_model,
@@ -45,6 +49,11 @@ class ModelMethod(ScoringMethod):
 
     def __init__(self, kappa: float | None = None) -> None:
         self.kappa = kappa  # the isolation rule's κ (None: twincd.detection.isolation's)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled by its kind (a kind's class is made by ``model_method``, not a module name):
+        executors send methods to other processes."""
+        return (_restore, (self.model_kind, dict(vars(self))))
 
     def check(self, logs: Sequence[PreparedLog]) -> None:
         cls = model_class(self.model_kind)[0]
@@ -109,16 +118,21 @@ class ModelMethod(ScoringMethod):
         )
 
 
-class AffineWhitened(ModelMethod, kind="affine-whitened"): ...
+# every kind but the seed's plain affine model (that one is ``proposed``, the paper's method)
+OWN_KINDS = tuple(kind for kind in MODEL_KINDS if kind != AFFINE)
 
 
-class Friction(ModelMethod, kind="friction"): ...
+@functools.cache
+def model_method(kind: str) -> type[ModelMethod]:
+    """The ``evaluate`` method of a model kind of ``OWN_KINDS``: ``ModelMethod`` for it."""
+    if kind not in OWN_KINDS:
+        raise KeyError(f"no method of one's own is named {kind!r}")
+    stem = "".join(part.title() for part in kind.split("-"))
+    return type(f"{stem}Method", (ModelMethod,), {"__module__": __name__}, kind=kind)
 
 
-class FrictionWhitened(ModelMethod, kind="friction-whitened"): ...
-
-
-class Identified(ModelMethod, kind="identified"): ...
-
-
-class IdentifiedWhitened(ModelMethod, kind="identified-whitened"): ...
+def _restore(kind: str, state: dict[str, Any]) -> ModelMethod:
+    cls = model_method(kind)
+    method = cls.__new__(cls)
+    vars(method).update(state)
+    return method

@@ -13,7 +13,6 @@ the log time, which is the source's log time, e.g. the bridge's receive time).
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,13 +22,12 @@ import numpy as np
 from mcap.records import Metadata
 
 from twincd.defaults import DEFAULT_SIM_TOPIC
+from twincd.detection.channels import EVENT_TOPIC, SAMPLE_CHANNELS, event_payloads
 from twincd.detection.events import Event
-from twincd.detection.outputs import COLLISION_TOPIC, EVENT_TOPIC, RESIDUAL_TOPIC, SCORE_TOPIC
 from twincd.errors import OutputError
 from twincd.io.atomic import check_target, output_error
-from twincd.io.cdr import JOINT_STATE, STRING, bool_block, float64_block, joint_state_block
+from twincd.io.cdr import JOINT_STATE, STRING, joint_state_block
 from twincd.prepare.frames import Frame
-from twincd.types import BoolArray, FloatArray, IntArray
 from twincd.version import __version__
 
 __all__ = ["FLUSH_S", "SessionRecorder"]
@@ -91,25 +89,15 @@ class SessionRecorder:
         t = np.array([log_time_ns], dtype=np.int64)
         self._out.append(self._channel(topic, msgtype), t, [data])
 
-    def scored(
-        self,
-        stamp_ns: IntArray,
-        log_time_ns: IntArray,
-        position: FloatArray,
-        velocity: FloatArray,
-        residual: FloatArray,
-        score: FloatArray,
-        flag: BoolArray,
-    ) -> None:
-        """twincd's channels for scored samples (each at its joint-state sample's log time)."""
-        if not len(stamp_ns):
+    def scored(self, frame: Frame) -> None:
+        """twincd's channels (``SAMPLE_CHANNELS``, as ``detect -o`` writes them) for a scored
+        frame (``SCORED_COLUMNS``), each message at its joint-state sample's log time."""
+        if not frame.n:
             return
-        res = joint_state_block(stamp_ns, self.joint_names, position, velocity, residual)
-        self._out.append(self._channel(RESIDUAL_TOPIC, JOINT_STATE), log_time_ns, res)
-        score_cid = self._channel(SCORE_TOPIC, "std_msgs/msg/Float64")
-        self._out.append(score_cid, log_time_ns, float64_block(score))
-        flag_cid = self._channel(COLLISION_TOPIC, "std_msgs/msg/Bool")
-        self._out.append(flag_cid, log_time_ns, bool_block(flag))
+        t = frame["log_time_ns"]
+        for channel in SAMPLE_CHANNELS:
+            cid = self._channel(channel.topic, channel.msgtype)
+            self._out.append(cid, t, channel.encode(frame, self.joint_names))
 
     def twin(self, frame: Frame) -> None:
         """``/twincd/sim_effort``: the twin's effort computed live (``stamp_ns``,
@@ -128,12 +116,8 @@ class SessionRecorder:
         """Closed events, one JSON String each, at the log time of their last sample."""
         if not events:
             return
-        from twincd.io.cdr import serialize, typestore
-
-        string = typestore().types[STRING]
-        payloads = [serialize(string(data=json.dumps(e.to_dict())), STRING) for e in events]
         times = np.asarray(log_time_ns, dtype=np.int64)
-        self._out.append(self._channel(EVENT_TOPIC, STRING), times, payloads)
+        self._out.append(self._channel(EVENT_TOPIC, STRING), times, event_payloads(events))
 
     def tick(self) -> None:
         """Flush when the last flush is ``FLUSH_S`` old."""
@@ -142,10 +126,7 @@ class SessionRecorder:
 
     def flush(self) -> None:
         """Every message so far into chunks, and the chunks to disk."""
-        out = self._out
-        for cid in sorted(self._channels.values()):
-            out._flush(cid)
-        out._drain()
+        self._out.flush()
         try:
             self._stream.flush()
         except OSError as exc:

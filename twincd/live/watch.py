@@ -43,6 +43,7 @@ from twincd.live.connect import open_source
 from twincd.live.detector import LiveDetector, Scored
 from twincd.live.samples import REORDER_WINDOW_NS, JointDecoder, Reorder, Sample, Segments
 from twincd.live.source import Arrival, Connection, Source, SourceError, SourceLost, Wanted
+from twincd.prepare.frames import Frame
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
@@ -341,15 +342,18 @@ class _Session:
         if not kept:
             return
         joints = len(self.detector.joint_names)
-        self.recorder.scored(
-            scored.stamp_ns[ok],
-            np.array([r.log_time_ns for r in kept], dtype=np.int64),
-            np.array([r.position for r in kept]).reshape(-1, joints),
-            np.array([r.velocity for r in kept]).reshape(-1, joints),
-            scored.residual[ok],
-            scored.score[ok],
-            scored.flag[ok],
+        frame = Frame(
+            {
+                "stamp_ns": scored.stamp_ns[ok],
+                "log_time_ns": np.array([r.log_time_ns for r in kept], dtype=np.int64),
+                "position": np.array([r.position for r in kept]).reshape(-1, joints),
+                "velocity": np.array([r.velocity for r in kept]).reshape(-1, joints),
+                "residual": scored.residual[ok],
+                "score": scored.score[ok],
+                "flag": scored.flag[ok],
+            }
         )
+        self.recorder.scored(frame)
 
     def _events(self, scored: Scored) -> list[Event]:
         events = scored.events

@@ -39,7 +39,6 @@ from twincd.calibration.models.constants import (
     IDENTIFIED_RIDGE,
     IDENTIFIED_WHITENED,
     MIN_BIN_SAMPLES,
-    MODEL_KINDS,
     SPEED_BINS,
     STATISTICS,
 )
@@ -47,6 +46,7 @@ from twincd.calibration.models.friction import FrictionModel, coulomb_columns
 from twincd.calibration.models.identified import IdentifiedModel
 from twincd.calibration.models.kinds import (
     MODEL_CLASSES,
+    MODEL_KINDS,
     fit_features,
     fit_model,
     make_model,

@@ -53,7 +53,9 @@ class ResidualModel:
     name: ClassVar[str] = AFFINE  # the kind's stem in calibration files
     needs_coulomb: ClassVar[bool] = False  # prepared with the Coulomb features of every ε
     needs_regressor: ClassVar[bool] = False  # prepared with the joint-torque regressor
-    learned: ClassVar[tuple[str, ...]] = ("a", "b", "scale")  # its ``COEFFICIENTS``
+    # what it learns per joint, each a number or a list of numbers (``coefficients``): what a
+    # calibration file holds of it and ``read_model`` reads back
+    learned: ClassVar[tuple[str, ...]] = ("a", "b", "scale")
 
     a_: FloatArray
     b_: FloatArray
@@ -168,17 +170,20 @@ class ResidualModel:
         r2: FloatArray | None = None,
         rmse: FloatArray | None = None,
     ) -> M:
-        """This model fitted with stored ``coefficients`` (``COEFFICIENTS``: those of the kind;
-        what a calibration file holds)."""
+        """This model fitted with stored ``coefficients`` (its ``learned``: what a calibration
+        file holds)."""
         for key in self.learned:
             setattr(self, f"{key}_", coefficients.get(key))
         self.r2_, self.rmse_ = r2, rmse
         return self
 
     def coefficients(self) -> dict[str, FloatArray | None]:
-        """Every field of ``COEFFICIENTS``, None where this kind has none."""
+        """What this kind learns (``learned``), in the file's order (``COEFFICIENTS`` first),
+        None where a model of it has none (a plain model's ``scale``)."""
         self._check()
-        return {key: getattr(self, f"{key}_", None) for key in COEFFICIENTS}
+        keys = [k for k in COEFFICIENTS if k in self.learned]
+        keys += [k for k in self.learned if k not in keys]
+        return {key: getattr(self, f"{key}_", None) for key in keys}
 
     def to_dict(self, joint_names: Sequence[str]) -> dict[str, Any]:
         """The model's block of the calibration file (``model``, read back by ``read_model``):
@@ -191,8 +196,7 @@ class ResidualModel:
 
         def joint(i: int) -> dict[str, Any]:
             out: dict[str, Any] = {}
-            for key in COEFFICIENTS:
-                values = coefficients[key]
+            for key, values in coefficients.items():
                 if values is not None:
                     out[key] = values[i].tolist() if values.ndim == 2 else float(values[i])
             return out

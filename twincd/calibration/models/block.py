@@ -1,5 +1,7 @@
 """The calibration file's ``model`` block read back (``ResidualModel.to_dict`` writes it), every
-number validated."""
+number validated: exactly the coefficients its kind's class learns (``ResidualModel.learned``,
+found through the registry ``kinds.MODEL_CLASSES``), each a number or a list of numbers per joint
+(``scale`` per speed bin and ``theta`` per link checked for their lengths)."""
 
 from __future__ import annotations
 
@@ -9,8 +11,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from twincd.calibration.models.constants import MODEL_KINDS, SPEED_BINS, STATISTICS
-from twincd.calibration.models.kinds import make_model, model_class
+from twincd.calibration.models.constants import SPEED_BINS, STATISTICS
+from twincd.calibration.models.kinds import MODEL_KINDS, make_model, model_class
 from twincd.calibration.values import finite_array, finite_number
 from twincd.errors import CalibrationError
 from twincd.types import FloatArray
@@ -18,17 +20,39 @@ from twincd.types import FloatArray
 if TYPE_CHECKING:
     from twincd.calibration.models.base import ResidualModel
 
+POSITIVE = ("epsilon", "scale")  # coefficients that must be above 0
+SCALARS = ("a", "b", "c", "d", "epsilon")  # one number per joint (another kind's may be lists)
 
-def _optional_column(
+
+def _column(
     coeff: Mapping[str, Any], names: Sequence[str], key: str, where: str
 ) -> FloatArray | None:
-    """A per-joint coefficient that only some models have: all joints or none."""
-    values = [coeff[n].get(key) for n in names]
-    if all(v is None for v in values):
+    """A per-joint coefficient, all joints or none: a number per joint (D,), or a list of
+    numbers of one length per joint (D, K)."""
+    held = [key in coeff[n] for n in names]  # a null value is held, and refused as not a number
+    if not any(held):
         return None
-    if any(v is None for v in values):
+    if not all(held):
         raise ValueError(f"coefficient {key!r} is missing for some joints")
-    return finite_array(values, names, key, where)
+    values = [coeff[n][key] for n in names]
+    if key in SCALARS or not any(isinstance(v, list) for v in values):
+        return finite_array(values, names, key, where)
+    if len({len(v) if isinstance(v, list) else -1 for v in values} - {0}) != 1 or not all(
+        isinstance(v, list) and v for v in values
+    ):
+        raise CalibrationError(
+            f"calibration field {key} is not a number, or a list of numbers of one length, "
+            "for every joint",
+            where,
+            "re-run `twincd fit`",
+        )
+    return np.array(
+        [
+            [finite_number(x, f"{key}[{n}]", where) for x in v]
+            for v, n in zip(values, names, strict=True)
+        ],
+        dtype=np.float64,
+    )
 
 
 def _speed_bins(model: Mapping[str, Any], where: str) -> tuple[float, ...] | None:
@@ -68,7 +92,7 @@ def _scale(
     """The whitening scale: one number per joint (the sum), or one per speed bin (the depth
     statistic), all joints or none."""
     if speed_bins is None:
-        return _optional_column(coeff, names, "scale", where)
+        return _column(coeff, names, "scale", where)
     rows = [coeff[n].get("scale") for n in names]
     bins = len(speed_bins) + 1
     if any(not isinstance(r, list) or len(r) != bins for r in rows):
@@ -116,29 +140,42 @@ def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatA
     )
 
 
-def _require_coefficients(kind: str, extra: Mapping[str, FloatArray | None], where: str) -> None:
+def _learned(
+    kind: str,
+    coeff: Mapping[str, Any],
+    names: Sequence[str],
+    speed_bins: tuple[float, ...] | None,
+    where: str,
+) -> dict[str, FloatArray | None]:
+    """Every coefficient ``kind`` learns (``ResidualModel.learned``), read and checked: none
+    missing (a plain model has no ``scale``), none the kind does not learn."""
     cls, whitened = model_class(kind)
-    needed = (
-        (["c", "d", "epsilon"] if cls.needs_coulomb else [])
-        + (["scale"] if whitened else [])
-        + (["theta"] if cls.needs_regressor else [])
-    )
-    if extra.get("theta") is not None and not cls.needs_regressor:
+    stray = sorted({k for n in names for k in coeff[n]} - set(cls.learned))
+    if stray:
         raise CalibrationError(
-            f"the {kind} model has regressor weights (theta), which only identified models use",
+            f"the {kind} model has coefficient(s) {', '.join(stray)}, which it does not learn "
+            f"(it learns {', '.join(cls.learned)})",
             where,
             "re-run `twincd fit`",
         )
-    missing = [k for k in needed if extra.get(k) is None]
+    read = {"scale": lambda: _scale(coeff, names, speed_bins, where),
+            "theta": lambda: _theta(coeff, names, where)}  # fmt: skip
+    out = {
+        key: read[key]() if key in read else _column(coeff, names, key, where)
+        for key in cls.learned
+    }
+    missing = [k for k, v in out.items() if v is None and (k != "scale" or whitened)]
     if missing:
         raise CalibrationError(
             f"the {kind} model lacks its coefficient(s) {', '.join(missing)}",
             where,
             "re-run `twincd fit`",
         )
-    eps, scale = extra.get("epsilon"), extra.get("scale")
-    if (eps is not None and not np.all(eps > 0)) or (scale is not None and not np.all(scale > 0)):
-        raise CalibrationError("epsilon and scale must be positive", where, "re-run `twincd fit`")
+    if any(not np.all(v > 0) for k, v in out.items() if k in POSITIVE and v is not None):
+        raise CalibrationError(
+            f"{' and '.join(POSITIVE)} must be positive", where, "re-run `twincd fit`"
+        )
+    return out
 
 
 def read_model(
@@ -159,13 +196,7 @@ def read_model(
             where,
             "re-run `twincd fit`",
         )
-    coeff = raw["joints"]
-    a = finite_array([coeff[n]["a"] for n in names], names, "a", where)
-    b = finite_array([coeff[n]["b"] for n in names], names, "b", where)
-    extra = {key: _optional_column(coeff, names, key, where) for key in ("c", "d", "epsilon")}
     speed_bins = _speed_bins(raw, where)
-    extra["scale"] = _scale(coeff, names, speed_bins, where)
-    extra["theta"] = _theta(coeff, names, where)
-    _require_coefficients(str(kind), extra, where)
+    learned = _learned(str(kind), raw["joints"], names, speed_bins, where)
     model = make_model(str(kind), order, SPEED_BINS if speed_bins is None else speed_bins)
-    return model.with_coefficients({"a": a, "b": b, **extra}, r2, rmse)
+    return model.with_coefficients(learned, r2, rmse)

@@ -11,16 +11,6 @@ IDENTIFIED_WHITENED = "identified-whitened"
 FRICTION_WHITENED = "friction-whitened"
 
 
-MODEL_KINDS = (
-    "affine",
-    "affine-whitened",
-    "friction",
-    "friction-whitened",
-    "identified",
-    "identified-whitened",
-)
-
-
 # ε candidates (rad/s) of the Coulomb term tanh(q̇/ε): from a near step to a soft ramp
 EPSILON_GRID: tuple[float, ...] = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 
@@ -49,5 +39,6 @@ STATISTICS = ("sum", "depth")
 IDENTIFIED_RIDGE = 1e-6
 
 
-# the per-joint coefficients a calibration file may hold (``ResidualModel.coefficients``)
+# the order of the per-joint coefficients in a calibration file (``ResidualModel.to_dict``):
+# these first, as earlier files have them, then any other a model kind learns (``learned``)
 COEFFICIENTS = ("a", "b", "c", "d", "epsilon", "scale", "theta")

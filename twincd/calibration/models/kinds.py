@@ -1,4 +1,10 @@
-"""The model kinds by name: their classes, an unfitted model of a kind, what fitting it needs."""
+"""The model kinds by name: their classes, an unfitted model of a kind, what fitting it needs.
+
+``MODEL_CLASSES`` is the one registry: a model kind is its class (``ResidualModel``: its
+``name``, what it ``learned``, what it ``needs_``) and one line here. Every kind comes plain and
+whitened (``MODEL_KINDS``); the file's loader (``block.read_model``), ``fit --model``, the
+``evaluate`` methods of our own models (``twincd.evaluation.own``) and the conformance test
+(``tests/test_model_kinds.py``) read them from here."""
 
 from __future__ import annotations
 
@@ -7,7 +13,7 @@ from collections.abc import Sequence
 from twincd.calibration.affine import AffineStats
 from twincd.calibration.models.affine import AffineModel
 from twincd.calibration.models.base import ResidualModel
-from twincd.calibration.models.constants import EPSILON_GRID, MODEL_KINDS, SPEED_BINS
+from twincd.calibration.models.constants import EPSILON_GRID, SPEED_BINS
 from twincd.calibration.models.friction import FrictionModel
 from twincd.calibration.models.identified import IdentifiedModel
 from twincd.calibration.models.statistics import (
@@ -22,6 +28,11 @@ from twincd.signal.features import ModelFeatures
 MODEL_CLASSES: dict[str, type[ResidualModel]] = {
     cls.name: cls for cls in (AffineModel, FrictionModel, IdentifiedModel)
 }
+
+# every kind as calibration files name it: each class plain, then whitened
+MODEL_KINDS: tuple[str, ...] = tuple(
+    kind for stem in MODEL_CLASSES for kind in (stem, f"{stem}-whitened")
+)
 
 
 def model_class(kind: str) -> tuple[type[ResidualModel], bool]:

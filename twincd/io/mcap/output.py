@@ -290,6 +290,13 @@ class McapOutput(ChannelTable):
         else:
             lane.add_variable(channel_id, times, publish, sequence, payloads, flush)
 
+    def flush(self) -> None:
+        """Every message appended so far into chunks, and every chunk written to the stream
+        (not flushed to disk: the stream's own flush does that)."""
+        for channel_id in sorted(self._lanes):
+            self._flush(channel_id)
+        self._drain()
+
     def _flush(self, channel_id: int) -> None:
         lane = self._lanes.get(channel_id)
         taken = None if lane is None else lane.take()
@@ -299,9 +306,7 @@ class McapOutput(ChannelTable):
 
     def finish(self) -> None:
         """Flush every channel, then DataEnd (with the data CRC), summary and footer."""
-        for channel_id in sorted(self._lanes):
-            self._flush(channel_id)
-        self._drain()  # the data CRC covers every chunk
+        self.flush()  # the data CRC covers every chunk
         self.record(DataEnd(data_section_crc=self._crc))
         summary_start = self.offset
         builder = RecordBuilder()
