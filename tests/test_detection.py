@@ -11,12 +11,13 @@ import pytest
 from conftest import DEFAULT_BUMPS, GAINS, T0_NS, TWIN_JOINTS
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.calibrations import threshold_prepared_logs
+from support.streaming import write_detection
 
 from twincd.calibration import Calibration, Threshold
-from twincd.calibration.threshold import ScoreStats, threshold_prepared_logs
+from twincd.calibration.threshold import ScoreStats
 from twincd.commands import detect_file, fit_calibration
 from twincd.detection import affine_score, detect_log, find_events, residual, runs
-from twincd.detection.outputs import write_detection
 from twincd.errors import DataError, NotFittedError, OutputError
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.proposed import ProposedMethod

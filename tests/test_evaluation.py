@@ -9,9 +9,9 @@ from dataclasses import fields, replace
 
 import numpy as np
 import pytest
+from support.calibrations import threshold_prepared_logs
 
 from twincd.calibration import Threshold
-from twincd.calibration.threshold import threshold_prepared_logs
 from twincd.commands import fit_calibration
 from twincd.detection import detect_log
 from twincd.errors import DataError, UsageError

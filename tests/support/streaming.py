@@ -103,3 +103,25 @@ def pushed(detector: Any, states: Any, slices: list[slice], sim_effort: Any = No
         )
         for sl in slices
     ]
+
+
+def write_detection(result: Any, source: Path, target: Path) -> None:
+    """A whole-log detection (``twincd.detection.detect_log``'s ``LogDetection``) written to
+    ``target`` through ``detect``'s streaming sinks (``open_sink``), as one frame."""
+    from twincd.detection.outputs import open_sink
+    from twincd.prepare.frames import Frame
+
+    states = result.log.states
+    frame = Frame(
+        {
+            "stamp_ns": states.stamp_ns,
+            "log_time_ns": states.log_time_ns,
+            "position": states.position,
+            "velocity": states.velocity,
+            "residual": result.residual,
+            "score": result.scores,
+            "flag": result.flags,
+        }
+    )
+    with open_sink(source, target, result.log.joint_names) as sink:
+        sink.write(frame, result.events)

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from twincd.calibration import Calibration, Threshold, clean_mask, clean_rows
+from twincd.calibration import Calibration, Threshold, clean_rows
 from twincd.calibration.clean import (
     HISTOGRAM_BINS,
     HISTOGRAM_LOW,
@@ -28,7 +28,7 @@ from twincd.calibration.clean import (
     LabelMargin,
 )
 from twincd.calibration.clean import ScoreStats as ScoreStats
-from twincd.calibration.models import depth_noise_median, model_inputs
+from twincd.calibration.models import depth_noise_median
 from twincd.calibration.score import BandLevel
 from twincd.calibration.tail import (
     MIN_PEAKS,
@@ -41,7 +41,7 @@ from twincd.calibration.tail import (
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.prepare.frames import Derived, Frame
-from twincd.prepare.setup import PreparedLog, Setup
+from twincd.prepare.setup import Setup
 from twincd.signal.edges import edge_scaled
 from twincd.types import BoolArray, FloatArray, IntArray
 
@@ -436,33 +436,6 @@ def _with_levels(calibration: Calibration, per_band: Sequence[Threshold]) -> Cal
         levels = tuple(BandLevel(th.mu, th.value) for th in per_band)
         score = replace(score, levels=levels)
     return replace(calibration, threshold=per_band[0], score=score)
-
-
-def threshold_prepared_logs(
-    logs: Iterable[PreparedLog],
-    calibration: Calibration,
-    k_sigma: float | None = None,
-    false_alarms_per_hour: float | None = None,
-) -> Calibration:
-    """The threshold from logs already prepared in memory (a fit's filtered inputs, or prepared
-    for the calibration's model), by the rules of ``threshold_from_parts``."""
-    parts = []
-    model, score = calibration.model, calibration.score
-    for lg in logs:
-        velocity = lg.states.velocity
-        residual = lg.residual if lg.residual is not None else model.residual(model_inputs(lg))
-        bands, _ = score.band_scores(
-            model, residual, velocity, lg.residual_fast, lg.edge_factor, lg.fast_off
-        )
-        period = lg.period_s or float(np.median(np.diff(lg.states.stamp_ns))) * 1e-9
-        counter = BandCounter(period, score.bands)
-        counter.push(lg.states.stamp_ns, bands, score.combine(bands), lg.labels)
-        judged = edge_scaled(residual, lg.edge_factor)
-        noise = NoiseRatio.from_residual(model.in_noise_units(judged, velocity), clean_mask(lg))
-        stats = counter.finish()
-        parts.append(LogScores(lg.source, stats, len(lg), noise, counter.combined))
-    # evaluate's thresholds: logs the calibration does not fit are said, and judged all the same
-    return threshold_from_parts(parts, calibration, k_sigma, false_alarms_per_hour, refuse=False)
 
 
 def same_rule(calibration: Calibration) -> tuple[float | None, float | None]:

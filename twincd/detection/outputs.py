@@ -26,7 +26,6 @@ from twincd.detection.channels import (
     table_columns,
     table_header,
 )
-from twincd.detection.detect import LogDetection
 from twincd.detection.events import Event
 from twincd.errors import OutputError, UsageError
 from twincd.prepare.frames import Frame, FrameSink
@@ -216,24 +215,6 @@ class JsonlSink:
             self._text.write(json.dumps(dict(zip(self._keys, values, strict=True))) + "\n")
 
 
-def write_detection(result: LogDetection, source: Path, target: Path) -> None:
-    """Write a whole-log detection to ``target`` (same formats as streaming detection)."""
-    states = result.log.states
-    frame = Frame(
-        {
-            "stamp_ns": states.stamp_ns,
-            "log_time_ns": states.log_time_ns,
-            "position": states.position,
-            "velocity": states.velocity,
-            "residual": result.residual,
-            "score": result.scores,
-            "flag": result.flags,
-        }
-    )
-    with open_sink(source, target, result.log.joint_names) as sink:
-        sink.write(frame, result.events)
-
-
 __all__ = [
     "COLLISION_TOPIC",
     "DETECT_SUFFIX",
@@ -250,5 +231,4 @@ __all__ = [
     "log_stem",
     "make_output_folder",
     "open_sink",
-    "write_detection",
 ]
