@@ -46,7 +46,7 @@ from .options import (
 )
 
 if TYPE_CHECKING:
-    from twincd.evaluation.runner import Evaluation
+    from twincd.evaluation.results import Evaluation
 
 CalibrationMaybe = Annotated[
     Path | None,

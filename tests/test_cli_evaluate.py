@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from support.clitools import assert_one_line_error, evaluate_methods, run
 
-from twincd.evaluation.runner import SCORE_KEYS
+from twincd.evaluation.results import SCORE_KEYS
 
 
 @pytest.fixture(scope="module")

@@ -15,9 +15,10 @@ from twincd.calibration import Threshold
 from twincd.commands import fit_calibration
 from twincd.detection import detect_log
 from twincd.errors import DataError, UsageError
-from twincd.evaluation.methods import MethodSkipped, ScoringMethod, register
+from twincd.evaluation.methods import MethodSkipped, ScoringMethod, parse_methods, register
 from twincd.evaluation.metrics import EventCounts, at_threshold, auc, event_counts, f1_sweep
-from twincd.evaluation.runner import SCORE_KEYS, evaluate, parse_methods
+from twincd.evaluation.results import SCORE_KEYS
+from twincd.evaluation.runner import evaluate
 from twincd.evaluation.streamed import judge_log
 from twincd.io.logs import expand_logs
 from twincd.prepare.setup import PreparedLog, Setup

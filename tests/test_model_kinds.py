@@ -16,8 +16,7 @@ from support.streaming import blocks, detect_frames, pushed
 from twincd.calibration import Calibration
 from twincd.calibration.models import MODEL_CLASSES, MODEL_KINDS, model_class, model_inputs
 from twincd.commands import evaluate_logs, fit_calibration, threshold_calibration
-from twincd.evaluation.methods import METHOD_NAMES, available
-from twincd.evaluation.runner import method_for
+from twincd.evaluation.methods import METHOD_NAMES, available, method_for
 from twincd.prepare.setup import Setup
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_logs"

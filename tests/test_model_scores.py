@@ -100,7 +100,8 @@ def test_streamed_evaluate_and_the_report_score_the_calibration_s_own_model(
     shipped: Calibration, change: str
 ) -> None:
     from twincd.commands.detect import detect_and_write
-    from twincd.evaluation.runner import evaluate, method_for
+    from twincd.evaluation.methods import method_for
+    from twincd.evaluation.runner import evaluate
     from twincd.evaluation.streamed import judge_log
 
     other = changed(shipped, change)

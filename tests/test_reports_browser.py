@@ -14,7 +14,7 @@ import pytest
 from support.chromium import Browser, find_chromium
 from support.clitools import run
 
-from twincd.evaluation.runner import method_for
+from twincd.evaluation.methods import method_for
 
 SAMPLE_LOGS = Path(__file__).resolve().parent.parent / "sample_logs"
 

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from twincd.commands.runs import (
     CommandRun,
     Options,
+    Running,
     as_path,
     check_reports,
     input_files,
@@ -24,7 +25,11 @@ if TYPE_CHECKING:
     from typing_extensions import Unpack
 
     from twincd.calibration import Calibration
-    from twincd.evaluation.runner import Evaluation
+    from twincd.evaluation.planner import Mapper, Progress
+    from twincd.evaluation.results import Evaluation
+    from twincd.executors.local import MapExecutor
+    from twincd.executors.run import LogRun
+    from twincd.prepare.setup import Setup
 
 log = logging.getLogger("twincd")
 
@@ -76,17 +81,14 @@ def evaluate_logs(
     ``scheduler``). ``min_f1`` and ``min_auc``: gates (``EvaluateRun.missed``). ``report``,
     ``junit``, ``step_summary`` and ``options`` as ``detect_files``'."""
     from twincd.calibration import Calibration
-    from twincd.evaluation.runner import evaluate, method_for, parse_methods
-    from twincd.executors.cluster import open_executor
     from twincd.executors.local import gathered_warnings
-    from twincd.executors.run import LogRun, all_or_nothing
+    from twincd.executors.run import LogRun
     from twincd.io.logs import expand_logs
 
     with gathered_warnings() as warnings:
         running, settings = split_options(options)
         cal = None if calibration is None else Calibration.given(calibration)
-        text = methods if methods is None or isinstance(methods, str) else ",".join(methods)
-        names = parse_methods(text, method_for(cal.model.kind) if cal is not None else "proposed")
+        names = _method_names(methods, cal)
         test_paths = expand_logs(logs)
         train_paths = expand_logs(train) if train else []
         val_paths = expand_logs(val) if val else []
@@ -95,43 +97,9 @@ def evaluate_logs(
         check_reports(report_path, junit_path, force=force, inputs=inputs)
         setup = setup_options(settings).resolve(cal)
         failed: LogRun[Any] = LogRun()
-
-        def bar(items: Sequence[Any], what: str) -> Iterator[Any]:
-            display = running.progress
-            if display is None:
-                yield from items
-                return
-            with display(len(items), what) as advance:
-                for item in items:
-                    yield item
-                    advance(1, 0)
-
-        every_log = [*test_paths, *train_paths, *val_paths]
-        with open_executor(running.jobs, running.scheduler, every_log) as executor:
-
-            def run(func: Callable[[Path], Any], paths: Sequence[Path], what: str) -> list[Any]:
-                if not paths:
-                    return []
-                done = running.each(func, paths, f"reading {what}", executor=executor)
-                for failure in done.failures:  # with keep_going: reported, the rest goes on
-                    if failure.path not in {f.path for f in failed.failures}:  # once per log
-                        failed.failures.append(failure)
-                return list(done.results)
-
-            result = evaluate(
-                test_paths,
-                names,
-                setup,
-                calibration=cal,
-                train_paths=train_paths,
-                val_paths=val_paths,
-                k_sigma=k_sigma,
-                repeats=repeats,
-                progress=bar,
-                fast_cutoff_hz=settings.get("fast_cutoff_hz"),
-                run=run,
-                batch=max(1, getattr(executor, "workers", 1) or 1),
-            )
+        paths = (test_paths, train_paths, val_paths)
+        asked = (k_sigma, repeats, settings.get("fast_cutoff_hz"))
+        result = _evaluated(running, failed, paths, names, setup, cal, *asked)
         if result.positives == 0:
             log.warning(
                 "no test sample is labelled as a collision: F1 is 0 and AUC undefined "
@@ -139,22 +107,102 @@ def evaluate_logs(
                 setup.options.label_topic,
             )
         missed = result.missed_gates(min_f1, min_auc)
-        with all_or_nothing() as written:  # the report and the JUnit file: both or neither
-            written.extend(p for p in (report_path, junit_path) if p is not None)
-            gates = (min_f1, min_auc)
-            _write_reports(result, missed, cal, report_path, junit_path, step_summary, gates)
-        for m in result.methods:
-            if m.skipped is not None:
-                log.warning("method %s skipped: %s", m.name, m.skipped)
-        if not failed.failures:  # a log that failed is the run's answer, before any gate
-            for line in missed:
-                log.warning("gate missed: %s", line)
+        gates = (min_f1, min_auc)
+        _write_reports(result, missed, cal, report_path, junit_path, step_summary, gates)
+        _warn_skipped_and_missed(result, missed, failed)
     return EvaluateRun(
         evaluation=result,
         missed=missed,
         warnings=tuple(warnings),
         failures=tuple(failed.failures),
     )
+
+
+def _method_names(methods: str | Sequence[str] | None, cal: Calibration | None) -> list[str]:
+    """The methods asked for (none: the calibration's own model, ``proposed`` without one)."""
+    from twincd.evaluation.methods import method_for, parse_methods
+
+    text = methods if methods is None or isinstance(methods, str) else ",".join(methods)
+    return parse_methods(text, method_for(cal.model.kind) if cal is not None else "proposed")
+
+
+def _evaluated(
+    running: Running,
+    failed: LogRun[Any],
+    paths: tuple[list[Path], list[Path], list[Path]],
+    names: list[str],
+    setup: Setup,
+    cal: Calibration | None,
+    k_sigma: float | None,
+    repeats: int,
+    fast_cutoff_hz: float | None,
+) -> Evaluation:
+    """``evaluate`` of the test, training and validation ``paths``, their logs read on one
+    executor (``running``'s: local processes or a Dask cluster), each log that failed (with
+    ``keep_going``) gathered once in ``failed``."""
+    from twincd.evaluation.runner import evaluate
+    from twincd.executors.cluster import open_executor
+
+    test_paths, train_paths, val_paths = paths
+    every_log = [*test_paths, *train_paths, *val_paths]
+    with open_executor(running.jobs, running.scheduler, every_log) as executor:
+        return evaluate(
+            test_paths,
+            names,
+            setup,
+            calibration=cal,
+            train_paths=train_paths,
+            val_paths=val_paths,
+            k_sigma=k_sigma,
+            repeats=repeats,
+            progress=_progress_bar(running),
+            fast_cutoff_hz=fast_cutoff_hz,
+            run=_mapper(running, executor, failed),
+            batch=max(1, getattr(executor, "workers", 1) or 1),
+        )
+
+
+def _progress_bar(running: Running) -> Progress:
+    """``evaluate``'s progress: items passed on through ``running``'s display, if any."""
+
+    def bar(items: Sequence[Any], what: str) -> Iterator[Any]:
+        display = running.progress
+        if display is None:
+            yield from items
+            return
+        with display(len(items), what) as advance:
+            for item in items:
+                yield item
+                advance(1, 0)
+
+    return bar
+
+
+def _mapper(running: Running, executor: MapExecutor, failed: LogRun[Any]) -> Mapper:
+    """``evaluate``'s per-log mapper: ``running.each`` on ``executor``, gathering the logs that
+    failed in ``failed``."""
+
+    def run(func: Callable[[Path], Any], paths: Sequence[Path], what: str) -> list[Any]:
+        if not paths:
+            return []
+        done = running.each(func, paths, f"reading {what}", executor=executor)
+        for failure in done.failures:  # with keep_going: reported, the rest goes on
+            if failure.path not in {f.path for f in failed.failures}:  # once per log
+                failed.failures.append(failure)
+        return list(done.results)
+
+    return run
+
+
+def _warn_skipped_and_missed(result: Evaluation, missed: list[str], failed: LogRun[Any]) -> None:
+    """A warning for each method skipped, then for each gate missed (unless a log failed: that
+    is the run's answer, before any gate)."""
+    for m in result.methods:
+        if m.skipped is not None:
+            log.warning("method %s skipped: %s", m.name, m.skipped)
+    if not failed.failures:  # a log that failed is the run's answer, before any gate
+        for line in missed:
+            log.warning("gate missed: %s", line)
 
 
 def _write_reports(
@@ -166,7 +214,10 @@ def _write_reports(
     step_summary: bool,
     gates: tuple[float | None, float | None],
 ) -> None:
+    """The report and the JUnit file, both or neither (``all_or_nothing``), and the job
+    summary."""
     from twincd.evaluation.markdown import evaluation_markdown
+    from twincd.executors.run import all_or_nothing
     from twincd.reports import (
         append_step_summary,
         calibration_settings,
@@ -175,12 +226,14 @@ def _write_reports(
     )
     from twincd.reports.documents import write_text
 
-    settings = calibration_settings(cal) if cal is not None else []
-    if report is not None:
-        evaluation_report(report, result, missed, settings, gates)
-        log.info("wrote %s", report)
-    if junit is not None:
-        write_text(junit, evaluation_junit(result, *gates))
-        log.info("wrote %s", junit)
-    if step_summary:
-        append_step_summary(evaluation_markdown(result, missed))
+    with all_or_nothing() as written:
+        written.extend(p for p in (report, junit) if p is not None)
+        settings = calibration_settings(cal) if cal is not None else []
+        if report is not None:
+            evaluation_report(report, result, missed, settings, gates)
+            log.info("wrote %s", report)
+        if junit is not None:
+            write_text(junit, evaluation_junit(result, *gates))
+            log.info("wrote %s", junit)
+        if step_summary:
+            append_step_summary(evaluation_markdown(result, missed))

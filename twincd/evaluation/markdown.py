@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # types only: rendering needs neither scikit-learn nor the runner
-    from twincd.evaluation.runner import Evaluation, MethodResult
+    from twincd.evaluation.results import Evaluation, MethodResult
 
 
 def fmt(value: float | None, digits: int = 3) -> str:

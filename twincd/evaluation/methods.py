@@ -3,7 +3,8 @@
 A method is a small estimator in the scikit-learn manner: parameters in ``__init__``,
 ``fit(train_logs)`` returns self and sets attributes ending in ``_``, ``score(log)`` gives one
 anomaly score per unit (sample or window). Thresholds (μ + kσ on validation scores) and metrics
-live outside the method, so every method is judged the same way.
+live outside the method, so every method is judged the same way. Methods are made by name from
+a registry (``make_method``); ``parse_methods`` reads ``--methods``.
 """
 
 from __future__ import annotations
@@ -136,3 +137,27 @@ def make_method(name: str, **params: Any) -> ScoringMethod:
 def available() -> list[str]:
     known = [n for n in METHOD_NAMES if n in _REGISTRY]
     return known + sorted(n for n in _REGISTRY if n not in METHOD_NAMES)
+
+
+def method_for(kind: str) -> str:
+    """The ``evaluate`` method that scores with a calibration model of this kind (the seed
+    paper's affine model is ``proposed``)."""
+    return "proposed" if kind == "affine" else kind
+
+
+def parse_methods(text: str | None, default: str = "proposed") -> list[str]:
+    """``--methods``: comma-separated names or ``all`` (none given: ``default``, e.g. the
+    calibration's own model, ``method_for(kind)``); unknown names are a usage error."""
+    names = [n.strip() for n in (text or default).split(",") if n.strip()]
+    known = available()
+    if "all" in names:
+        return known
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise UsageError(
+            f"unknown method(s) {', '.join(unknown)}",
+            "methods",
+            f"choose from {', '.join(known)}, all",
+            option="methods",
+        )
+    return list(dict.fromkeys(names))

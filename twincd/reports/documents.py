@@ -25,7 +25,7 @@ from twincd.version import __version__
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.detection.detect import DetectionSummary
-    from twincd.evaluation.runner import Evaluation
+    from twincd.evaluation.results import Evaluation
     from twincd.reports.traces import ThinnedPairs
 
 REPORT_SUFFIXES = (".md", ".html")

@@ -20,7 +20,7 @@ from twincd.errors import UsageError
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.detection.detect import DetectionSummary
-    from twincd.evaluation.runner import Evaluation
+    from twincd.evaluation.results import Evaluation
     from twincd.reports.traces import DetectionTrace, ThinnedPairs
 
 WIDTH_IN = 10.0

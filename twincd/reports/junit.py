@@ -15,7 +15,7 @@ from twincd.reports.tables import event_columns, event_rows
 
 if TYPE_CHECKING:
     from twincd.detection.detect import DetectionSummary
-    from twincd.evaluation.runner import Evaluation
+    from twincd.evaluation.results import Evaluation
 
 
 @dataclass(frozen=True)
