@@ -59,7 +59,8 @@ def synth(
     Example (one hour at 1 kHz): twincd synth long --train 1 --val 0 --test 0 --min-duration
     3600 --max-duration 3600 --rate-hz 1000 --no-rosbag2-copy
     """
-    from twincd.synth.plant import SynthConfig, write_dataset
+    from twincd.synth.config import SynthConfig
+    from twincd.synth.write import write_dataset
 
     if not 0 < min_duration <= max_duration:
         raise UsageError(

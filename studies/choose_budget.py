@@ -104,7 +104,8 @@ def cal_logs(plan: Plan, c: int, root: Path) -> tuple[list[Path], list[Path]]:
 
 
 def make(work: Path, plan: Plan) -> None:
-    from twincd.synth.plant import MotionConfig, SynthConfig, write_path
+    from twincd.synth.config import MotionConfig, SynthConfig
+    from twincd.synth.write import write_path
 
     for seed in plan.seeds:
         root = plant_dir(work, plan, seed)
@@ -551,7 +552,8 @@ def firm(work: Path) -> None:
     """With an hour of clean validation data the tail is measured, not assumed: per plant of
     ``FIRM_SEEDS`` (100 Hz), calibration 1's fit thresholded on a second fresh hour (a path no
     calibration saw) by twincd's rule, judged on the first."""
-    from twincd.synth.plant import MotionConfig, SynthConfig, write_path
+    from twincd.synth.config import MotionConfig, SynthConfig
+    from twincd.synth.write import write_path
 
     plan = PLANS[100]
     rows = []

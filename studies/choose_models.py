@@ -43,7 +43,7 @@ from twincd.io.logs import expand_logs
 from twincd.prepare.setup import PreparedLog, Setup
 from twincd.signal.features import ModelFeatures
 from twincd.signal.filters import FILTER_KINDS, LowPass
-from twincd.synth.plant import contact_torque
+from twincd.synth.contact import contact_torque
 from twincd.twin.robot import child_links
 
 LINKS = ("link3", "link4", "link5", "link6")

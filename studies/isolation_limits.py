@@ -46,7 +46,9 @@ from twincd.detection.isolation import LinkIsolator
 from twincd.evaluation.methods import make_method
 from twincd.evaluation.own import ModelMethod
 from twincd.prepare.setup import Setup
-from twincd.synth.plant import SynthConfig, make_plant, simulate_path
+from twincd.synth.config import SynthConfig
+from twincd.synth.plant import make_plant
+from twincd.synth.simulate import simulate_path
 from twincd.twin.robot import child_links
 
 HELD_OUT_SEEDS = (0, 1)  # sample_logs/ and the full protocol: their test paths are never read

@@ -286,7 +286,8 @@ def test_the_largest_synth_press_survives_the_bound() -> None:
     """Every sample of synth's hardest presses (35 N) is kept, far inside the bound."""
     from twincd.prepare.chain import robot_for, sample_bounds
     from twincd.signal.bounds import EFFORT_BOUND
-    from twincd.synth.plant import SynthConfig, simulate_path
+    from twincd.synth.config import SynthConfig
+    from twincd.synth.simulate import simulate_path
 
     base = SynthConfig()
     strongest = replace(base, collision=replace(base.collision, force_n=(35.0, 35.0)))

@@ -89,7 +89,7 @@ def commands(world: dict[str, Path], out: Path) -> dict[str, tuple[list[Any], li
 POINTS = {
     "reader": ("twincd.io.stream.backends", "McapFile"),
     "twin": ("twincd.twin.dynamics", "inverse_dynamics"),
-    "synth twin": ("twincd.synth.plant", "inverse_dynamics"),
+    "synth twin": ("twincd.synth.simulate", "inverse_dynamics"),
     "filter": ("twincd.signal.filters.LowPass", "sos"),
     "writer": ("twincd.io.atomic._OutputFile", "put"),
     "report": ("twincd.reports", "calibration_settings"),

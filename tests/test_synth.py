@@ -15,16 +15,22 @@ from typer.testing import CliRunner
 
 from twincd.io.cdr import typestore
 from twincd.prepare.setup import read_log
-from twincd.synth import plant as synth
+from twincd.synth.config import CollisionConfig, MotionConfig, SynthConfig
+from twincd.synth.contact import press_force
+from twincd.synth.messages import CONTACT_POINT_TOPIC, CONTACT_TOPIC, LINK_TOPIC, run_messages
+from twincd.synth.motion import flange_positions
+from twincd.synth.plant import make_plant
+from twincd.synth.simulate import SynthRun, path_segments, simulate_path
+from twincd.synth.write import write_dataset, write_mcap, write_path
 from twincd.twin.dynamics import simulate_effort
 
 SAMPLE_LOGS = Path(__file__).resolve().parent.parent / "sample_logs"
 
 # short paths keep the tests fast; everything else is the default plant
 SHORT = replace(
-    synth.SynthConfig(),
-    motion=replace(synth.MotionConfig(), duration_s=(5.0, 6.0)),
-    collision=replace(synth.CollisionConfig(), presses=(2, 3)),
+    SynthConfig(),
+    motion=replace(MotionConfig(), duration_s=(5.0, 6.0)),
+    collision=replace(CollisionConfig(), presses=(2, 3)),
 )
 
 
@@ -37,9 +43,9 @@ def _tree(root: Path) -> dict[str, str]:
 
 
 def test_same_seed_gives_byte_identical_logs(tmp_path: Path) -> None:
-    a = synth.write_dataset(tmp_path / "a", SHORT, seed=3, counts=(1, 1, 1))
-    synth.write_dataset(tmp_path / "b", SHORT, seed=3, counts=(1, 1, 1), jobs=2)
-    synth.write_dataset(tmp_path / "c", SHORT, seed=4, counts=(1, 1, 1))
+    a = write_dataset(tmp_path / "a", SHORT, seed=3, counts=(1, 1, 1))
+    write_dataset(tmp_path / "b", SHORT, seed=3, counts=(1, 1, 1), jobs=2)
+    write_dataset(tmp_path / "c", SHORT, seed=4, counts=(1, 1, 1))
     assert [p.relative_to(tmp_path / "a").as_posix() for p in a] == [
         "train/train_000.mcap",
         "val/val_000.mcap",
@@ -60,9 +66,9 @@ def test_same_seed_gives_byte_identical_logs(tmp_path: Path) -> None:
 
 
 def test_motion_follows_the_paper_protocol() -> None:
-    config = synth.SynthConfig()
-    plant = synth.make_plant(config.plant, 0)
-    run = synth.simulate_path(config, 0, "test", 1)
+    config = SynthConfig()
+    plant = make_plant(config.plant, 0)
+    run = simulate_path(config, 0, "test", 1)
     t = run.t_s
     assert 22.0 <= t[-1] <= 35.0
     assert np.allclose(np.diff(run.stamp_ns), 10_000_000)
@@ -72,8 +78,8 @@ def test_motion_follows_the_paper_protocol() -> None:
     speed = np.rad2deg(np.linalg.norm(run.true_velocity[moving], axis=1).mean())
     assert speed == pytest.approx(30.0, rel=0.03)
     home = np.asarray(config.motion.home)
-    flange = synth._flange_positions(plant.nominal, run.trajectory.position)
-    home_xyz = synth._flange_positions(plant.nominal, home[None])[0]
+    flange = flange_positions(plant.nominal, run.trajectory.position)
+    home_xyz = flange_positions(plant.nominal, home[None])[0]
     assert np.linalg.norm(flange - home_xyz, axis=1).max() <= 0.2
     assert np.array_equal(run.trajectory.position[0], home)
     assert np.array_equal(run.trajectory.position[-1], home)
@@ -83,7 +89,7 @@ def test_motion_follows_the_paper_protocol() -> None:
 
 def test_plant_is_not_the_twin(tmp_path: Path) -> None:
     """Raw twin ≠ measured effort beyond noise; known gains come back from the true dynamics."""
-    plant = synth.make_plant(SHORT.plant, 0)
+    plant = make_plant(SHORT.plant, 0)
     assert not np.allclose(
         [i.mass for i in plant.true.model.inertias], [i.mass for i in plant.nominal.model.inertias]
     )
@@ -92,9 +98,9 @@ def test_plant_is_not_the_twin(tmp_path: Path) -> None:
 
     measured, twin, ideal = [], [], []
     for index in range(3):
-        run = synth.simulate_path(SHORT, 0, "train", index)
+        run = simulate_path(SHORT, 0, "train", index)
         assert not run.presses and np.all(run.tau_ext == 0.0) and not run.label.any()
-        path = synth.write_mcap(run, tmp_path / f"train_{index}.mcap")
+        path = write_mcap(run, tmp_path / f"train_{index}.mcap")
         states = read_log(path)
         assert states.effort is not None and np.array_equal(states.effort, run.effort)
         measured.append(states.effort)
@@ -132,9 +138,9 @@ def _frame_jacobian_torque(
 
 def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path) -> None:
     cfg = SHORT.collision
-    plant = synth.make_plant(SHORT.plant, 0)
+    plant = make_plant(SHORT.plant, 0)
     robot = plant.nominal
-    run = synth.simulate_path(SHORT, 0, "test", 0)
+    run = simulate_path(SHORT, 0, "test", 0)
     touched = [p for p in run.presses if p.touched]
     assert touched and run.contact.any()
     contact = run.contact
@@ -143,7 +149,7 @@ def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path)
 
     t = run.t_s
     for press in touched:
-        magnitude = synth.press_force(press, t)
+        magnitude = press_force(press, t)
         rows = np.flatnonzero(magnitude > 0)
         assert all(run.contact_link[r] == press.link for r in rows)
         assert press.link in cfg.links and cfg.force_n[0] <= press.peak_n <= cfg.force_n[1]
@@ -160,7 +166,7 @@ def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path)
     assert np.all(np.abs(rest) < 6 * plant.noise + 1e-3)
 
     # labels read back from the log line up with the pushes within the configured lead/lag
-    path = synth.write_mcap(run, tmp_path / "test.mcap")
+    path = write_mcap(run, tmp_path / "test.mcap")
     states = read_log(path)
     assert states.labels is not None and np.array_equal(states.labels, run.label)
     period = 0.01
@@ -174,7 +180,7 @@ def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path)
         assert press.label_on_s - 1e-3 <= t[on[0]] <= press.label_on_s + period + 1e-3
         assert press.label_off_s - period - 1e-3 <= t[on[-1]] <= press.label_off_s + 1e-3
         if press.touched:
-            rows = np.flatnonzero(synth.press_force(press, t) > 0)
+            rows = np.flatnonzero(press_force(press, t) > 0)
             assert states.labels[rows].all()
             assert (t[rows[0]] - t[on[0]]) <= cfg.lead_s[1] + period
             assert (t[on[-1]] - t[rows[-1]]) <= cfg.lag_s[1] + period
@@ -182,7 +188,7 @@ def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path)
     # /collision_link names the touched link while the switch is on, "" otherwise
     from twincd.io.links import read_links
 
-    links = read_links(path, synth.LINK_TOPIC, states.log_time_ns)
+    links = read_links(path, LINK_TOPIC, states.log_time_ns)
     assert links is not None and len(links) == len(states.labels)
     named = np.array([bool(x) for x in links])
     assert not (named & ~states.labels).any()
@@ -194,7 +200,7 @@ def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path)
     from rosbags.highlevel import AnyReader
 
     with AnyReader([path], default_typestore=typestore()) as reader:
-        conns = [c for c in reader.connections if c.topic == synth.CONTACT_TOPIC]
+        conns = [c for c in reader.connections if c.topic == CONTACT_TOPIC]
         msgs = [(t_, reader.deserialize(raw, c.msgtype)) for c, t_, raw in reader.messages(conns)]
     by_time = {int(t_): m for t_, m in msgs}
     rows = np.flatnonzero(contact)
@@ -217,13 +223,13 @@ def test_pushes_are_jacobian_transpose_forces_and_labels_line_up(tmp_path: Path)
 
 def test_a_press_that_misses_raises_the_label_only() -> None:
     config = replace(SHORT, collision=replace(SHORT.collision, miss_probability=1.0))
-    run = synth.simulate_path(config, 0, "test", 0)
+    run = simulate_path(config, 0, "test", 0)
     assert run.presses and not any(p.touched for p in run.presses)
     assert run.label.any()
     assert np.all(run.tau_ext == 0.0) and not run.contact.any()
     # the contact topics carry only the initial "nothing touches" message
-    own = [topic for topic, _, _ in synth.run_messages(run) if topic.startswith("/twincd/")]
-    assert sorted(own) == [synth.CONTACT_TOPIC, synth.CONTACT_POINT_TOPIC]
+    own = [topic for topic, _, _ in run_messages(run) if topic.startswith("/twincd/")]
+    assert sorted(own) == [CONTACT_TOPIC, CONTACT_POINT_TOPIC]
 
 
 def test_cli_writes_the_protocol_and_rejects_bad_options(tmp_path: Path) -> None:
@@ -279,21 +285,21 @@ def test_shipped_sample_logs_are_reproduced_by_the_readme_command(tmp_path: Path
 
 # 300 s: past the length one spline could reach (it left the flange's radius somewhere)
 LONG = replace(
-    synth.SynthConfig(),
-    motion=replace(synth.MotionConfig(), duration_s=(300.0, 300.0), rate_hz=50.0),
+    SynthConfig(),
+    motion=replace(MotionConfig(), duration_s=(300.0, 300.0), rate_hz=50.0),
 )
 
 
 @pytest.fixture(scope="module")
-def long_run() -> synth.SynthRun:
-    return synth.simulate_path(LONG, 0, "test", 0)
+def long_run() -> SynthRun:
+    return simulate_path(LONG, 0, "test", 0)
 
 
-def test_a_long_path_is_joined_from_segments_at_rest(long_run: synth.SynthRun) -> None:
+def test_a_long_path_is_joined_from_segments_at_rest(long_run: SynthRun) -> None:
     run, motion = long_run, LONG.motion
     dt = 1.0 / motion.rate_hz
     assert len(run.stamp_ns) == 15_001 and np.all(np.diff(run.stamp_ns) == 20_000_000)
-    segments = list(synth.path_segments(LONG, 0, "test", 0))
+    segments = list(path_segments(LONG, 0, "test", 0))
     assert len(segments) == 9 and all(len(s.stamp_ns) * dt <= motion.segment_s for s in segments)
     # the segments lie back to back on the path's grid, each at rest at home at both ends
     home = np.asarray(motion.home)
@@ -313,22 +319,20 @@ def test_a_long_path_is_joined_from_segments_at_rest(long_run: synth.SynthRun) -
     assert np.rad2deg(np.linalg.norm(traj.velocity[moving], axis=1).mean()) == pytest.approx(
         motion.mean_speed_deg_s, rel=0.1
     )
-    robot = synth.make_plant(LONG.plant, 0).nominal
-    flange = synth._flange_positions(robot, traj.position[::5])
-    assert np.linalg.norm(flange - synth._flange_positions(robot, home[None]), axis=1).max() <= 0.2
+    robot = make_plant(LONG.plant, 0).nominal
+    flange = flange_positions(robot, traj.position[::5])
+    assert np.linalg.norm(flange - flange_positions(robot, home[None]), axis=1).max() <= 0.2
     # presses all along it, as dense as on short paths
     starts = np.array([p.start_s for p in run.presses])
     assert len(starts) >= 5 * len(segments) and starts.max() > 300.0 - motion.segment_s
 
 
-def test_a_long_path_labels_its_presses_across_joins(
-    long_run: synth.SynthRun, tmp_path: Path
-) -> None:
+def test_a_long_path_labels_its_presses_across_joins(long_run: SynthRun, tmp_path: Path) -> None:
     from twincd.io.links import read_links
 
     run = long_run
     path = tmp_path / "long.mcap"
-    assert synth.write_path(LONG, 0, "test", 0, path) == len(run.stamp_ns)
+    assert write_path(LONG, 0, "test", 0, path) == len(run.stamp_ns)
     states = read_log(path)
     assert np.array_equal(states.stamp_ns, run.stamp_ns)
     assert np.array_equal(states.effort, run.effort)
@@ -342,13 +346,13 @@ def test_a_long_path_labels_its_presses_across_joins(
         inner |= (t >= press.label_on_s + period) & (t <= press.label_off_s - period)
         outer |= (t > press.label_on_s - period) & (t < press.label_off_s + period)
         if press.touched:
-            rows = np.flatnonzero(synth.press_force(press, t) > 0)
+            rows = np.flatnonzero(press_force(press, t) > 0)
             assert rows.size and states.labels[rows].all()
             assert {run.contact_link[r] for r in rows} == {press.link}
     assert states.labels[inner].all() and not states.labels[~outer].any()
     # torque only while a hand touches, and never at a join
     assert np.all(run.tau_ext[~run.contact] == 0.0)
-    links = read_links(path, synth.LINK_TOPIC, states.log_time_ns)
+    links = read_links(path, LINK_TOPIC, states.log_time_ns)
     assert links is not None
     for press in run.presses:
         inside = (t >= press.label_on_s + period) & (t <= press.label_off_s - period)
@@ -356,20 +360,18 @@ def test_a_long_path_labels_its_presses_across_joins(
     assert not any(links[i] for i in np.flatnonzero(~outer))
 
 
-def test_long_paths_stream_the_same_bytes_each_time(
-    long_run: synth.SynthRun, tmp_path: Path
-) -> None:
+def test_long_paths_stream_the_same_bytes_each_time(long_run: SynthRun, tmp_path: Path) -> None:
     a, b, c = (tmp_path / f"{n}.mcap" for n in "abc")
-    synth.write_path(LONG, 0, "test", 0, a)
-    synth.write_path(LONG, 0, "test", 0, b)
-    synth.write_mcap(long_run, c)  # the whole path in memory: the same file
+    write_path(LONG, 0, "test", 0, a)
+    write_path(LONG, 0, "test", 0, b)
+    write_mcap(long_run, c)  # the whole path in memory: the same file
     assert a.read_bytes() == b.read_bytes() == c.read_bytes()
     d = tmp_path / "d.mcap"
-    synth.write_path(LONG, 1, "test", 0, d)
+    write_path(LONG, 1, "test", 0, d)
     assert d.read_bytes() != a.read_bytes()
     # train paths have no press and no contact topic
     train = tmp_path / "train.mcap"
-    synth.write_path(LONG, 0, "train", 0, train)
+    write_path(LONG, 0, "train", 0, train)
     states = read_log(train)
     assert len(states.stamp_ns) == 15_001 and states.labels is not None
     assert not states.labels.any()
@@ -392,7 +394,7 @@ def test_short_paths_keep_their_messages(split: str, tmp_path: Path) -> None:
     the installed libraries give other bytes (Pinocchio or numpy differ in a float's last bits,
     as on a fresh install), what the messages say, decoded, floats to 1e-12."""
     target = tmp_path / f"{split}_001.mcap"
-    synth.write_path(synth.SynthConfig(), 0, split, 1, target)
+    write_path(SynthConfig(), 0, split, 1, target)
     made, shipped = _messages(target), _messages(SAMPLE_LOGS / split / f"{split}_001.mcap")
     if made == shipped:
         return

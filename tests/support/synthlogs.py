@@ -13,14 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from twincd.synth.plant import (
-    SynthConfig,
-    SynthRun,
-    make_plant,
-    simulate_path,
-    write_mcap,
-    write_rosbag2,
-)
+from twincd.synth.config import SynthConfig
+from twincd.synth.plant import make_plant
+from twincd.synth.simulate import SynthRun, simulate_path
+from twincd.synth.write import write_mcap, write_rosbag2
 from twincd.twin.dynamics import inverse_dynamics
 
 SEED = 3
