@@ -285,7 +285,7 @@ def test_every_number_is_validated_on_load(tmp_path, field, value, match):
 
 
 def test_finite_array_checks_the_joint_count():
-    from twincd.calibration.file import finite_array
+    from twincd.calibration.values import finite_array
 
     np.testing.assert_array_equal(finite_array([1, 2.5], ("a", "b"), "c", "w"), [1.0, 2.5])
     with pytest.raises(CalibrationError, match=r"1 value\(s\) for 2 joint"):

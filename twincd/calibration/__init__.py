@@ -16,8 +16,6 @@ from twincd.calibration.file import (
     FitInfo,
     Threshold,
     calibration_from_fit,
-    upgrade_v1,
-    upgrade_v2,
 )
 from twincd.calibration.fitting import LogFit, fit_log, merge_fits
 from twincd.calibration.models import (
@@ -29,6 +27,7 @@ from twincd.calibration.models import (
     ResidualModel,
     make_model,
 )
+from twincd.calibration.reading import upgrade_v1, upgrade_v2
 
 __all__ = [
     "SCHEMA",

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -69,6 +69,16 @@ class ChunkRef:
     channels: frozenset[int] | None  # channels with a MessageIndex; None: walk the records
     raw: bool = False
     cut: bool = False  # a chunk cut short by the end of the file: its whole records are read
+
+
+@dataclass
+class _PendingChunk:
+    """A chunk ``McapFile._scan`` found, waiting for the MessageIndex records that follow it."""
+
+    ref: ChunkRef  # its start time, offset and length
+    records: bytes  # its records, decompressed
+    index_end: int  # where the MessageIndex records read so far end
+    indexed: set[int] = field(default_factory=set)  # the channels they index
 
 
 def _channel_from(record: Any, schemas: dict[int, Any]) -> McapChannel:
@@ -137,33 +147,14 @@ class McapFile:
         Stops at the first damage (``self.damage``); every chunk before it stays readable.
         """
         pos = len(MAGIC)
-        chunk: ChunkRef | None = None  # the last chunk, waiting for its MessageIndex records
-        chunk_buf = b""
-        indexed: set[int] = set()
-        index_end = 0
+        chunk: _PendingChunk | None = None  # the last chunk, waiting for its MessageIndex records
         raw_start = raw_time = -1
 
         def close_chunk(trust_index: bool) -> None:
             nonlocal chunk
-            if chunk is None:
-                return
-            index_at = chunk.offset + chunk.length
-            channels = frozenset(indexed) if trust_index and indexed else None
-            if channels is not None and not self._index_covers(chunk_buf, index_at, index_end):
-                channels = None  # the index misses messages: walk this chunk when reading
-            if channels is None:
-                self._walk(chunk_buf, chunk.offset)
-            self.chunks.append(
-                ChunkRef(
-                    chunk.start_time,
-                    chunk.offset,
-                    chunk.length,
-                    index_at,
-                    index_end - index_at,
-                    channels,
-                )
-            )
-            chunk = None
+            if chunk is not None:
+                self._close_chunk(chunk, trust_index)
+                chunk = None
 
         def close_raw(end: int) -> None:
             nonlocal raw_start, raw_time
@@ -197,13 +188,11 @@ class McapFile:
                 if opcode == _CHUNK:
                     body = self._read_at(pos + 9, length)
                     start_time = struct.unpack_from("<Q", body)[0]
-                    chunk = ChunkRef(start_time, pos, 9 + length, 0, 0, None)
-                    chunk_buf = chunk_records(body, pos)
-                    indexed = set()
-                    index_end = end
+                    ref = ChunkRef(start_time, pos, 9 + length, 0, 0, None)
+                    chunk = _PendingChunk(ref, chunk_records(body, pos), end)
                 elif opcode == _MESSAGE_INDEX and chunk is not None:
-                    indexed.add(struct.unpack("<H", self._read_at(pos + 9, 2))[0])
-                    index_end = end
+                    chunk.indexed.add(struct.unpack("<H", self._read_at(pos + 9, 2))[0])
+                    chunk.index_end = end
                 elif opcode == _MESSAGE:
                     log_time = struct.unpack("<Q", self._read_at(pos + 9 + 6, 8))[0]
                     if raw_start < 0:
@@ -224,6 +213,24 @@ class McapFile:
             with contextlib.suppress(McapDamage, struct.error, ValueError):
                 close_chunk(trust_index=False)
             close_raw(pos)
+
+    def _close_chunk(self, chunk: _PendingChunk, trust_index: bool) -> None:
+        """Add a chunk found by ``_scan`` to ``chunks``: read by the channels its MessageIndex
+        records name when they are to be trusted and cover every message in it, else walked now
+        (its Channel and Schema records noted) and walked again when read."""
+        ref = chunk.ref
+        index_at = ref.offset + ref.length
+        channels = frozenset(chunk.indexed) if trust_index and chunk.indexed else None
+        if channels is not None and not self._index_covers(
+            chunk.records, index_at, chunk.index_end
+        ):
+            channels = None  # the index misses messages: walk this chunk when reading
+        if channels is None:
+            self._walk(chunk.records, ref.offset)
+        index_length = chunk.index_end - index_at
+        self.chunks.append(
+            ChunkRef(ref.start_time, ref.offset, ref.length, index_at, index_length, channels)
+        )
 
     def _cut_chunk(self, pos: int) -> None:
         """Keep the whole records of a chunk that the end of the file cuts short, if any."""

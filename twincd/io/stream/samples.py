@@ -31,9 +31,8 @@ emits the older ones in blocks. Rules (contract: Inputs):
 
 from __future__ import annotations
 
-import logging
 from collections import Counter
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -41,9 +40,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from twincd.errors import JointMismatchError, LogReadError, SplitJointsError, TopicError
-from twincd.io.cdr import BOOL, DYNAMIC_JOINT_STATE, JOINT_STATE, CdrStats
+from twincd.errors import LogReadError
+from twincd.io.cdr import CdrStats
 from twincd.io.stream.batch import DEFAULT_BATCH, END, Batch, BoolBatch, JointStateBatch
+from twincd.io.stream.counts import StreamCounts, report_counts
+from twincd.io.stream.head import LogHead
 from twincd.io.stream.parts import (
     Clock,
     Labels,
@@ -62,20 +63,11 @@ if TYPE_CHECKING:
 __all__ = [
     "DEFAULT_BLOCK",
     "DEFAULT_REORDER",
-    "OWN_PREFIX",
     "LogStream",
     "SampleBlock",
-    "StreamCounts",
-    "choose_topic",
     "iter_blocks",
-    "warn_ignored_joints",
 ]
 
-log = logging.getLogger("twincd")
-
-
-OWN_PREFIX = "/twincd/"  # twincd's own channels: never taken for the robot's joint states
-DYNAMIC_TOPIC = "/dynamic_joint_states"  # ros2_control's joint_state_broadcaster publishes here
 DEFAULT_BLOCK = 16384
 DEFAULT_REORDER = 10_000
 
@@ -102,95 +94,18 @@ class SampleBlock:
         return len(self.stamp_ns)
 
 
-@dataclass
-class StreamCounts:
-    """What happened to the JointState messages of a stream."""
-
-    read: int = 0  # messages read on the topic
-    incomplete: int = 0  # dropped: a stream joint missing, or a non-finite position
-    duplicates: int = 0  # dropped: the exact stamp of an earlier sample
-    late: int = 0  # dropped: older than a sample already emitted
-    ragged: int = 0  # dropped: filled arrays whose length differs from the names
-    clock_back: int = 0  # dropped: behind a backward jump of the clock
-    jumps: int = 0  # backward jumps of the clock
-    largest_jump_ns: int = 0
-    samples: int = 0  # emitted
-    unstamped: int = 0  # every header stamp of the topic 0: timed by the log time instead
-    foreign: int = 0  # ignored: messages that carry none of the stream's joints
-    foreign_names: tuple[str, ...] = ()  # the joints those messages name
-    other_publisher: int = 0  # ignored: a second publisher's on the same joints (zeros)
-    named_twice: int = 0  # messages naming a joint twice (its first value kept)
-    twice_names: tuple[str, ...] = ()
-
-    @property
-    def dropped(self) -> int:
-        return (
-            self.incomplete
-            + self.duplicates
-            + self.late
-            + self.ragged
-            + self.clock_back
-            + self.other_publisher
-        )
-
-
-def warn_ignored_joints(source: str, names: Sequence[str], used: Sequence[str], what: str) -> None:
-    """One warning naming the log joints (``names``) that are not ``used``."""
-    ignored = [n for n in names if n not in used]
-    if ignored:
-        log.warning(
-            "%s: ignoring %d log joint(s) not in %s: %s",
-            source,
-            len(ignored),
-            what,
-            ", ".join(ignored),
-        )
-
-
-def choose_topic(topics: Mapping[str, str], wanted: str, source: str) -> str:
-    """The JointState topic to read (contract: Inputs: fall back to the only JointState topic,
-    or, without any, to the only DynamicJointState topic)."""
-    if wanted in topics:
-        if topics[wanted] not in (JOINT_STATE, DYNAMIC_JOINT_STATE):
-            raise TopicError(
-                f"topic {wanted} is {topics[wanted]}, not {JOINT_STATE}",
-                source,
-                "pick a JointState topic with the topic option",
-            )
-        return wanted
-    candidates = sorted(
-        t for t, m in topics.items() if m == JOINT_STATE and not t.startswith(OWN_PREFIX)
-    ) or sorted(t for t, m in topics.items() if m == DYNAMIC_JOINT_STATE)
-    if len(candidates) == 1:
-        log.warning(
-            "topic %s not in %s; using its only JointState topic %s", wanted, source, candidates[0]
-        )
-        return candidates[0]
-    if not candidates:
-        raise TopicError(
-            f"no {JOINT_STATE} topic (wanted {wanted})",
-            source,
-            "record joint states or pick another topic with the topic option",
-        )
-    raise TopicError(
-        f"topic {wanted} not found and several JointState topics exist: {', '.join(candidates)}",
-        source,
-        "pick one with the topic option",
-    )
-
-
 class LogStream:
     """One log's joint states as ``SampleBlock``s (a context manager and an iterable).
 
-    Opening reads the first messages (up to the reorder window) to fix ``joint_names`` (after
-    the joint map): exactly ``joints`` when given (an error when the log lacks one, in that
-    order); else the ``known`` joints the log has (a robot model's or a calibration's, named by
-    ``known_from``, and those of the log's own twin effort; model joints the log lacks are the
-    caller's business); else the joints of
-    the log's own twin effort (``sim_topic``); else all the joints of the message layout that
-    carries the most joints, ties going to the layout with the most messages. Then the layout
-    with the most of those joints fixes the columns; other layouts that carry none are another
-    publisher's (ignored, counted in one warning), and one that carries a joint it lacks means
+    Opening reads the first messages (up to the reorder window; ``twincd.io.stream.head``) to
+    fix ``joint_names`` (after the joint map): exactly ``joints`` when given (an error when the
+    log lacks one, in that order); else the ``known`` joints the log has (a robot model's or a
+    calibration's, named by ``known_from``, and those of the log's own twin effort; model
+    joints the log lacks are the caller's business); else the joints of the log's own twin
+    effort (``sim_topic``); else all the joints of the message layout that carries the most
+    joints, ties going to the layout with the most messages. Then the layout with the most of
+    those joints fixes the columns; other layouts that carry none are another publisher's
+    (ignored, counted in one warning), and one that carries a joint it lacks means
     the arm is split over publishers (refused). Iterate once.
     """
 
@@ -213,89 +128,32 @@ class LogStream:
         self.block_size = block_size
         self.reorder = reorder
         self.counts = StreamCounts()
-        self._rename = options.rename  # log joint names → the model's
         self._reader = TopicReader(self.path, strict=strict, batch_size=batch_size)
-        self._known_from = "the calibration" if joints is not None else known_from
+        exact = joints is not None
         try:
-            self._open(options, joints if joints is not None else known, joints is not None)
+            head = LogHead(
+                self._reader,
+                options,
+                joints if exact else known,
+                exact,
+                "the calibration" if exact else known_from,
+                reorder,
+            )
         except BaseException:
             self._reader.close()
             raise
+        self._open(head)
 
-    def _open(self, options: LogOptions, known: Sequence[str] | None, exact: bool) -> None:
-        from twincd.io.named import require_named, require_named_joints
-
-        topics = self._reader.topics
-        require_named(options, topics, self.source)  # a named topic the log lacks: refused
-        self.topic = choose_topic(topics, options.topic, self.source)
-        self.label_topic = options.label_topic
-        self.has_labels = self.label_topic in topics
-        if self.has_labels and topics[self.label_topic] != BOOL:
-            raise TopicError(
-                f"label topic {self.label_topic} is {topics[self.label_topic]}, not {BOOL}",
-                self.source,
-                "pick another label topic",
-            )
-        self.sim_topic = options.sim_topic
-        self.has_sim = topics.get(self.sim_topic) == JOINT_STATE
-        # ros2_control's DynamicJointState: read when no JointState carries effort
-        self.no_effort_why: str | None = None  # why it cannot stand in, when it cannot
-        dynamic = [t for t, m in topics.items() if m == DYNAMIC_JOINT_STATE]
-        if topics[self.topic] == DYNAMIC_JOINT_STATE or not dynamic:
-            self._dynamic: str | None = None
-        else:
-            self._dynamic = DYNAMIC_TOPIC if DYNAMIC_TOPIC in dynamic else sorted(dynamic)[0]
-        wanted = [self.topic] + ([self._dynamic] if self._dynamic else [])
-        wanted += [self.label_topic] if self.has_labels else []
-        wanted += [self.sim_topic] if self.has_sim else []
-        self._items = self._reader.batches(wanted)
-        # read ahead to learn the joints; the watermark of the moment goes with each batch
-        self._head: list[tuple[str, Batch, int]] = []
-        seen = 0
-        for topic, batch in self._items:
-            self._head.append((topic, batch, self._reader.watermark_ns))
-            if topic == self.topic:
-                seen += len(batch)
-                if seen >= max(self.reorder, 1):
-                    break
-        first = self._read_ahead(self.topic)
-        if self._dynamic is not None:
-            first = self._effort_source(first, self._dynamic)
-        if not first:
-            damage = self._reader.damage
-            if damage is not None:  # the damage came before any joint state
-                raise LogReadError(
-                    damage, self.source, "repair it with `mcap recover` if it is MCAP"
-                )
-            raise LogReadError(
-                f"topic {self.topic} has no messages", self.source, "record joint states"
-            )
-        raw = {n for t, b, _ in self._head if isinstance(b, JointStateBatch) for n in b.names}
-        require_named_joints(options, raw, f"{self.source}, {self.topic}")
-        layouts: dict[tuple[str, ...], int] = {}
-        for b in first:
-            key = self._mapped(b.names)
-            layouts[key] = layouts.get(key, 0) + len(b)
-        if known is None:
-            known = self._sim_names() or max(layouts, key=lambda k: (len(set(k)), layouts[k]))
-            self._known_from = "the log's twin effort" if self._sim_names() else "the topic"
-        elif not exact:  # joints with the log's own twin effort are never ignored
-            known = tuple(dict.fromkeys((*known, *self._sim_names())))
-        self.joint_names = self._choose_joints(layouts, tuple(known), exact)
-        # header stamps, unless every stamp of the topic is 0 (decided on the first messages):
-        # then the log time; a stamp of 0 among others is a time like any other (simulation
-        # time starts there)
-        self._log_timed = not any(b.stamp_ns.any() for b in first)
-        sims = [
-            b for t, b, _ in self._head if t == self.sim_topic and isinstance(b, JointStateBatch)
-        ]
-        self._sim_log_timed = bool(sims) and not any(b.stamp_ns.any() for b in sims)
-        # a log has effort when most of its first messages carry it (one empty message does
-        # not decide); samples without it are dropped as bad samples later
-        with_effort = sum(len(b) for b in first if b.effort.shape[1] > 0)
-        self.has_effort = 2 * with_effort > sum(len(b) for b in first)
-        self._columns: dict[tuple[str, ...], NDArray[np.intp]] = {}
-        self._period_ns = self._measuring_period(first) if self.has_effort else None
+    def _open(self, head: LogHead) -> None:
+        """The topics and joints ``head`` fixed, and the state before the first sample."""
+        self.topic, self.label_topic, self.sim_topic = head.topic, head.label_topic, head.sim_topic
+        self.has_labels, self.has_sim = head.has_labels, head.has_sim
+        self.has_effort, self.no_effort_why = head.has_effort, head.no_effort_why
+        self.joint_names = head.joint_names
+        self._items, self._head = head.items, head.batches
+        self._log_timed, self._sim_log_timed = head.log_timed, head.sim_log_timed
+        self._cols = head.columns  # per stream joint, its column in a layout
+        self._period_ns = head.period_ns
         self._last_measuring = -np.inf  # the stamp of the last sample emitted that measures
         width = len(self.joint_names)
         self._pending = empty_rows(width, self.has_effort)
@@ -311,144 +169,6 @@ class LogStream:
         self._labels_out: list[BoolArray] = []
         self._sim_out: list[FloatArray] = []
         self._used = False
-
-    def _read_ahead(self, topic: str) -> list[JointStateBatch]:
-        return [b for t, b, _ in self._head if t == topic and isinstance(b, JointStateBatch)]
-
-    def _effort_source(self, first: list[JointStateBatch], dynamic: str) -> list[JointStateBatch]:
-        """The JointState messages read ahead, or, when none carries effort, those of the
-        DynamicJointState topic ``dynamic`` (which becomes the stream's topic); the topic not
-        read is no longer decoded."""
-        if any(b.effort.shape[1] for b in first):
-            self._reader.ignore(dynamic)
-            return first
-        other = self._read_ahead(dynamic)
-        names = {n for b in first for n in self._mapped(b.names)}
-        shared = [b for b in other if names & set(self._mapped(b.names)) or not names]
-        if not any(b.effort.shape[1] for b in shared):
-            what = "no effort interface" if shared else "none of its joints"
-            self.no_effort_why = f"{dynamic} ({DYNAMIC_JOINT_STATE}) carries {what}"
-            self._reader.ignore(dynamic)
-            return first
-        log.warning(
-            "%s: %s carries no effort; reading the joint states from %s (%s) instead",
-            self.source,
-            self.topic,
-            dynamic,
-            DYNAMIC_JOINT_STATE,
-        )
-        self._reader.ignore(self.topic)
-        self.topic = dynamic
-        return other
-
-    def _measuring_period(self, first: list[JointStateBatch]) -> float | None:
-        """The nominal period (ns) of the messages read ahead that measure effort on the
-        stream's joints (``_other_publisher``'s lattice), or None when too few do."""
-        stamps = []
-        for b in first:
-            cols = self._cols(b.names)
-            if (cols < 0).any() or b.effort.shape[1] != len(b.names):
-                continue
-            effort = b.effort[:, cols]
-            measuring = np.isfinite(effort).all(axis=1) & (effort != 0).any(axis=1)
-            stamps.append((b.log_time_ns if self._log_timed else b.stamp_ns)[measuring])
-        steps = np.diff(np.unique(np.concatenate(stamps))) if stamps else np.zeros(0)
-        return float(np.median(steps)) if len(steps) else None
-
-    def _other_publisher(self, rows: Rows, k: int, final: bool) -> BoolArray:
-        """Which of the first ``k`` pending rows are a second publisher's on the same joints.
-
-        Bags carry no publisher id, so the rule is the stamp lattice with the content: a sample
-        whose efforts are all exactly 0 (a fake driver, a placeholder node) that falls between
-        two samples measuring effort less than 1.5 periods apart was squeezed in beside the
-        live stream, not in its place (after the stream's last live sample: less than half a
-        period after it). A driver whose motors are off publishes zeros in place of its
-        samples, a period apart: those are kept. Decided on the pending rows (the reorder
-        window is the look ahead), vectorised."""
-        effort = rows.effort
-        none = np.zeros(k, dtype=bool)
-        if self._period_ns is None or effort is None or not k:
-            return none
-        # a sample all of whose efforts are 0 has its first one 0: most blocks have none
-        if (effort[:k, 0] == 0).any():
-            finite = np.isfinite(effort).all(axis=1)
-            zero = finite & (effort == 0).all(axis=1)
-            measuring = finite & ~zero
-            stamp = rows.stamp.astype(np.float64)
-            prev = np.maximum.accumulate(np.where(measuring, stamp, -np.inf))
-            prev = np.maximum(prev, self._last_measuring)
-            after = np.where(measuring, stamp, np.inf)[::-1]
-            following = np.minimum.accumulate(after)[::-1]
-            squeezed = zero & (following - prev <= 1.5 * self._period_ns)
-            if final:  # after the last live sample: squeezed in when well before its next one
-                late = np.isinf(following) & (stamp - prev < 0.5 * self._period_ns)
-                squeezed |= zero & late
-            none = squeezed[:k]
-        # the last sample emitted that measures effort: the last one, as a rule
-        last = effort[k - 1]
-        if np.isfinite(last).all() and last.any():
-            self._last_measuring = float(rows.stamp[k - 1])
-        else:
-            measures = np.flatnonzero(np.isfinite(effort[:k]).all(axis=1) & effort[:k].any(axis=1))
-            if len(measures):
-                self._last_measuring = float(rows.stamp[measures[-1]])
-        return none
-
-    def _mapped(self, names: Sequence[str]) -> tuple[str, ...]:
-        return tuple(dict.fromkeys(self._rename(n) for n in names))
-
-    def _sim_names(self) -> tuple[str, ...]:
-        """The joints of the log's own twin effort in the messages read ahead."""
-        return self._mapped(
-            [
-                n
-                for topic, batch, _ in self._head
-                if topic == self.sim_topic and self.has_sim and isinstance(batch, JointStateBatch)
-                for n in batch.names
-            ]
-        )
-
-    def _choose_joints(
-        self, layouts: dict[tuple[str, ...], int], known: tuple[str, ...], exact: bool
-    ) -> tuple[str, ...]:
-        """The stream's joints from the layouts read ahead (see the class docstring)."""
-        where = f"{self.source}, {self.topic}"
-        wanted = set(known)
-        relevant = {k: c for k, c in layouts.items() if wanted & set(k)}
-        if not relevant:
-            calibrated = self._known_from == "the calibration"
-            raise JointMismatchError(
-                f"the log lacks calibrated joint(s) {', '.join(known)}"
-                if calibrated
-                else f"no joint of the log is in {self._known_from}",
-                f"{where}: log joints {', '.join(sorted({n for k in layouts for n in k})[:8])}; "
-                f"wanted {', '.join(known[:8])}",
-                "check the robot model, the topic and the joint map",
-                option="robot,topic,joint_map",
-            )
-        best = max(relevant, key=lambda k: (len(wanted & set(k)), relevant[k]))
-        covered = wanted & set(best)
-        split = [k for k in relevant if (wanted & set(k)) - covered]
-        if split:
-            parts = " | ".join(", ".join(n for n in k if n in wanted) for k in (best, *split))
-            raise SplitJointsError(
-                "the arm's joints arrive split over several messages per sample "
-                f"({parts}); twincd does not join them",
-                where,
-                "record the arm's joints in one JointState message (one publisher), or pick a "
-                "topic that carries them all with the topic option",
-            )
-        warn_ignored_joints(self.source, best, tuple(wanted), self._known_from)
-        if exact:
-            missing = [j for j in known if j not in covered]
-            if missing:
-                raise JointMismatchError(
-                    f"joints {', '.join(missing)} are not in the log",
-                    where,
-                    "check the robot model, the topic and the joint map",
-                )
-            return known
-        return tuple(n for n in best if n in wanted)
 
     # ------------------------------------------------------------ protocol
 
@@ -502,27 +222,6 @@ class LogStream:
         if topic == self.sim_topic and self._sim is not None and isinstance(batch, JointStateBatch):
             self._add_sim(batch)
         yield from self._emit(mark, final=False)
-
-    def _cols(self, names: tuple[str, ...]) -> NDArray[np.intp]:
-        """Per stream joint, its column in messages named ``names`` (-1: absent; a name given
-        twice: its first column)."""
-        cols = self._columns.get(names)
-        if cols is None:
-            where: dict[str, int] = {}
-            for i, n in enumerate(names):
-                mapped = self._rename(n)
-                if mapped in where and names[where[mapped]] != n:
-                    clash = names[where[mapped]]
-                    raise JointMismatchError(
-                        f"after the joint map, log joints {clash} and {n} are both {mapped}",
-                        f"{self.source}, {self.topic}",
-                        "map every log joint to a name of its own",
-                        option="joint_map",
-                    )
-                where.setdefault(mapped, i)
-            cols = np.array([where.get(j, -1) for j in self.joint_names], dtype=np.intp)
-            self._columns[names] = cols
-        return cols
 
     def _note_layout(self, batch: JointStateBatch, cols: NDArray[np.intp]) -> bool:
         """Count what a batch's layout brings that the stream does not use; False when the
@@ -644,6 +343,45 @@ class LogStream:
         while self._out_n >= self.block_size or (final and self._out_n):
             yield self._block(min(self.block_size, self._out_n))
 
+    def _other_publisher(self, rows: Rows, k: int, final: bool) -> BoolArray:
+        """Which of the first ``k`` pending rows are a second publisher's on the same joints.
+
+        Bags carry no publisher id, so the rule is the stamp lattice with the content: a sample
+        whose efforts are all exactly 0 (a fake driver, a placeholder node) that falls between
+        two samples measuring effort less than 1.5 periods apart was squeezed in beside the
+        live stream, not in its place (after the stream's last live sample: less than half a
+        period after it). A driver whose motors are off publishes zeros in place of its
+        samples, a period apart: those are kept. Decided on the pending rows (the reorder
+        window is the look ahead), vectorised."""
+        effort = rows.effort
+        none = np.zeros(k, dtype=bool)
+        if self._period_ns is None or effort is None or not k:
+            return none
+        # a sample all of whose efforts are 0 has its first one 0: most blocks have none
+        if (effort[:k, 0] == 0).any():
+            finite = np.isfinite(effort).all(axis=1)
+            zero = finite & (effort == 0).all(axis=1)
+            measuring = finite & ~zero
+            stamp = rows.stamp.astype(np.float64)
+            prev = np.maximum.accumulate(np.where(measuring, stamp, -np.inf))
+            prev = np.maximum(prev, self._last_measuring)
+            after = np.where(measuring, stamp, np.inf)[::-1]
+            following = np.minimum.accumulate(after)[::-1]
+            squeezed = zero & (following - prev <= 1.5 * self._period_ns)
+            if final:  # after the last live sample: squeezed in when well before its next one
+                late = np.isinf(following) & (stamp - prev < 0.5 * self._period_ns)
+                squeezed |= zero & late
+            none = squeezed[:k]
+        # the last sample emitted that measures effort: the last one, as a rule
+        last = effort[k - 1]
+        if np.isfinite(last).all() and last.any():
+            self._last_measuring = float(rows.stamp[k - 1])
+        else:
+            measures = np.flatnonzero(np.isfinite(effort[:k]).all(axis=1) & effort[:k].any(axis=1))
+            if len(measures):
+                self._last_measuring = float(rows.stamp[measures[-1]])
+        return none
+
     def _span_s(self) -> float:
         """Seconds from the first sample emitted to the last."""
         first = self._first if self._first is not None else self._last
@@ -670,76 +408,9 @@ class LogStream:
         )
 
     def _report(self) -> None:
-        c = self.counts
-        if c.ragged:
-            log.warning(
-                "%s: dropping %d ragged message(s) (filled arrays that do not match the names)",
-                self.source,
-                c.ragged,
-            )
-        if c.jumps:
-            log.warning(
-                "%s: the clock jumps back %d time(s) (by up to %.3g s); dropping the %d sample(s) "
-                "stamped before the time already reached",
-                self.source,
-                c.jumps,
-                c.largest_jump_ns * 1e-9,
-                c.clock_back,
-            )
-        if c.unstamped:
-            log.warning(
-                "%s: the samples on %s carry no header stamp (every one is 0); the %d sample(s) "
-                "are timed by their log time instead",
-                self.source,
-                self.topic,
-                c.unstamped,
-            )
-        if c.duplicates:
-            log.warning(
-                "%s: dropping %d sample(s) whose stamp repeats an earlier one",
-                self.source,
-                c.duplicates,
-            )
-        if c.foreign:
-            log.warning(
-                "%s: ignoring %d message(s) on %s that carry none of its joints (another "
-                "publisher's: %s)",
-                self.source,
-                c.foreign,
-                self.topic,
-                ", ".join(c.foreign_names[:8]),
-            )
-        if c.other_publisher:
-            log.warning(
-                "%s: ignoring %d message(s) on %s from a second publisher of the same joints "
-                "(every effort exactly 0, between samples of the live one less than 1.5 periods "
-                "apart; ≈ %.3g Hz)",
-                self.source,
-                c.other_publisher,
-                self.topic,
-                c.other_publisher / max(self._span_s(), 1e-9),
-            )
-        if c.named_twice:
-            log.warning(
-                "%s: %d message(s) name joint(s) %s twice; keeping the first value of each",
-                self.source,
-                c.named_twice,
-                ", ".join(c.twice_names),
-            )
-        if c.incomplete:
-            log.warning(
-                "%s: dropping %d sample(s) that do not carry every joint", self.source, c.incomplete
-            )
-        if c.late:
-            log.warning(
-                "%s: dropping %d sample(s) stamped earlier than samples already read "
-                "(more than %d samples out of order)",
-                self.source,
-                c.late,
-                self.reorder,
-            )
-        if self.damage is not None:
-            log.warning("%s: %s", self.source, self.damage)
+        report_counts(
+            self.counts, self.source, self.topic, self.reorder, self._span_s(), self.damage
+        )
 
 
 def iter_blocks(
