@@ -169,7 +169,7 @@ def _show(items: Iterable[WatchItem], source: str, json_: bool, quiet: bool) -> 
     return summary
 
 
-def _finish(summary: WatchSummary | None, json_: bool) -> NoReturn:
+def _exit_with_summary(summary: WatchSummary | None, json_: bool) -> NoReturn:
     """Print the summary and leave with the session's exit code: 1 for a collision, 0 for
     none, 2 when the session ended on an error."""
     if summary is None:  # pragma: no cover - the iterator always ends with one
@@ -242,4 +242,4 @@ def watch(
             stop=stop,
         )
         summary = _show(items, source, json_, quiet)
-    _finish(summary, json_)
+    _exit_with_summary(summary, json_)
