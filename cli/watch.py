@@ -8,9 +8,9 @@ import math
 import signal
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 
@@ -31,7 +31,48 @@ from .options import (
 )
 
 if TYPE_CHECKING:
-    from twincd.live import WatchEvent, WatchNotice, WatchStatus, WatchSummary
+    from twincd.live import WatchEvent, WatchItem, WatchNotice, WatchStatus, WatchSummary
+
+
+LiveSource = Annotated[
+    str,
+    typer.Argument(
+        help="ws://HOST:PORT (a foxglove_bridge), ros2 (rclpy) or zenoh/tcp/HOST:PORT "
+        "(rmw_zenoh's router)."
+    ),
+]
+RecordOut = Annotated[
+    Path | None,
+    typer.Option(
+        "--output",
+        "-o",
+        help="Record the session: what arrived plus twincd's channels (.mcap), written as it goes.",
+    ),
+]
+Duration = Annotated[
+    float | None, typer.Option("--duration", help="Stop after this many seconds.", min=0)
+]
+IdleTimeout = Annotated[
+    float | None,
+    typer.Option("--idle-timeout", help="Stop after this many seconds without a message.", min=0),
+]
+ConnectTimeout = Annotated[
+    float,
+    typer.Option(
+        "--connect-timeout",
+        help="Seconds to wait for the source and its first usable JointState.",
+        min=0,
+    ),
+]
+ReorderWindow = Annotated[
+    float,
+    typer.Option(
+        "--reorder-window",
+        help="Milliseconds a sample is held so that samples out of order are sorted "
+        "(0: none; later ones are dropped and counted).",
+        min=0,
+    ),
+]
 
 
 @contextlib.contextmanager
@@ -84,15 +125,68 @@ def _notice_line(item: WatchNotice) -> str:
     return f"twincd: {'warning: ' if item.warning else ''}{item.text}"
 
 
+def _emit(obj: dict[str, Any]) -> None:
+    """One JSON line on stdout (--json), flushed at once."""
+    sys.stdout.write(json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+
+def _show(items: Iterable[WatchItem], source: str, json_: bool, quiet: bool) -> WatchSummary | None:
+    """Show the session's items as they come: each event and notice (JSON lines with --json),
+    a status line redrawn on a terminal (cleared before any other line and at the end); the
+    summary that ends them is returned, not shown."""
+    from twincd.live import WatchEvent, WatchNotice, WatchStatus, WatchSummary
+
+    status_shown = False
+    terminal = stderr.is_terminal and not quiet
+    summary: WatchSummary | None = None
+    for item in items:
+        if isinstance(item, WatchStatus):
+            if terminal:
+                stderr.file.write("\r\x1b[2K" + _status_line(item, source))
+                stderr.file.flush()
+                status_shown = True
+            continue
+        if status_shown:
+            stderr.file.write("\r\x1b[2K")
+            status_shown = False
+        if isinstance(item, WatchEvent):
+            if json_:
+                _emit(item.to_dict())
+            else:
+                stdout.print(_event_row(item), markup=False, highlight=False)
+                sys.stdout.flush()
+        elif isinstance(item, WatchNotice):
+            if json_:
+                _emit(item.to_dict())
+            elif not quiet:
+                stderr.file.write(_notice_line(item) + "\n")
+                stderr.file.flush()
+        elif isinstance(item, WatchSummary):
+            summary = item
+    if status_shown:
+        stderr.file.write("\r\x1b[2K")
+    return summary
+
+
+def _exit_with_summary(summary: WatchSummary | None, json_: bool) -> NoReturn:
+    """Print the summary and leave with the session's exit code: 1 for a collision, 0 for
+    none, 2 when the session ended on an error."""
+    if summary is None:  # pragma: no cover - the iterator always ends with one
+        raise typer.Exit(3)
+    if json_:
+        _emit(summary.to_dict())
+    else:
+        stdout.print(_summary_line(summary), markup=False, highlight=False)
+    if summary.error:
+        sys.stderr.write(f"twincd: error: {summary.error}\n")
+        raise typer.Exit(2)
+    raise typer.Exit(1 if summary.collision else 0)
+
+
 @command
 def watch(
-    source: Annotated[
-        str,
-        typer.Argument(
-            help="ws://HOST:PORT (a foxglove_bridge), ros2 (rclpy) or zenoh/tcp/HOST:PORT "
-            "(rmw_zenoh's router)."
-        ),
-    ],
+    source: LiveSource,
     calibration: CalibrationIn,
     topic: Topic = None,
     label_topic: LabelTopic = None,
@@ -102,41 +196,11 @@ def watch(
     joint_prefix: JointPrefix = None,
     robot: Robot = None,
     json_: Json = False,
-    output: Annotated[
-        Path | None,
-        typer.Option(
-            "--output",
-            "-o",
-            help="Record the session: what arrived plus twincd's channels (.mcap), "
-            "written as it goes.",
-        ),
-    ] = None,
-    duration: Annotated[
-        float | None, typer.Option("--duration", help="Stop after this many seconds.", min=0)
-    ] = None,
-    idle_timeout: Annotated[
-        float | None,
-        typer.Option(
-            "--idle-timeout", help="Stop after this many seconds without a message.", min=0
-        ),
-    ] = None,
-    connect_timeout: Annotated[
-        float,
-        typer.Option(
-            "--connect-timeout",
-            help="Seconds to wait for the source and its first usable JointState.",
-            min=0,
-        ),
-    ] = 10.0,
-    reorder_window: Annotated[
-        float,
-        typer.Option(
-            "--reorder-window",
-            help="Milliseconds a sample is held so that samples out of order are sorted "
-            "(0: none; later ones are dropped and counted).",
-            min=0,
-        ),
-    ] = 20.0,
+    output: RecordOut = None,
+    duration: Duration = None,
+    idle_timeout: IdleTimeout = None,
+    connect_timeout: ConnectTimeout = 10.0,
+    reorder_window: ReorderWindow = 20.0,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -155,18 +219,9 @@ def watch(
     Example: twincd watch ws://localhost:8765 -c calibration.json -o session.mcap
     """
     from twincd.io.options import parse_joint_map
-    from twincd.live import WatchEvent, WatchNotice, WatchStatus, WatchSummary
     from twincd.live import watch as live_watch
 
     stop = threading.Event()
-    status_shown = False
-    terminal = stderr.is_terminal and not quiet
-    summary: WatchSummary | None = None
-
-    def emit(obj: dict[str, Any]) -> None:
-        sys.stdout.write(json.dumps(obj) + "\n")
-        sys.stdout.flush()
-
     with _stop_on_signals(stop):
         items = live_watch(
             source,
@@ -186,39 +241,5 @@ def watch(
             reorder_ns=round(reorder_window * 1e6),
             stop=stop,
         )
-        for item in items:
-            if isinstance(item, WatchStatus):
-                if terminal:
-                    stderr.file.write("\r\x1b[2K" + _status_line(item, source))
-                    stderr.file.flush()
-                    status_shown = True
-                continue
-            if status_shown:
-                stderr.file.write("\r\x1b[2K")
-                status_shown = False
-            if isinstance(item, WatchEvent):
-                if json_:
-                    emit(item.to_dict())
-                else:
-                    stdout.print(_event_row(item), markup=False, highlight=False)
-                    sys.stdout.flush()
-            elif isinstance(item, WatchNotice):
-                if json_:
-                    emit(item.to_dict())
-                elif not quiet:
-                    stderr.file.write(_notice_line(item) + "\n")
-                    stderr.file.flush()
-            elif isinstance(item, WatchSummary):
-                summary = item
-    if status_shown:
-        stderr.file.write("\r\x1b[2K")
-    if summary is None:  # pragma: no cover - the iterator always ends with one
-        raise typer.Exit(3)
-    if json_:
-        emit(summary.to_dict())
-    else:
-        stdout.print(_summary_line(summary), markup=False, highlight=False)
-    if summary.error:
-        sys.stderr.write(f"twincd: error: {summary.error}\n")
-        raise typer.Exit(2)
-    raise typer.Exit(1 if summary.collision else 0)
+        summary = _show(items, source, json_, quiet)
+    _exit_with_summary(summary, json_)

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from twincd.calibration import Calibration
     from twincd.io.stream import SampleBlock, TopicReader
     from twincd.signal.bounds import SampleBounds
+    from twincd.signal.unwrap import StreamingUnwrap
     from twincd.twin.robot import RobotModel
 
 log = logging.getLogger("twincd")
@@ -364,11 +365,7 @@ def _read_samples(
     use (finite position and effort, and the log's twin effort where it has one), and whether
     the log has measured effort (as the stream decides it)."""
     from twincd.io.stream import iter_blocks
-    from twincd.prepare.chain import sample_bounds, warn_unwrapped
-    from twincd.prepare.setup import warn_velocity_from_position
-    from twincd.signal import nominal_period
-    from twincd.signal.checks import SignalChecks
-    from twincd.signal.unwrap import StreamingUnwrap
+    from twincd.prepare.chain import sample_bounds
 
     limits = model.position_limits if model is not None else {}
     # the joints as detect reads them: exactly the calibration's, else those of the robot
@@ -383,50 +380,95 @@ def _read_samples(
         known=None if exact else joints,
         known_from=known_from,
     )
-    usable = 0
-    unwrap: StreamingUnwrap | None = None  # what the derivative of position would see
     with opened as stream:
         has_effort, why = stream.has_effort, stream.no_effort_why
         found.joint_topic = stream.topic  # ros2_control's DynamicJointState may stand in
         joints = tuple(stream.joint_names)
-        acc = _Ranges(len(joints))
-        checks = SignalChecks(joints, limits)
         bounds = sample_bounds(model, joints)
-        has_velocity = np.ones(len(joints), dtype=bool)
-        from_position: bool | None = None  # decided on the first block, as detect does
+        scan = _SignalScan(joints, limits, bounds, has_sim)
         for block in stream:
-            if from_position is None:
-                from_position = not bool(np.isfinite(block.velocity).all())
-            block = _within_bounds(block, bounds, from_position, has_sim)
-            if unwrap is None and len(block) > 1:
-                unwrap = StreamingUnwrap(nominal_period(block.stamp_ns))
-            if unwrap is not None:
-                unwrap.push(block.stamp_ns, block.position)
-            acc.add(block.stamp_ns, block.position, block.effort)
-            checks.push(block.position, block.effort)
-            has_velocity &= np.isfinite(block.velocity).all(axis=0)
-            if block.effort is not None:
-                ok = np.isfinite(block.position).all(axis=1) & np.isfinite(block.effort).all(1)
-                if has_sim and block.sim_effort is not None:
-                    ok &= np.isfinite(block.sim_effort).all(axis=1)
-                usable += int(np.count_nonzero(ok))
+            scan.push(block)
         found.absurd = bounds.dropped
         found.drives_off = bounds.off
         found.other_publisher = stream.counts.other_publisher
         bounds.warn(found.path)
+    acc = scan.ranges
     if acc.first is None:
-        return usable, has_effort, why
+        return scan.usable, has_effort, why
     found.sampling = acc.sampling()
-    checks.warn(found.path)
-    if not has_velocity.all():
-        velocity = np.where(has_velocity, 0.0, np.nan)[None]
-        warn_velocity_from_position(found.path, velocity, joints)
-        warn_unwrapped(found.path, unwrap, joints)
-    _warn_if_at_rest(found.path, acc.pos[1] - acc.pos[0])
-    count = int(acc.effort.n)
-    std = np.sqrt(acc.effort.m2 / max(count, 1))
-    has_effort = count > 0
-    found.joints = [
+    scan.warn(found.path)
+    has_effort = int(acc.effort.n) > 0
+    found.joints = _joint_ranges(acc, joints, limits, has_effort)
+    return scan.usable, has_effort, why
+
+
+class _SignalScan:
+    """What a log's samples tell as they stream, less their absurd ones (``_within_bounds``):
+    ranges and sampling (``_Ranges``), the signal checks, the joints without a logged velocity
+    and what the derivative of their position would see, and the usable samples."""
+
+    def __init__(
+        self,
+        joints: tuple[str, ...],
+        limits: dict[str, tuple[float, float]],
+        bounds: SampleBounds,
+        has_sim: bool,
+    ) -> None:
+        from twincd.signal.checks import SignalChecks
+
+        self.joints = joints
+        self.bounds = bounds
+        self.has_sim = has_sim
+        self.ranges = _Ranges(len(joints))
+        self.checks = SignalChecks(joints, limits)
+        self.has_velocity = np.ones(len(joints), dtype=bool)
+        self.from_position: bool | None = None  # decided on the first block, as detect does
+        self.unwrap: StreamingUnwrap | None = None  # what the derivative of position would see
+        self.usable = 0
+
+    def push(self, block: SampleBlock) -> None:
+        from twincd.signal import nominal_period
+        from twincd.signal.unwrap import StreamingUnwrap
+
+        if self.from_position is None:
+            self.from_position = not bool(np.isfinite(block.velocity).all())
+        block = _within_bounds(block, self.bounds, self.from_position, self.has_sim)
+        if self.unwrap is None and len(block) > 1:
+            self.unwrap = StreamingUnwrap(nominal_period(block.stamp_ns))
+        if self.unwrap is not None:
+            self.unwrap.push(block.stamp_ns, block.position)
+        self.ranges.add(block.stamp_ns, block.position, block.effort)
+        self.checks.push(block.position, block.effort)
+        self.has_velocity &= np.isfinite(block.velocity).all(axis=0)
+        if block.effort is not None:
+            ok = np.isfinite(block.position).all(axis=1) & np.isfinite(block.effort).all(1)
+            if self.has_sim and block.sim_effort is not None:
+                ok &= np.isfinite(block.sim_effort).all(axis=1)
+            self.usable += int(np.count_nonzero(ok))
+
+    def warn(self, source: str) -> None:
+        """The signal checks' warnings, those of velocity taken from position, and of a log
+        in which no joint moves."""
+        from twincd.prepare.chain import warn_unwrapped
+        from twincd.prepare.setup import warn_velocity_from_position
+
+        self.checks.warn(source)
+        if not self.has_velocity.all():
+            velocity = np.where(self.has_velocity, 0.0, np.nan)[None]
+            warn_velocity_from_position(source, velocity, self.joints)
+            warn_unwrapped(source, self.unwrap, self.joints)
+        _warn_if_at_rest(source, self.ranges.pos[1] - self.ranges.pos[0])
+
+
+def _joint_ranges(
+    acc: _Ranges,
+    joints: tuple[str, ...],
+    limits: dict[str, tuple[float, float]],
+    has_effort: bool,
+) -> list[JointRange]:
+    """Each joint's position range against its limits, and its effort's (with ``has_effort``)."""
+    std = np.sqrt(acc.effort.m2 / max(int(acc.effort.n), 1))
+    return [
         JointRange(
             name=name,
             position_min=float(acc.pos[0, i]),
@@ -439,7 +481,6 @@ def _read_samples(
         )
         for i, name in enumerate(joints)
     ]
-    return usable, has_effort, why
 
 
 def _within_bounds(

@@ -3,15 +3,9 @@
 from __future__ import annotations
 
 from twincd.live.connect import open_source
+from twincd.live.items import WatchEvent, WatchItem, WatchNotice, WatchStatus, WatchSummary
 from twincd.live.source import Arrival, Connection, Source, SourceError, SourceLost, Wanted
-from twincd.live.watch import (
-    WatchEvent,
-    WatchItem,
-    WatchNotice,
-    WatchStatus,
-    WatchSummary,
-    watch,
-)
+from twincd.live.watch import watch
 
 __all__ = [
     "Arrival",

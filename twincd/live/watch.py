@@ -29,10 +29,9 @@ from __future__ import annotations
 import threading
 import time
 from collections import OrderedDict, deque
-from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Generator, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Union
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -41,6 +40,7 @@ from twincd.errors import CalibrationError
 from twincd.io.cdr import BOOL, JOINT_STATE, STRING
 from twincd.live.connect import open_source
 from twincd.live.detector import LiveDetector, Scored
+from twincd.live.items import WatchEvent, WatchItem, WatchNotice, WatchStatus, WatchSummary
 from twincd.live.samples import REORDER_WINDOW_NS, JointDecoder, Reorder, Sample, Segments
 from twincd.live.source import Arrival, Connection, Source, SourceError, SourceLost, Wanted
 from twincd.prepare.frames import Frame
@@ -50,15 +50,7 @@ if TYPE_CHECKING:
     from twincd.io.options import LogOptions
     from twincd.live.record import SessionRecorder
 
-__all__ = [
-    "CONNECT_TIMEOUT_S",
-    "WatchEvent",
-    "WatchItem",
-    "WatchNotice",
-    "WatchStatus",
-    "WatchSummary",
-    "watch",
-]
+__all__ = ["CONNECT_TIMEOUT_S", "watch"]
 
 CONNECT_TIMEOUT_S = 10.0
 _POLL_S = 0.05
@@ -67,83 +59,6 @@ _POLL_S = 0.05
 _KEEP_SAMPLES = 30_000
 # samples of the first segment whose stamps tell the source's rate (a second at 100 Hz)
 _RATE_SAMPLES = 100
-
-
-@dataclass(frozen=True)
-class WatchEvent:
-    """A collision event, once it closed."""
-
-    event: Event
-    segment: int
-
-    def to_dict(self) -> dict[str, object]:
-        return {"type": "event", **self.event.to_dict(), "segment": self.segment}
-
-
-@dataclass(frozen=True)
-class WatchStatus:
-    """How the session goes (every ``status_every_s``)."""
-
-    elapsed_s: float
-    samples: int
-    rate_hz: float  # samples scored per second over the last interval
-    latency_ms: float  # median over the last interval (NaN when nothing was scored)
-    score: float  # the latest score (NaN before the first)
-    threshold: float
-    events: int
-    segment: int
-
-    def to_dict(self) -> dict[str, object]:
-        return {"type": "status", **self.__dict__}
-
-
-@dataclass(frozen=True)
-class WatchNotice:
-    """Something the session says as it goes, in one line (``text``): ``kind`` "source gone"
-    (the source went away; it is waited for up to the connect timeout), "source back" (it
-    came back, ``away_s`` later) or "rate" (it is sampled at another rate than the
-    calibration: the filter and the gap rule follow the calibration's)."""
-
-    kind: str
-    text: str
-    elapsed_s: float
-    away_s: float | None = None
-
-    @property
-    def warning(self) -> bool:
-        """Whether it is a warning (else a note: the source is back)."""
-        return self.kind != "source back"
-
-    def to_dict(self) -> dict[str, object]:
-        return {"type": "notice", **self.__dict__}
-
-
-@dataclass(frozen=True)
-class WatchSummary:
-    """The end of the session."""
-
-    samples: int
-    events: int
-    collision: bool
-    ended: str  # "duration", "interrupted", "idle", "stopped", "source lost"
-    elapsed_s: float
-    segments: int
-    late: int
-    duplicates: int
-    unusable: int  # JointState messages without the calibrated joints, ragged or undecodable
-    skipped: int  # samples the detector skipped (non-finite values)
-    judged: int
-    flagged: int
-    latency_ms: dict[str, float] = field(default_factory=dict)  # p50, p95, p99, max
-    filter_delay_ms: float = float("nan")
-    error: str = ""
-    reconnects: int = 0  # times the source went away and came back
-
-    def to_dict(self) -> dict[str, object]:
-        return {"type": "summary", **self.__dict__}
-
-
-WatchItem = Union[WatchEvent, WatchStatus, WatchNotice, WatchSummary]  # noqa: UP007 - Python 3.10
 
 
 class _Latency:
@@ -445,62 +360,19 @@ def _run(
     status_every_s: float,
     stop: threading.Event | None,
 ) -> Iterator[WatchItem]:
+    """The session on a source opened: its items until it ends, the events still open and
+    the summary."""
     start = time.monotonic()
     src.start(s.wanted(), connect_timeout_s)
     deadline = start + connect_timeout_s
-    samples = 0
-    last_message = time.monotonic()
-    last_status = start
     ended = "stopped"
     error = ""
     connection = _Reconnects(src, start)
     try:
-        # the first usable JointState, within the connect timeout
-        while samples == 0:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                c = s.decoder.counts
-                seen = (
-                    f"{c.messages} message(s) arrived, none with all of the calibrated joints "
-                    f"({', '.join(s.detector.joint_names)})"
-                    if c.messages
-                    else "no message arrived"
-                )
-                raise SourceError(
-                    f"waited {connect_timeout_s:g} s for a usable JointState on {s.topic}: {seen}",
-                    src.name,
-                    "check that the robot publishes there, and its joint names",
-                    option="topic",
-                )
-            if stop is not None and stop.is_set():
-                break
-            got, events = s.take(src.receive(min(left, _POLL_S)))
-            samples += got
-            for e in events:
-                yield WatchEvent(e, s.segments.count)
-            yield from connection.notices()
-        last_message = time.monotonic()
-        while not (stop is not None and stop.is_set()):
-            now = time.monotonic()
-            if duration_s is not None and now - start >= duration_s:
-                ended = "duration"
-                break
-            if idle_timeout_s is not None and now - last_message >= idle_timeout_s:
-                ended = "idle"
-                break
-            arrivals = src.receive(_POLL_S)
-            if arrivals:
-                last_message = time.monotonic()
-            _, events = s.take(arrivals)
-            for e in events:
-                yield WatchEvent(e, s.segments.count)
-            yield from connection.notices()
-            rate = s.rate_notice(round(time.monotonic() - start, 3))
-            if rate is not None:
-                yield rate
-            if now - last_status >= status_every_s:
-                yield _status(s, start, now - last_status)
-                last_status = now
+        yield from _first_samples(s, connection, deadline, connect_timeout_s, stop)
+        ended = yield from _watching(
+            s, connection, duration_s, idle_timeout_s, status_every_s, stop
+        )
     except KeyboardInterrupt:
         ended = "interrupted"
     except SourceLost as exc:
@@ -508,14 +380,91 @@ def _run(
         error = exc.message
     for e in s.end():
         yield WatchEvent(e, s.segments.count)
+    yield _summary(s, ended, round(time.monotonic() - start, 3), error, connection.back)
+
+
+def _first_samples(
+    s: _Session,
+    connection: _Reconnects,
+    deadline: float,
+    connect_timeout_s: float,
+    stop: threading.Event | None,
+) -> Iterator[WatchItem]:
+    """Until the first usable JointState (or ``stop``): a ``SourceError`` when none came by
+    ``deadline``."""
+    src = connection.src
+    samples = 0
+    while samples == 0:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            c = s.decoder.counts
+            seen = (
+                f"{c.messages} message(s) arrived, none with all of the calibrated joints "
+                f"({', '.join(s.detector.joint_names)})"
+                if c.messages
+                else "no message arrived"
+            )
+            raise SourceError(
+                f"waited {connect_timeout_s:g} s for a usable JointState on {s.topic}: {seen}",
+                src.name,
+                "check that the robot publishes there, and its joint names",
+                option="topic",
+            )
+        if stop is not None and stop.is_set():
+            break
+        got, events = s.take(src.receive(min(left, _POLL_S)))
+        samples += got
+        for e in events:
+            yield WatchEvent(e, s.segments.count)
+        yield from connection.notices()
+
+
+def _watching(
+    s: _Session,
+    connection: _Reconnects,
+    duration_s: float | None,
+    idle_timeout_s: float | None,
+    status_every_s: float,
+    stop: threading.Event | None,
+) -> Generator[WatchItem, None, str]:
+    """The session after its first sample, until ``stop``, ``duration_s`` or ``idle_timeout_s``
+    (from the start of the session): its events, notices and status; returns how it ended."""
+    src, start = connection.src, connection.start
+    last_message = time.monotonic()
+    last_status = start
+    while not (stop is not None and stop.is_set()):
+        now = time.monotonic()
+        if duration_s is not None and now - start >= duration_s:
+            return "duration"
+        if idle_timeout_s is not None and now - last_message >= idle_timeout_s:
+            return "idle"
+        arrivals = src.receive(_POLL_S)
+        if arrivals:
+            last_message = time.monotonic()
+        _, events = s.take(arrivals)
+        for e in events:
+            yield WatchEvent(e, s.segments.count)
+        yield from connection.notices()
+        rate = s.rate_notice(round(time.monotonic() - start, 3))
+        if rate is not None:
+            yield rate
+        if now - last_status >= status_every_s:
+            yield _status(s, start, now - last_status)
+            last_status = now
+    return "stopped"
+
+
+def _summary(s: _Session, ended: str, elapsed_s: float, error: str, back: int) -> WatchSummary:
+    """The session's summary once it ``ended`` (after ``elapsed_s``; ``back``: the times the
+    source came back)."""
     counts = s.detector
     dec = s.decoder.counts
-    yield WatchSummary(
+    return WatchSummary(
         samples=counts.samples,
         events=s.events,
         collision=s.collision,
         ended=ended,
-        elapsed_s=round(time.monotonic() - start, 3),
+        elapsed_s=elapsed_s,
         segments=s.segments.count,
         late=s.reorder.late,
         duplicates=s.reorder.duplicates,
@@ -526,7 +475,7 @@ def _run(
         latency_ms=s.latency.summary(),
         filter_delay_ms=round(s.detector.filter_delay_s * 1e3, 3),
         error=error,
-        reconnects=connection.back,
+        reconnects=back,
     )
 
 
