@@ -20,7 +20,8 @@ from twincd.evaluation.metrics import EventCounts, at_threshold, auc, event_coun
 from twincd.evaluation.runner import SCORE_KEYS, evaluate, parse_methods
 from twincd.evaluation.streamed import judge_log
 from twincd.io.logs import expand_logs
-from twincd.prepare.setup import PreparedLog, Setup
+from twincd.prepare.prepared import PreparedLog
+from twincd.prepare.setup import Setup
 from twincd.signal.filters import LowPass
 
 

@@ -25,7 +25,8 @@ from twincd.version import __version__
 log = logging.getLogger("twincd")
 
 if TYPE_CHECKING:
-    from twincd.prepare.setup import PreparedLog, Setup
+    from twincd.prepare.prepared import PreparedLog
+    from twincd.prepare.setup import Setup
 
 SCHEMA = "twincd.calibration/3"
 SCHEMA_V2 = "twincd.calibration/2"  # still read, through ``upgrade_v2``
@@ -160,7 +161,7 @@ class Calibration:
         its package (``robot_package``). None when it records none, or (a model the twin does
         not need) none is found; a ``RobotModelError`` when the twin needs one and none is
         found. Which file it is does not matter: its dynamics are checked
-        (``twincd.prepare.chain.check_robot``)."""
+        (``twincd.prepare.robots.check_robot``)."""
         if given is not None or self.robot is None:
             return given if given is not None else self.robot
         from twincd.twin.robot import locate_urdf

@@ -41,7 +41,8 @@ from twincd.calibration.tail import (
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 from twincd.errors import DataError, UsageError
 from twincd.prepare.frames import Derived, Frame
-from twincd.prepare.setup import PreparedLog, Setup
+from twincd.prepare.prepared import PreparedLog
+from twincd.prepare.setup import Setup
 from twincd.signal.edges import edge_scaled
 from twincd.types import BoolArray, FloatArray, IntArray
 
