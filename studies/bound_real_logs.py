@@ -36,7 +36,7 @@ def main() -> int:
     if not DATA.is_dir():
         print(f"{DATA.resolve()} is absent: nothing to study")
         return 0
-    from twincd.prepare.chain import robot_for, sample_bounds
+    from twincd.prepare.robots import robot_for, sample_bounds
     from twincd.prepare.setup import read_log
     from twincd.signal.bounds import EFFORT_BOUND
 

@@ -21,7 +21,8 @@ from twincd.calibration.threshold import ScoreStats
 from twincd.detection import affine_score
 from twincd.evaluation.metrics import at_threshold, auc, best_of, f1_sweep
 from twincd.io.logs import expand_logs
-from twincd.prepare.setup import PreparedLog, Setup
+from twincd.prepare.prepared import PreparedLog
+from twincd.prepare.setup import Setup
 from twincd.signal.filters import LowPass
 
 CUTOFFS_HZ = (0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 5.0)

@@ -46,7 +46,8 @@ from twincd.calibration import Calibration
 from twincd.detection.detect import detect_log
 from twincd.detection.events import RUNS, Event, EventRules, find_events
 from twincd.evaluation.metrics import EventCounts, event_counts
-from twincd.prepare.setup import PreparedLog, Setup
+from twincd.prepare.prepared import PreparedLog
+from twincd.prepare.setup import Setup
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "doosan_m0609"
 LOGS = [DATA / "logs" / f"doosan_dev_{i:02d}" for i in range(6)]

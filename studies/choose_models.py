@@ -40,7 +40,8 @@ from twincd.evaluation.metrics import EventCounts, auc, best_of, event_counts, f
 from twincd.evaluation.own import ModelMethod
 from twincd.evaluation.proposed import ProposedMethod
 from twincd.io.logs import expand_logs
-from twincd.prepare.setup import PreparedLog, Setup
+from twincd.prepare.prepared import PreparedLog
+from twincd.prepare.setup import Setup
 from twincd.signal.features import ModelFeatures
 from twincd.signal.filters import FILTER_KINDS, LowPass
 from twincd.synth.contact import contact_torque

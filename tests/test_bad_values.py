@@ -284,7 +284,7 @@ def test_the_bound_is_the_same_in_any_chunking(
 
 def test_the_largest_synth_press_survives_the_bound() -> None:
     """Every sample of synth's hardest presses (35 N) is kept, far inside the bound."""
-    from twincd.prepare.chain import robot_for, sample_bounds
+    from twincd.prepare.robots import robot_for, sample_bounds
     from twincd.signal.bounds import EFFORT_BOUND
     from twincd.synth.config import SynthConfig
     from twincd.synth.simulate import simulate_path

@@ -22,7 +22,7 @@ from twincd.evaluation.baselines.windows import (
     windows,
 )
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, make_method
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 
 
 @lru_cache(maxsize=1)

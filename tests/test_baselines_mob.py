@@ -17,7 +17,7 @@ from support.builders import trajectory
 from twincd.evaluation.baselines.mob import NaiveMob, check_mob, mob_tau_ext, momentum_observer
 from twincd.evaluation.methods import MethodSkipped, make_method
 from twincd.io.logs import JointStates
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.signal.filters import LowPass
 from twincd.twin.dynamics import inverse_dynamics
 from twincd.twin.robot import RobotModel, load_robot

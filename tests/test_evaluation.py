@@ -21,7 +21,8 @@ from twincd.evaluation.results import SCORE_KEYS
 from twincd.evaluation.runner import evaluate
 from twincd.evaluation.streamed import judge_log
 from twincd.io.logs import expand_logs
-from twincd.prepare.setup import PreparedLog, Setup
+from twincd.prepare.prepared import PreparedLog
+from twincd.prepare.setup import Setup
 from twincd.signal.filters import LowPass
 
 

@@ -91,7 +91,7 @@ def test_workers_are_forked_only_while_that_is_safe(monkeypatch: pytest.MonkeyPa
 
 
 def _twin_torque(n: int) -> float:
-    from twincd.prepare.chain import robot_for
+    from twincd.prepare.robots import robot_for
     from twincd.twin.dynamics import inverse_dynamics
 
     robot = robot_for("xarm7", tuple(f"joint{i}" for i in range(1, 8)))

@@ -344,7 +344,7 @@ def test_short_logs_are_refused(world, tmp_path):
 def test_a_log_mostly_near_its_ends_is_judged_and_said_to_be_short(world, tmp_path):
     # 1.5 × the stretch near the ends where the filter leaves ≥ 1.5× the middle's noise: every
     # sample judged, most of them less sensitively, and said so
-    from twincd.prepare.setup import edges_s
+    from twincd.prepare.notices import edges_s
 
     near = edges_s(Calibration.load(world["cal"]).lowpass, 0.01)
     log = build_twin_log(tmp_path / "short.mcap", seed=1, seconds=1.5 * near)

@@ -153,7 +153,9 @@ def test_the_grid_is_used_only_far_above_the_cutoff(
 def test_a_100hz_log_keeps_the_per_sample_chain(lowpass: LowPass) -> None:
     names = XARM
     layout = JointLayout(names, names, names)
-    built = build_chain(lowpass, ModelFeatures(), layout, 0.01, None, False)
+    built = build_chain(
+        lowpass, ModelFeatures(), layout=layout, period_s=0.01, twin=None, fill_velocity=False
+    )
     assert built.grid is None
     assert not any(isinstance(s, twincd.prepare.grid.GridStage) for s in built.chain.stages)
 
@@ -415,7 +417,9 @@ def test_the_grid_stage_gives_the_same_bits_in_any_chunking(
 
     def run(edges: list[int]) -> Frame:
         layout = JointLayout(names, names, names)
-        built = build_chain(lowpass, features, layout, 0.001, None, False)
+        built = build_chain(
+            lowpass, features, layout=layout, period_s=0.001, twin=None, fill_velocity=False
+        )
         assert built.grid is not None
         parts = [built.chain.push(Frame({k: v[a:b] for k, v in columns.items()}))
                  for a, b in zip([0, *edges], [*edges, n], strict=True)]  # fmt: skip

@@ -1,4 +1,4 @@
-"""twincd.prepare.setup: one chain of stages for whole, chunked and live processing.
+"""twincd.prepare.stream: one chain of stages for whole, chunked and live processing.
 
 Properties: any block size gives the whole-log answer (causal: identical; zero-phase: within
 1e-9 of each signal's range), and the live detector fed in any chunking equals batch detection
@@ -173,7 +173,7 @@ def test_joint_order_comes_from_names_not_from_the_first_log(twin_log, tmp_path:
 def test_joint_order_puts_the_model_first_then_names_naturally() -> None:
     from types import SimpleNamespace
 
-    from twincd.prepare.setup import joint_order
+    from twincd.prepare.joints import joint_order
 
     names = ["joint10", "grip", "joint2", "joint1"]
     assert joint_order(names, None) == ("grip", "joint1", "joint2", "joint10")
@@ -185,7 +185,7 @@ def test_logs_with_other_joints_are_refused_together(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
     from twincd.errors import JointMismatchError
-    from twincd.prepare.setup import agreed_joints
+    from twincd.prepare.joints import agreed_joints
 
     logs: list[Any] = [
         SimpleNamespace(source="b", joint_names=("j1", "j2")),
@@ -218,7 +218,9 @@ def test_the_chain_follows_joint_names_whatever_the_columns(lowpass: LowPass) ->
         picked = [joints.index(c) if c in joints else 0 for c in columns]
         frame = Frame({"stamp_ns": stamps, **{k: v[:, picked] for k, v in arrays.items()}})
         layout = JointLayout(columns, joints, output)
-        built = build_chain(lowpass, features, layout, 0.01, None, False)
+        built = build_chain(
+            lowpass, features, layout=layout, period_s=0.01, twin=None, fill_velocity=False
+        )
         assert built.joint_names == output
         return Frame.concat([built.chain.push(frame), built.chain.finish()])
 

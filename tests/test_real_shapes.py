@@ -253,7 +253,7 @@ def test_a_joint_named_twice_keeps_its_first_value_with_a_warning(plain, tmp_pat
 def panda_log(path: Path, seed: int, bump: bool) -> Path:
     """A Panda-shaped log: the arm's seven joints, then the two fingers (franka_ros), with
     effort = the Panda's inverse dynamics (+ a labelled push when ``bump``)."""
-    from twincd.prepare.chain import robot_for
+    from twincd.prepare.robots import robot_for
     from twincd.twin.dynamics import inverse_dynamics
 
     n, period, t0 = 1200, 10_000_000, 1_700_000_000_000_000_000

@@ -208,7 +208,7 @@ def test_the_live_detector_checks_the_urdf(caplog: pytest.LogCaptureFixture) -> 
 def test_a_log_near_its_ends_throughout_is_judged_and_said_to_be_short(
     tmp_path: Path, twin_calibration: Path
 ) -> None:
-    from twincd.prepare.setup import edges_s
+    from twincd.prepare.notices import edges_s
     from twincd.signal.filters import LowPass
 
     cal = Calibration.load(twin_calibration)

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import pytest
 from support import synthlogs
+from support.calibrations import threshold_prepared_logs
 from support.clitools import assert_one_line_error, run
 
 from twincd.calibration import Calibration, Threshold
 from twincd.calibration.threshold import (
     MISFIT_REFUSED,
     score_log,
-    threshold_prepared_logs,
 )
 from twincd.commands import threshold_calibration
 from twincd.detection.files import AlarmTally, record_false_alarms

@@ -15,7 +15,7 @@ from twincd.calibration import Calibration, clean_mask
 from twincd.calibration.models import model_inputs
 from twincd.calibration.threshold import BandCounter, LogScores, NoiseRatio, threshold_from_parts
 from twincd.errors import CalibrationError
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.signal.edges import edge_scaled
 
 

@@ -21,7 +21,7 @@ from twincd.signal.moments import Moments
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
-    from twincd.prepare.setup import PreparedLog
+    from twincd.prepare.prepared import PreparedLog
 
 log = logging.getLogger("twincd")
 

@@ -208,7 +208,7 @@ def crossfit_log(
     k; one log: each time block by its fold's, ``TimeFolded``) down the scoring chain, with the
     setup's bands and ``jump`` threshold: what ``cross_fitted`` turns into noise and clean
     statistics."""
-    from twincd.prepare.setup import said_already
+    from twincd.prepare.notices import said_already
 
     source = str(path)
     model = TimeFolded(models, folds) if folds.by_time else models[folds.groups[source]]

@@ -20,7 +20,8 @@ from twincd.signal.filters import LowPass
 from twincd.version import __version__
 
 if TYPE_CHECKING:
-    from twincd.prepare.setup import PreparedLog, Setup
+    from twincd.prepare.prepared import PreparedLog
+    from twincd.prepare.setup import Setup
 
 SCHEMA = "twincd.calibration/3"
 
@@ -149,7 +150,7 @@ class Calibration:
         its package (``robot_package``). None when it records none, or (a model the twin does
         not need) none is found; a ``RobotModelError`` when the twin needs one and none is
         found. Which file it is does not matter: its dynamics are checked
-        (``twincd.prepare.chain.check_robot``)."""
+        (``twincd.prepare.robots.check_robot``)."""
         if given is not None or self.robot is None:
             return given if given is not None else self.robot
         from twincd.twin.robot import locate_urdf

@@ -34,7 +34,9 @@ from twincd.calibration.models import (
 )
 from twincd.errors import DataError, UsageError
 from twincd.prepare.frames import Frame
-from twincd.prepare.setup import PreparedStream, Setup, agreed_joints
+from twincd.prepare.joints import agreed_joints
+from twincd.prepare.setup import Setup
+from twincd.prepare.stream import PreparedStream
 from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.types import BoolArray, FloatArray, IntArray
 
@@ -300,7 +302,7 @@ def _links_and_depths(
     """Each joint's child link and depth, when the robot model can be loaded (else None: logs
     with their own twin effort need no model, and isolation then names joints' links less)."""
     from twincd.errors import TwincdError
-    from twincd.prepare.chain import robot_for
+    from twincd.prepare.robots import robot_for
     from twincd.twin.robot import child_links
 
     if robot is None:

@@ -227,7 +227,7 @@ def _inspect(
     if found.sampling is not None:
         _warn_if_too_short(found.path, found.sampling, calibration)
     # what fit and detect refuse, refused here alike (the same checks, the same words)
-    from twincd.prepare.setup import require_effort, require_enough_samples
+    from twincd.prepare.notices import require_effort, require_enough_samples
 
     require_effort(has_effort, found.path, found.joint_topic or options.topic, why)
     require_enough_samples(usable, found.path)
@@ -277,11 +277,11 @@ def _match_robot(
     found.ignored = tuple(j for j in in_log if j not in full.joint_names)
     found.locked = tuple(j for j in full.joint_names if j not in in_log)
     if found.robot_is_default:  # as fit and detect: the default model only on its own joints
-        from twincd.prepare.chain import require_default_robot
+        from twincd.prepare.robots import require_default_robot
 
         require_default_robot(in_log, found.path)
     if calibration is not None and not has_own_twin:
-        from twincd.prepare.chain import check_robot, robot_for
+        from twincd.prepare.robots import check_robot, robot_for
 
         twin = robot_for(name, calibration.joint_names)
         cal = calibration
@@ -299,7 +299,7 @@ class _Ranges:
         self.samples = 0
         self.first: int | None = None
         self.last: int | None = None
-        self.period_ns = 0.0  # nominal, from the first block (as ``twincd.prepare.setup`` does)
+        self.period_ns = 0.0  # nominal, from the first block (as ``twincd.prepare.stream`` does)
         self.steps = np.zeros(3)  # count, sum, sum of squares of the intervals (ns)
         self.gaps = 0
         self.largest_gap_ns = 0
@@ -365,7 +365,7 @@ def _read_samples(
     use (finite position and effort, and the log's twin effort where it has one), and whether
     the log has measured effort (as the stream decides it)."""
     from twincd.io.stream import iter_blocks
-    from twincd.prepare.chain import sample_bounds
+    from twincd.prepare.robots import sample_bounds
 
     limits = model.position_limits if model is not None else {}
     # the joints as detect reads them: exactly the calibration's, else those of the robot
@@ -449,8 +449,7 @@ class _SignalScan:
     def warn(self, source: str) -> None:
         """The signal checks' warnings, those of velocity taken from position, and of a log
         in which no joint moves."""
-        from twincd.prepare.chain import warn_unwrapped
-        from twincd.prepare.setup import warn_velocity_from_position
+        from twincd.prepare.notices import warn_unwrapped, warn_velocity_from_position
 
         self.checks.warn(source)
         if not self.has_velocity.all():
@@ -529,7 +528,7 @@ def _warn_if_at_rest(source: str, spans: FloatArray) -> None:
 
 def _warn_if_too_short(source: str, sampling: Sampling, calibration: Calibration | None) -> None:
     """What detect would say of a log near a segment's end throughout."""
-    from twincd.prepare.setup import edges_s, warn_short
+    from twincd.prepare.notices import edges_s, warn_short
     from twincd.signal.filters import LowPass
 
     lowpass = calibration.lowpass if calibration is not None else LowPass()

@@ -22,7 +22,7 @@ from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.prepare.setup import PreparedLog
+    from twincd.prepare.prepared import PreparedLog
 
 log = logging.getLogger("twincd")
 

@@ -1,5 +1,5 @@
 """Detection on a log file, streamed block by block at flat memory: the log's frames (read,
-twinned and filtered by ``twincd.prepare.setup``, down the chain
+twinned and filtered by ``twincd.prepare.stream``, down the chain
 ``twincd.prepare.chain.build_chain`` builds for the calibration, zero-phase or causal) scored,
 flagged and grouped into events. Only counts and events are kept; per-sample results go to sinks."""
 
@@ -17,7 +17,7 @@ from twincd.detection.detect import MOSTLY_FLAGGED, DetectionSummary, ScoringSta
 from twincd.detection.events import Event
 from twincd.errors import DataError
 from twincd.prepare.frames import Frame, FrameSink
-from twincd.prepare.setup import said_already
+from twincd.prepare.notices import said_already
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration

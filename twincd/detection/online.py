@@ -42,15 +42,9 @@ from twincd.defaults import DEFAULT_ROBOT
 from twincd.detection.detect import FlagCount, ScoringStage
 from twincd.detection.events import Event, EventRules
 from twincd.errors import CalibrationError, DataError, JointMismatchError
-from twincd.prepare.chain import (
-    BuiltChain,
-    JointLayout,
-    build_chain,
-    check_robot,
-    robot_for,
-    sample_bounds,
-)
+from twincd.prepare.chain import BuiltChain, JointLayout, build_chain
 from twincd.prepare.frames import Frame
+from twincd.prepare.robots import check_robot, robot_for, sample_bounds
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
@@ -93,7 +87,7 @@ class OnlineDetector:
     ``robot``: the robot model (an example-robot-data name, a ``package://`` URI or a URDF
     path) when not the calibration's (``Calibration.robot_model``: the recorded one, found
     where it is, beside the calibration file or by its package). Its dynamics must be those
-    the calibration was fitted with (``twincd.prepare.chain.check_robot``): other ones are
+    the calibration was fitted with (``twincd.prepare.robots.check_robot``): other ones are
     refused unless ``allow_urdf_change`` (then said once). ``source`` names the stream in
     messages (default: the calibration). ``rules``: how flags become events (default:
     ``EventRules()``, as ``detect``).
@@ -216,12 +210,12 @@ class OnlineDetector:
         built = build_chain(
             self.calibration.lowpass,
             model.features,
-            layout,
-            self.period_s,
-            twin,
-            fill,
-            regressor,
-            self._threads,
+            layout=layout,
+            period_s=self.period_s,
+            twin=twin,
+            fill_velocity=fill,
+            regressor=regressor,
+            threads=self._threads,
             model=model,
             fast_hz=self.calibration.fast_hz,
             jump=self.calibration.score.jump,

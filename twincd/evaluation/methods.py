@@ -19,7 +19,7 @@ import numpy as np
 from twincd.calibration.models.constants import AFFINE
 from twincd.calibration.models.kinds import MODEL_KINDS
 from twincd.errors import UsageError
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:

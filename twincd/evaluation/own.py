@@ -26,7 +26,7 @@ from twincd.detection.events import Event, EventRules, find_events
 from twincd.detection.isolation import DEFAULT_KAPPA, LinkIsolator
 from twincd.errors import DataError, NotFittedError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.signal.edges import edge_scaled
 from twincd.types import BoolArray, FloatArray
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from twincd.errors import DataError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, make_method
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration

@@ -11,7 +11,7 @@ from twincd.calibration import AffineCalibration, Calibration
 from twincd.calibration.models import AffineModel, ResidualModel, model_inputs
 from twincd.errors import NotFittedError
 from twincd.evaluation.methods import ScoringMethod
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.types import FloatArray
 
 

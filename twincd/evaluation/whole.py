@@ -37,7 +37,9 @@ from twincd.evaluation.results import (
 )
 from twincd.executors.local import Bound
 from twincd.io.links import read_links
-from twincd.prepare.setup import PreparedLog, Setup, agreed_joints, prepare_log
+from twincd.prepare.joints import agreed_joints
+from twincd.prepare.prepared import PreparedLog
+from twincd.prepare.setup import Setup, prepare_log
 from twincd.signal.features import ModelFeatures
 from twincd.types import BoolArray, FloatArray
 

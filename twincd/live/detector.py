@@ -155,7 +155,14 @@ class LiveDetector:
             fill = det.velocity_from_position
             lowpass, features = self.calibration.lowpass, ModelFeatures()  # no filter: none
             built = build_chain(
-                lowpass, features, layout, det.period_s, robot, fill, threads=1, filtered=False
+                lowpass,
+                features,
+                layout=layout,
+                period_s=det.period_s,
+                twin=robot,
+                fill_velocity=fill,
+                threads=1,
+                filtered=False,
             )
             self._twin_chain = built.chain
         ok = det.taken  # the rows the detector took: finite, newer, not absurd

@@ -224,11 +224,11 @@ class _Session:
 
     def rate_notice(self, elapsed_s: float) -> WatchNotice | None:
         """Once the first samples are in: a notice when the source is sampled at another
-        rate than the calibration (``twincd.prepare.setup.other_rate``, as ``detect`` says
+        rate than the calibration (``twincd.prepare.notices.other_rate``, as ``detect`` says
         it of a log)."""
         if self.rate_said or len(self.first_stamps) < _RATE_SAMPLES:
             return None
-        from twincd.prepare.setup import other_rate
+        from twincd.prepare.notices import other_rate
         from twincd.signal import nominal_period
 
         self.rate_said = True

@@ -3,23 +3,21 @@ pick the twin's joint columns, twin them (velocity where the log has none, accel
 τ̂ = RNEA(q, q̇, q̈), the joint-torque regressor for identified models), put the joints in the
 output order, low-pass filter τ, τ̂ and the model's other inputs alike.
 
-The same function builds the chain of a log streamed from disk (``twincd.prepare.setup``, which
+The same function builds the chain of a log streamed from disk (``twincd.prepare.stream``, which
 feeds ``fit``, ``threshold`` and ``detect`` with a zero-phase or a causal filter) and of live
 samples (``twincd.detection.OnlineDetector``): the filter's kind comes from the settings, the
 joints from a ``JointLayout``, so a causal calibration gives the same numbers in batch and live.
+The robot models it twins with come from ``twincd.prepare.robots``.
 """
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twincd.errors import CalibrationError, UsageError
 from twincd.prepare.frames import Chain, Derived, Frame, Mapped, Stage
 from twincd.prepare.grid import GridStage, grid_period_ns
 from twincd.signal.features import FittedModel, ModelFeatures, ModelInputs
@@ -27,118 +25,8 @@ from twincd.signal.filters import LowPass
 from twincd.types import BoolArray, FloatArray, IndexArray
 
 if TYPE_CHECKING:
-    from twincd.signal.bounds import SampleBounds
     from twincd.signal.unwrap import StreamingUnwrap
     from twincd.twin.robot import RobotModel
-
-log = logging.getLogger("twincd")
-
-
-# ------------------------------------------------------------------ the robot model
-
-
-@lru_cache(maxsize=32)
-def model_joints(robot: str) -> tuple[str, ...]:
-    """The joints a robot model drives (a gripper's are not the twin's)."""
-    from twincd.twin.robot import load_robot
-
-    return load_robot(robot).joint_names
-
-
-def require_default_robot(joints: Sequence[str], source: str) -> None:
-    """The default robot model stands in for a robot nobody named only on a log of its joints
-    (extra joints, a gripper's, are ignored as for any model): a log that lacks one of them is
-    another arm, and a reduced model is for a robot the user named (contract: Robot models).
-    A ``UsageError`` that says to name it."""
-    from twincd.defaults import DEFAULT_ROBOT
-
-    model = model_joints(DEFAULT_ROBOT)
-    missing = [j for j in model if j not in joints]
-    if missing:
-        shown = ", ".join(list(joints)[:10]) or "none"
-        raise UsageError(
-            f"no robot model was given and the log's joints are not those of the default "
-            f"{DEFAULT_ROBOT} (it lacks {', '.join(missing)})",
-            f"{source}: log joints {shown}",
-            "name the robot the log was recorded on (an example-robot-data name or a URDF)",
-            option="robot",
-        )
-
-
-def robot_for(robot: str, joints: tuple[str, ...]) -> RobotModel:
-    """The robot model reduced to ``joints`` (cached: loading a URDF costs milliseconds; a
-    URDF edited since is loaded again)."""
-    from twincd.twin.robot import file_version, resolve_urdf
-
-    return _robot_for(robot, joints, file_version(resolve_urdf(robot)))
-
-
-@lru_cache(maxsize=32)
-def _robot_for(robot: str, joints: tuple[str, ...], version: tuple[int, int]) -> RobotModel:
-    from twincd.twin.robot import load_robot
-
-    return load_robot(robot, keep=joints)
-
-
-def sample_bounds(
-    robot: RobotModel | None, joints: Sequence[str], drives_off: bool = True
-) -> SampleBounds:
-    """The causal bound on a stream's absurd samples (``twincd.signal.bounds``) from the robot
-    model's limits (none without a model), and its samples with the drives off (unless not
-    ``drives_off``: a command that compares no effort): the one rule batch, causal, live and
-    ``inspect`` apply."""
-    from twincd.signal.bounds import SampleBounds
-
-    if robot is None:
-        return SampleBounds(joints, {}, drives_off=drives_off)
-    return SampleBounds(
-        joints,
-        robot.position_limits,
-        robot.velocity_limits,
-        robot.effort_limits,
-        drives_off=drives_off,
-    )
-
-
-def check_robot(
-    robot: RobotModel,
-    dynamics: str | None,
-    urdf_sha256: str | None,
-    allow: bool,
-    source: str,
-) -> None:
-    """The robot model a calibration's twin runs on must be the one it was fitted with, judged
-    by content: its dynamics (``dynamics``: ``RobotModel.dynamics_sha256``), whatever the
-    URDF's path or the rest of the file. A calibration that records only the URDF file's
-    sha256 (``urdf_sha256``: written before twincd hashed the dynamics) is checked by the
-    file's bytes; one that records neither (fitted on a log's own twin effort) is not checked.
-    A difference is refused, or with ``allow`` said once for the log."""
-    if dynamics:
-        if robot.dynamics_sha256 == dynamics:
-            return
-        what = (
-            f"the robot model {robot.name} has other dynamics than the calibration was fitted "
-            f"with (dynamics sha256 {robot.dynamics_sha256[:12]}…, the calibration's "
-            f"{dynamics[:12]}…: another URDF, or one whose joints, inertias, kinematics or "
-            "limits changed)"
-        )
-    elif urdf_sha256 and robot.urdf_sha256 != urdf_sha256:
-        what = (
-            f"the URDF {robot.urdf_path} changed since the calibration was fitted "
-            f"(sha256 {robot.urdf_sha256[:12]}…, the calibration's {urdf_sha256[:12]}…)"
-        )
-    else:
-        return
-    if allow:
-        log.warning("%s: %s; using it as allowed", source, what)
-        return
-    raise CalibrationError(
-        what,
-        source,
-        "give the robot's URDF the calibration was fitted with, re-fit the calibration, or "
-        "allow the change if it does not affect dynamics",
-        option="robot,allow_urdf_change",
-    )
 
 
 # ------------------------------------------------------------------ the stages
@@ -381,7 +269,7 @@ class BuiltChain:
     @property
     def unwrap(self) -> StreamingUnwrap | None:
         """The stage that unwraps positions before their derivative (None: velocity logged);
-        what it found is for the caller to say (``warn_unwrapped``)."""
+        what it found is for the caller to say (``twincd.prepare.notices.warn_unwrapped``)."""
         from twincd.signal.unwrap import StreamingUnwrap
 
         for stage in self.chain.stages:
@@ -390,43 +278,10 @@ class BuiltChain:
         return None
 
 
-def warn_unwrapped(source: str, unwrap: StreamingUnwrap | None, joints: Sequence[str]) -> None:
-    """One warning for the joints whose positions wrapped (unwrapped before differentiating),
-    one naming the steps that cannot be a wrap."""
-    if unwrap is None or not len(unwrap.wraps):
-        return
-    wrapped = [f"{j} ({n})" for j, n in zip(joints, unwrap.wraps.tolist(), strict=True) if n]
-    if wrapped:
-        log.warning(
-            "%s: positions wrap by a whole turn (2π) on %s; unwrapped before differentiating "
-            "them into velocity",
-            source,
-            ", ".join(wrapped),
-        )
-    jumps = [
-        f"{j} ({n}×, up to {big:.3g} rad, first at stamp {first})"
-        for j, n, big, first in zip(
-            joints,
-            unwrap.jumps.tolist(),
-            unwrap.largest_jump.tolist(),
-            unwrap.first_jump_ns.tolist(),
-            strict=True,
-        )
-        if n
-    ]
-    if jumps:
-        log.warning(
-            "%s: positions jump by more than π between two samples, and not by a whole turn: "
-            "%s; no joint moves that fast, so the velocity differentiated there is wrong; check "
-            "the log",
-            source,
-            "; ".join(jumps),
-        )
-
-
 def build_chain(
     lowpass: LowPass,
     features: ModelFeatures,
+    *,
     layout: JointLayout,
     period_s: float,
     twin: RobotModel | None,
@@ -436,7 +291,6 @@ def build_chain(
     filtered: bool = True,
     nodes: bool = False,
     model: FittedModel | None = None,
-    *,
     fast_hz: float | None = None,
     jump: FloatArray | None = None,
 ) -> BuiltChain:
@@ -463,21 +317,13 @@ def build_chain(
     (``BuiltChain.grid.take_nodes``) and the samples come back without the regressor's hundreds
     of entries."""
     causal = lowpass.causal
-    mask = None
-    if filtered and regressor is not None:
-        from twincd.twin.dynamics import regressor_mask
-
-        assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
-        mask = regressor_mask(regressor)[layout.to_output]  # robot order → the output's
+    mask = _output_mask(regressor, layout) if filtered else None
     theta = None if mask is None else features.theta
     fast = None if fast_hz is None else _fast_high(lowpass, fast_hz, period_s)
     scoring = filtered and model is not None and not nodes
     warmup = warmup_samples(causal, fill_velocity)  # on a grid: as many nodes as samples
-    grid = (
-        grid_period_ns(lowpass.cutoff_hz, period_s, None if fast is None else fast.cutoff_hz)
-        if filtered
-        else None
-    )
+    fast_cutoff = None if fast is None else fast.cutoff_hz
+    grid = grid_period_ns(lowpass.cutoff_hz, period_s, fast_cutoff) if filtered else None
     if grid is not None:
         models = (twin, regressor, model if scoring else None)
         stage = _grid_stage(
@@ -511,6 +357,18 @@ def build_chain(
     return BuiltChain(Chain(stages), layout, period_s, mask)
 
 
+def _output_mask(regressor: RobotModel | None, layout: JointLayout) -> BoolArray | None:
+    """The (D, P) mask of the regressor's entries that can be non-zero
+    (``twincd.twin.dynamics.regressor_mask``), its joints in the output order (None without a
+    regressor)."""
+    if regressor is None:
+        return None
+    from twincd.twin.dynamics import regressor_mask
+
+    assert regressor.joint_names == layout.twin, "the regressor runs on the twin's joints"
+    return regressor_mask(regressor)[layout.to_output]  # robot order → the output's
+
+
 def _fast_high(lowpass: LowPass, fast_hz: float, period_s: float) -> LowPass | None:
     """The fast band's upper filter, at ``fast_hz`` as far as the sampling rate allows (None:
     it has no room for one, ``twincd.signal.bands.fast_band_at``)."""
@@ -536,12 +394,10 @@ def _grid_stage(
     stages as ``build_chain`` runs them per sample, at the grid's period: fitting, every
     filtered input; scoring (``models``: the twin's robot model, the regressor's and the fitted
     model, as ``build_chain`` takes them), the model's residual in each band."""
-    from twincd.twin.dynamics import regressor_mask
-
     twin, regressor, model = models
     eps = features.coulomb_eps
     step = grid_ns * 1e-9
-    mask = None if regressor is None else regressor_mask(regressor)[layout.to_output]
+    mask = _output_mask(regressor, layout)
     theta = None if mask is None else features.theta
     # a fitted model reads one Coulomb feature per joint, at the joint's own ε: only those are
     # averaged, and set among the others (zeros) before the model reads them

@@ -29,7 +29,7 @@ from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.types import BoolArray, FloatArray
 
 if TYPE_CHECKING:
-    from twincd.prepare.setup import PreparedLog
+    from twincd.prepare.prepared import PreparedLog
 
 
 log = logging.getLogger("twincd")

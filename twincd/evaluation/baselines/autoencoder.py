@@ -45,7 +45,7 @@ from twincd.evaluation.baselines.windows import (
     WINDOW_SIZE,
 )
 from twincd.evaluation.methods import MethodSkipped
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.signal.filters import LowPass
 from twincd.types import FloatArray
 

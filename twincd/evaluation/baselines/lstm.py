@@ -48,7 +48,7 @@ from twincd.evaluation.baselines.windows import (
     subsample,
 )
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.signal.filters import LowPass
 from twincd.types import FloatArray
 

@@ -41,7 +41,7 @@ from twincd.evaluation.baselines.windows import (
     windows,
 )
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.signal.filters import LowPass
 from twincd.twin.robot import RobotModel
 from twincd.types import BoolArray, FloatArray

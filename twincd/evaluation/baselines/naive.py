@@ -13,7 +13,7 @@ import numpy as np
 
 from twincd.detection.score import affine_score
 from twincd.evaluation.methods import ScoringMethod
-from twincd.prepare.setup import PreparedLog
+from twincd.prepare.prepared import PreparedLog
 from twincd.types import FloatArray
 
 
