@@ -35,7 +35,6 @@ from twincd.evaluation.methods import MethodSkipped, ScoringMethod, make_method
 from twincd.evaluation.planner import Mapper, Progress, plan, sorted_paths, warn_on_overlap
 from twincd.evaluation.results import Evaluation, MethodResult, Sources, skipped_result
 from twincd.evaluation.whole import evaluate_whole
-from twincd.io.logs import expand_logs
 from twincd.io.named import settle_named
 from twincd.prepare.setup import Setup
 
@@ -58,7 +57,9 @@ def evaluate(
     batch: int = 1,
     fast_cutoff_hz: float | None = None,
 ) -> Evaluation:
-    """Every method in ``methods`` over the same test logs; isolation is judged where the
+    """Every method in ``methods`` over the same test logs (each set's log files, each once:
+    ``twincd.io.logs.expand_logs``, which ``twincd.commands.evaluate_logs`` runs; a log given
+    twice would count its events twice); isolation is judged where the
     test logs carry the contact link on ``setup.options.link_topic`` (a link topic named
     that no test log has is an error, ``twincd.io.named``).
 
@@ -69,10 +70,6 @@ def evaluate(
     ``fast_cutoff_hz``: the fast band of the models fitted here (``fit --fast-cutoff``)."""
     if not test_paths:
         raise UsageError("no test logs given", "evaluate", "pass labelled logs with collisions")
-    # each set's logs once (a log given twice would count its events twice)
-    test_paths = expand_logs(test_paths)
-    train_paths = expand_logs(train_paths) if train_paths else []
-    val_paths = expand_logs(val_paths) if val_paths else []
     setup, link_topic = _settle_links(setup, test_paths, [*test_paths, *train_paths, *val_paths])
     if repeats < 1:
         raise UsageError(
