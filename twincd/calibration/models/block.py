@@ -24,6 +24,18 @@ POSITIVE = ("epsilon", "scale")  # coefficients that must be above 0
 SCALARS = ("a", "b", "c", "d", "epsilon")  # one number per joint (another kind's may be lists)
 
 
+def _number_rows(rows: Sequence[Any], names: Sequence[str], key: str, where: str) -> FloatArray:
+    """(D, K) from one list of numbers per joint (their lengths checked by the caller), each a
+    finite number."""
+    return np.array(
+        [
+            [finite_number(x, f"{key}[{n}]", where) for x in r]
+            for r, n in zip(rows, names, strict=True)
+        ],
+        dtype=np.float64,
+    )
+
+
 def _column(
     coeff: Mapping[str, Any], names: Sequence[str], key: str, where: str
 ) -> FloatArray | None:
@@ -46,13 +58,7 @@ def _column(
             where,
             "re-run `twincd fit`",
         )
-    return np.array(
-        [
-            [finite_number(x, f"{key}[{n}]", where) for x in v]
-            for v, n in zip(values, names, strict=True)
-        ],
-        dtype=np.float64,
-    )
+    return _number_rows(values, names, key, where)
 
 
 def _speed_bins(model: Mapping[str, Any], where: str) -> tuple[float, ...] | None:
@@ -102,12 +108,7 @@ def _scale(
             where,
             "re-run `twincd fit`",
         )
-    return np.array(
-        [
-            [finite_number(v, f"scale[{n}]", where) for v in r]
-            for r, n in zip(rows, names, strict=True)
-        ]
-    )
+    return _number_rows(rows, names, "scale", where)
 
 
 def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatArray | None:
@@ -131,13 +132,7 @@ def _theta(coeff: Mapping[str, Any], names: Sequence[str], where: str) -> FloatA
             where,
             "re-run `twincd fit`",
         )
-    return np.array(
-        [
-            [finite_number(v, f"theta[{n}]", where) for v in r]
-            for r, n in zip(rows, names, strict=True)
-        ],
-        dtype=np.float64,
-    )
+    return _number_rows(rows, names, "theta", where)
 
 
 def _learned(
