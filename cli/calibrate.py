@@ -10,39 +10,25 @@ from rich.table import Table
 
 from twincd.defaults import DEFAULT_FALSE_ALARMS_PER_HOUR, DEFAULT_K_SIGMA
 
-from .common import command, finish, json_document, run_options, stdout
+from .common import command, finish, json_document, stdout
 from .options import (
-    AllowUrdfChange,
+    FILTER,
+    GIVEN,
+    RECORDING,
+    WINDOW,
     CalibrationIn,
-    Causal,
-    Cutoff,
     Debug,
-    End,
-    FastCutoff,
-    FilterKind,
-    FilterOrder,
     Force,
-    Jobs,
-    JointMap,
-    JointPrefix,
     Json,
-    KeepGoing,
-    LabelTopic,
-    LinkTopic,
     Logs,
     Quiet,
     Report,
-    Robot,
-    Scheduler,
-    SimTopic,
-    Start,
-    Strict,
-    Topic,
-    settings,
+    reads,
 )
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration, Threshold
+    from twincd.commands import RunOptions, Settings
 
 
 Model = Annotated[
@@ -123,29 +109,14 @@ def fit_table(cal: Calibration) -> Table:
 
 
 @command
+@reads(*RECORDING, *FILTER, *WINDOW, run=True)
 def fit(
     logs: Logs,
     output: CalibrationOut = Path("calibration.json"),
     report: Report = None,
-    robot: Robot = None,
-    topic: Topic = None,
-    label_topic: LabelTopic = None,
-    sim_topic: SimTopic = None,
-    link_topic: LinkTopic = None,
-    joint_map: JointMap = None,
-    joint_prefix: JointPrefix = None,
-    cutoff: Cutoff = None,
-    fast_cutoff: FastCutoff = None,
-    filter_order: FilterOrder = None,
-    filter_kind: FilterKind = None,
-    causal: Causal = None,
+    asked: Settings = GIVEN,
     model: Model = None,
-    jobs: Jobs = 0,
-    scheduler: Scheduler = None,
-    start: Start = None,
-    end: End = None,
-    strict: Strict = False,
-    keep_going: KeepGoing = False,
+    run: RunOptions = GIVEN,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -167,14 +138,6 @@ def fit(
     """
     from twincd.commands import fit_calibration
 
-    asked = settings(
-        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
-        cutoff_hz=cutoff, fast_cutoff_hz=fast_cutoff, filter_order=filter_order,
-        filter_kind=filter_kind, causal=causal,
-        strict=strict, start=start, end=end
-    )  # fmt: skip
-    run = run_options(quiet, jobs, scheduler, keep_going)
     done = fit_calibration(
         logs, model=model, output=output, report=report, force=force, **run, **asked
     )  # fmt: skip
@@ -183,6 +146,7 @@ def fit(
 
 
 @command
+@reads(*RECORDING, *WINDOW, "allow_urdf_change", run=True)
 def threshold(
     logs: Logs,
     calibration: CalibrationIn,
@@ -190,20 +154,8 @@ def threshold(
     false_alarms_per_hour: FalseAlarmsPerHour = None,
     output: ThresholdOut = None,
     json_: Json = False,
-    robot: Robot = None,
-    topic: Topic = None,
-    label_topic: LabelTopic = None,
-    sim_topic: SimTopic = None,
-    link_topic: LinkTopic = None,
-    joint_map: JointMap = None,
-    joint_prefix: JointPrefix = None,
-    jobs: Jobs = 0,
-    scheduler: Scheduler = None,
-    start: Start = None,
-    end: End = None,
-    strict: Strict = False,
-    keep_going: KeepGoing = False,
-    allow_urdf_change: AllowUrdfChange = False,
+    asked: Settings = GIVEN,
+    run: RunOptions = GIVEN,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -227,12 +179,6 @@ def threshold(
     """
     from twincd.commands import threshold_calibration
 
-    asked = settings(
-        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, joint_prefix=joint_prefix, link_topic=link_topic, strict=strict,
-        allow_urdf_change=allow_urdf_change, start=start, end=end
-    )  # fmt: skip
-    run = run_options(quiet, jobs, scheduler, keep_going)
     done = threshold_calibration(
         logs, calibration, k_sigma=sigma,
         false_alarms_per_hour=false_alarms_per_hour,

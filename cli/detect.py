@@ -9,35 +9,24 @@ import typer
 from rich.table import Table
 
 if TYPE_CHECKING:
+    from twincd.commands import RunOptions, Settings
     from twincd.detection import DetectionSummary
 
-from .common import command, finish, json_document, run_options, stdout
+from .common import command, finish, json_document, stdout
 from .options import (
-    AllowUrdfChange,
+    GIVEN,
+    RECORDING,
+    WINDOW,
     CalibrationIn,
-    Causal,
     Debug,
-    End,
     Force,
-    Jobs,
-    JointMap,
-    JointPrefix,
     Json,
     Junit,
-    KeepGoing,
-    LabelTopic,
-    LinkTopic,
     Logs,
     NoSummary,
     Quiet,
     Report,
-    Robot,
-    Scheduler,
-    SimTopic,
-    Start,
-    Strict,
-    Topic,
-    settings,
+    reads,
 )
 
 DetectOut = Annotated[
@@ -66,6 +55,7 @@ def events_table(result: DetectionSummary) -> Table:
 
 
 @command
+@reads(*RECORDING, "causal", *WINDOW, "allow_urdf_change", run=True)
 def detect(
     logs: Logs,
     calibration: CalibrationIn,
@@ -74,21 +64,8 @@ def detect(
     report: Report = None,
     junit: Junit = None,
     no_summary: NoSummary = False,
-    robot: Robot = None,
-    topic: Topic = None,
-    label_topic: LabelTopic = None,
-    sim_topic: SimTopic = None,
-    link_topic: LinkTopic = None,
-    joint_map: JointMap = None,
-    joint_prefix: JointPrefix = None,
-    causal: Causal = None,
-    jobs: Jobs = 0,
-    scheduler: Scheduler = None,
-    start: Start = None,
-    end: End = None,
-    strict: Strict = False,
-    keep_going: KeepGoing = False,
-    allow_urdf_change: AllowUrdfChange = False,
+    asked: Settings = GIVEN,
+    run: RunOptions = GIVEN,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -105,12 +82,6 @@ def detect(
     """
     from twincd.commands import detect_files
 
-    asked = settings(
-        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix, causal=causal,
-        strict=strict, allow_urdf_change=allow_urdf_change, start=start, end=end
-    )  # fmt: skip
-    run = run_options(quiet, jobs, scheduler, keep_going)
     done = detect_files(
         logs, calibration, output=output, report=report, junit=junit,
         step_summary=not no_summary, force=force, **run, **asked

@@ -13,39 +13,25 @@ from rich.table import Table
 
 from twincd.defaults import DEFAULT_REPEATS
 
-from .common import command, finish, json_document, run_options, stdout
+from .common import command, finish, json_document, stdout
 from .options import (
-    AllowUrdfChange,
-    Causal,
-    Cutoff,
+    FILTER,
+    GIVEN,
+    RECORDING,
+    WINDOW,
     Debug,
-    End,
-    FastCutoff,
-    FilterKind,
-    FilterOrder,
     Force,
-    Jobs,
-    JointMap,
-    JointPrefix,
     Json,
     Junit,
-    KeepGoing,
-    LabelTopic,
-    LinkTopic,
     Logs,
     NoSummary,
     Quiet,
     Report,
-    Robot,
-    Scheduler,
-    SimTopic,
-    Start,
-    Strict,
-    Topic,
-    settings,
+    reads,
 )
 
 if TYPE_CHECKING:
+    from twincd.commands import RunOptions, Settings
     from twincd.evaluation.results import Evaluation
 
 CalibrationMaybe = Annotated[
@@ -108,6 +94,7 @@ MinAuc = Annotated[
 
 
 @command
+@reads(*RECORDING, *FILTER, *WINDOW, "allow_urdf_change", run=True)
 def evaluate(
     logs: Logs,
     calibration: CalibrationMaybe = None,
@@ -122,25 +109,8 @@ def evaluate(
     no_summary: NoSummary = False,
     min_f1: MinF1 = None,
     min_auc: MinAuc = None,
-    robot: Robot = None,
-    topic: Topic = None,
-    label_topic: LabelTopic = None,
-    sim_topic: SimTopic = None,
-    joint_map: JointMap = None,
-    joint_prefix: JointPrefix = None,
-    cutoff: Cutoff = None,
-    fast_cutoff: FastCutoff = None,
-    filter_order: FilterOrder = None,
-    filter_kind: FilterKind = None,
-    causal: Causal = None,
-    jobs: Jobs = 0,
-    scheduler: Scheduler = None,
-    link_topic: LinkTopic = None,
-    start: Start = None,
-    end: End = None,
-    strict: Strict = False,
-    keep_going: KeepGoing = False,
-    allow_urdf_change: AllowUrdfChange = False,
+    asked: Settings = GIVEN,
+    run: RunOptions = GIVEN,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -159,14 +129,6 @@ def evaluate(
     """
     from twincd.commands import evaluate_logs
 
-    asked = settings(
-        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        link_topic=link_topic, joint_map=joint_map, joint_prefix=joint_prefix,
-        cutoff_hz=cutoff, fast_cutoff_hz=fast_cutoff, filter_order=filter_order,
-        filter_kind=filter_kind, causal=causal,
-        strict=strict, allow_urdf_change=allow_urdf_change, start=start, end=end
-    )  # fmt: skip
-    run = run_options(quiet, jobs, scheduler, keep_going)
     done = evaluate_logs(
         logs, calibration, methods=methods, train=train or (), val=val or (), k_sigma=sigma,
         repeats=repeats, min_f1=min_f1, min_auc=min_auc, report=report,

@@ -10,22 +10,17 @@ from rich.table import Table
 
 from .common import command, finish, stdout
 from .options import (
+    GIVEN,
+    RECORDING,
     Debug,
-    JointMap,
-    JointPrefix,
     Json,
-    LabelTopic,
-    LinkTopic,
     Logs,
     Quiet,
-    Robot,
-    SimTopic,
-    Strict,
-    Topic,
-    settings,
+    reads,
 )
 
 if TYPE_CHECKING:
+    from twincd.commands import Settings
     from twincd.commands.inspection import Inspection
 
 
@@ -132,6 +127,7 @@ def render(found: Inspection) -> None:
 
 
 @command
+@reads(*RECORDING, "strict")
 def inspect(
     logs: Logs,
     calibration: Annotated[
@@ -141,14 +137,7 @@ def inspect(
         ),
     ] = None,
     json_: Json = False,
-    robot: Robot = None,
-    topic: Topic = None,
-    label_topic: LabelTopic = None,
-    sim_topic: SimTopic = None,
-    link_topic: LinkTopic = None,
-    joint_map: JointMap = None,
-    joint_prefix: JointPrefix = None,
-    strict: Strict = False,
+    asked: Settings = GIVEN,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -166,10 +155,6 @@ def inspect(
 
     from twincd.commands import inspect_logs
 
-    asked = settings(
-        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, joint_prefix=joint_prefix, link_topic=link_topic, strict=strict
-    )  # fmt: skip
     done = inspect_logs(logs, calibration, **asked)
     if json_:
         stdout.out(json.dumps(done.to_dict(), allow_nan=False), highlight=False)

@@ -1,8 +1,13 @@
 """The command-line options several subcommands share, declared once (typer ``Annotated``
-aliases), and the library settings they become."""
+aliases), and the library settings they become: ``reads`` gives a command the reading settings
+(and the run options) it takes, each declared once in ``SETTINGS``, as one argument."""
 
 from __future__ import annotations
 
+import functools
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, cast
 
@@ -208,3 +213,95 @@ def settings(*, joint_map: str | None = None, **given: Any) -> Settings:
 
     parsed = None if joint_map is None else parse_joint_map(joint_map)
     return cast("Settings", {"joint_map": parsed, **given})
+
+
+# the default of a command's ``asked`` and ``run`` parameters, which ``reads`` fills
+GIVEN: Any = None
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A reading setting as every command takes it: its option, its default, and its keyword
+    among the library's reading settings (``twincd.commands.Settings``)."""
+
+    option: Any
+    default: Any
+    keyword: str
+
+
+SETTINGS: dict[str, Setting] = {
+    "robot": Setting(Robot, None, "robot"),
+    "topic": Setting(Topic, None, "topic"),
+    "label_topic": Setting(LabelTopic, None, "label_topic"),
+    "sim_topic": Setting(SimTopic, None, "sim_topic"),
+    "link_topic": Setting(LinkTopic, None, "link_topic"),
+    "joint_map": Setting(JointMap, None, "joint_map"),
+    "joint_prefix": Setting(JointPrefix, None, "joint_prefix"),
+    "cutoff": Setting(Cutoff, None, "cutoff_hz"),
+    "fast_cutoff": Setting(FastCutoff, None, "fast_cutoff_hz"),
+    "filter_order": Setting(FilterOrder, None, "filter_order"),
+    "filter_kind": Setting(FilterKind, None, "filter_kind"),
+    "causal": Setting(Causal, None, "causal"),
+    "start": Setting(Start, None, "start"),
+    "end": Setting(End, None, "end"),
+    "strict": Setting(Strict, False, "strict"),
+    "allow_urdf_change": Setting(AllowUrdfChange, False, "allow_urdf_change"),
+}
+# how a recording is read (every command that reads logs), the filter, the stretch judged
+RECORDING = (
+    "robot",
+    "topic",
+    "label_topic",
+    "sim_topic",
+    "link_topic",
+    "joint_map",
+    "joint_prefix",
+)
+FILTER = ("cutoff", "fast_cutoff", "filter_order", "filter_kind", "causal")
+WINDOW = ("start", "end", "strict")
+# the run options (``RunOptions``: ``twincd.cli.common.run_options``)
+RUN: dict[str, tuple[Any, Any]] = {"jobs": (Jobs, 0), "scheduler": (Scheduler, None),
+                                   "keep_going": (KeepGoing, False)}  # fmt: skip
+
+
+def reads(*names: str, run: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Give a command the reading settings ``names`` (``SETTINGS``) as options, in the place of
+    its parameter ``asked``, which gets them as one ``Settings`` (the --joint-map parsed); with
+    ``run``, also --jobs, --scheduler and --keep-going, in the place of its parameter ``run``,
+    which gets the library's run options (``run_options``, quiet as --quiet says)."""
+    from .common import run_options
+
+    def wrap(func: Callable[..., Any]) -> Callable[..., Any]:
+        declared = inspect.signature(func)
+        scope = func.__globals__
+        injected = {
+            "asked": [_parameter(n, SETTINGS[n].option, SETTINGS[n].default) for n in names],
+            "run": [_parameter(n, option, d) for n, (option, d) in RUN.items()] if run else [],
+        }
+        params: list[inspect.Parameter] = []
+        for p in declared.parameters.values():
+            if p.name in injected:
+                params += injected[p.name]
+            else:
+                kind = eval(p.annotation, scope) if isinstance(p.annotation, str) else p.annotation
+                params.append(p.replace(annotation=kind))
+
+        @functools.wraps(func)
+        def command(*args: Any, **kwargs: Any) -> Any:
+            given = {SETTINGS[n].keyword: kwargs.pop(n) for n in names}
+            if run:
+                go = {n: kwargs.pop(n) for n in RUN}
+                kwargs["run"] = run_options(bool(kwargs.get("quiet")), **go)
+            return func(*args, asked=settings(**given), **kwargs)
+
+        command.__signature__ = declared.replace(parameters=params)  # type: ignore[attr-defined]
+        command.__annotations__ = {p.name: p.annotation for p in params}
+        return command
+
+    return wrap
+
+
+def _parameter(name: str, option: Any, default: Any) -> inspect.Parameter:
+    return inspect.Parameter(
+        name, inspect.Parameter.POSITIONAL_OR_KEYWORD, default=default, annotation=option
+    )

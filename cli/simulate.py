@@ -3,33 +3,29 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from twincd.errors import UsageError
 
-from .common import command, finish, run_options, stdout
+from .common import command, finish, stdout
+
+if TYPE_CHECKING:
+    from twincd.commands import RunOptions, Settings
+
 from .options import (
+    GIVEN,
+    RECORDING,
     Debug,
     Force,
-    Jobs,
-    JointMap,
-    JointPrefix,
-    KeepGoing,
-    LabelTopic,
-    LinkTopic,
     Quiet,
-    Robot,
-    Scheduler,
-    SimTopic,
-    Strict,
-    Topic,
-    settings,
+    reads,
 )
 
 
 @command
+@reads(*RECORDING, "strict", run=True)
 def simulate(
     logs: Annotated[
         list[Path] | None,
@@ -39,13 +35,7 @@ def simulate(
         Path | None,
         typer.Option("--output", "-o", help="Output .mcap (one log) or folder (several logs)."),
     ] = None,
-    robot: Robot = None,
-    topic: Topic = None,
-    label_topic: LabelTopic = None,
-    sim_topic: SimTopic = None,
-    link_topic: LinkTopic = None,
-    joint_map: JointMap = None,
-    joint_prefix: JointPrefix = None,
+    asked: Settings = GIVEN,
     in_place: Annotated[
         bool, typer.Option("--in-place", help="Rewrite a bare .mcap input atomically.", metavar="")
     ] = False,
@@ -53,10 +43,7 @@ def simulate(
         bool,
         typer.Option("--list-robots", help="List the robot names --robot accepts.", metavar=""),
     ] = False,
-    jobs: Jobs = 0,
-    scheduler: Scheduler = None,
-    strict: Strict = False,
-    keep_going: KeepGoing = False,
+    run: RunOptions = GIVEN,
     force: Force = False,
     quiet: Quiet = False,
     debug: Debug = False,
@@ -76,11 +63,6 @@ def simulate(
         return
     if not logs:
         raise UsageError("no logs given", "simulate", "pass LOG... or --list-robots")
-    asked = settings(
-        robot=robot, topic=topic, label_topic=label_topic, sim_topic=sim_topic,
-        joint_map=joint_map, joint_prefix=joint_prefix, link_topic=link_topic, strict=strict
-    )  # fmt: skip
-    run = run_options(quiet, jobs, scheduler, keep_going)
     done = simulate_logs(logs, output=output, in_place=in_place, force=force, **run, **asked)
     for result in done.outputs:
         stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")
