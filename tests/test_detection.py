@@ -74,14 +74,14 @@ def test_runs_and_events_from_a_flag_vector():
 def calibrated(twin_dataset):
     setup = Setup(lowpass=LowPass(2.0))
     cal = fit_calibration([twin_dataset / "train"], model="affine", cutoff_hz=2.0).calibration
-    val = setup.prepare_all(expand_logs([twin_dataset / "val"]))
+    val = [setup.prepare(p) for p in expand_logs([twin_dataset / "val"])]
     return threshold_prepared_logs(val, cal, 4.0)
 
 
 def test_threshold_streams_val_logs(calibrated, twin_dataset):
     th = calibrated.threshold
     setup = Setup.from_calibration(calibrated)
-    logs = list(setup.prepare_all(expand_logs([twin_dataset / "val"])))
+    logs = [setup.prepare(p) for p in expand_logs([twin_dataset / "val"])]
     # every sample counts, each in the noise units of its distance from the log's ends
     assert th.k_sigma == 4.0 and th.samples == sum(len(lg) for lg in logs) and len(th.logs) == 2
     model = calibrated.model
@@ -164,7 +164,7 @@ def test_outputs_csv_jsonl_mcap(calibrated, twin_dataset, tmp_path):
 
 def test_proposed_method_is_registered_and_fits(twin_dataset):
     setup = Setup(lowpass=LowPass(2.0))
-    train = list(setup.prepare_all(expand_logs([twin_dataset / "train"])))
+    train = [setup.prepare(p) for p in expand_logs([twin_dataset / "train"])]
     method = make_method("proposed")
     assert isinstance(method, ProposedMethod) and method.unit == "sample"
     with pytest.raises(NotFittedError):

@@ -92,7 +92,7 @@ def split(twin_dataset):
 def calibration(split):
     setup = Setup(lowpass=LowPass(2.0))
     cal = fit_calibration(split["train"], model="affine", cutoff_hz=2.0).calibration
-    return threshold_prepared_logs(setup.prepare_all(split["val"]), cal, 4.0)
+    return threshold_prepared_logs([setup.prepare(p) for p in split["val"]], cal, 4.0)
 
 
 def test_proposed_from_the_calibration(calibration, split):

@@ -17,7 +17,7 @@ interval longer than 5 periods; stages restart after it.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -169,14 +169,6 @@ class Setup:
         (its residual in each band; ``jump``: the score's, ``PreparedStream``)."""
         with self.open(path, features=features, model=model, jump=jump) as stream:
             return stream.read_whole()
-
-    def prepare_all(
-        self, paths: Iterable[str | Path], features: ModelFeatures | None = None
-    ) -> Iterator[PreparedLog]:
-        """Prepare logs lazily, each on its own (see ``joint_order``; ``agreed_joints`` checks
-        that they agree)."""
-        for path in paths:
-            yield self.prepare(path, features)
 
 
 def prepare_log(

@@ -39,6 +39,8 @@ class AffineCalibration(AffineModel):
     def fit_arrays(
         self, effort_f: FloatArray, sim_effort_f: FloatArray, mask: BoolArray | None = None
     ) -> AffineCalibration:
+        """Fit from arrays in memory: the filtered measured and twin efforts (N, D), and which
+        samples are collision-free (``mask``; None: every one) — the estimator on its own."""
         return self.fit_stats(AffineStats.from_arrays(sim_effort_f, effort_f, mask))
 
     def fit_stats(self, stats: AffineStats) -> AffineCalibration:
