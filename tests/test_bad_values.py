@@ -249,9 +249,10 @@ def test_live_drops_what_detect_causal_drops(tmp_path: Path) -> None:
     cuts=st.lists(st.integers(1, 299), max_size=6),
     glitches=st.lists(st.integers(0, 299), max_size=8),
     degrees=st.booleans(),
+    jumps=st.lists(st.tuples(st.integers(0, 299), st.integers(1, 8)), max_size=4),
 )
 def test_the_bound_is_the_same_in_any_chunking(
-    seed: int, cuts: list[int], glitches: list[int], degrees: bool
+    seed: int, cuts: list[int], glitches: list[int], degrees: bool, jumps: list[tuple[int, int]]
 ) -> None:
     from twincd.signal.bounds import EFFORT_BOUND, SampleBounds
 
@@ -265,6 +266,8 @@ def test_the_bound_is_the_same_in_any_chunking(
     for g in glitches:
         q[g, rng.integers(3)] = 253.0 if rng.random() < 0.5 else q[g, 0]
         effort[g, rng.integers(3)] *= 1e30 if rng.random() < 0.5 else 1.0
+    for start, length in jumps:  # rows of another state within the limits (or a re-anchoring run)
+        q[start : start + length, rng.integers(3)] += 1.5
     limits = {n: (-3.0, 3.0) for n in "abc"}
 
     def keep(edges: list[int]) -> np.ndarray:
