@@ -215,12 +215,24 @@ class SampleBounds:
         n = len(stamp_ns)
         run = np.arange(1, n + 1) + self._run
         stepped: BoolArray = np.zeros(n, dtype=bool)
-        if position is not None and np.isfinite(self._step_low).any():
+        if position is not None and n and np.isfinite(self._step_low).any():
             before = self._read.get("position") if self._read else None
-            prev = np.vstack([position[:1] if before is None else before[None], position[:-1]])
-            prev_ns = np.r_[self._read_ns if before is not None else stamp_ns[0], stamp_ns[:-1]]
-            dt = np.maximum(stamp_ns - prev_ns, 0).astype(np.float64)[:, None] * 1e-9
-            stepped = np.asarray(self._stepped(position, prev, dt).any(axis=1))
+            # each row's change from the row before: the raw difference is never below the
+            # wrapped one, so only rows it marks are looked at again (the usual block: none)
+            delta = np.empty_like(position)
+            delta[0] = 0.0 if before is None else position[0] - before
+            np.subtract(position[1:], position[:-1], out=delta[1:])
+            dt = np.empty(n)
+            dt[0] = 0.0 if before is None else max(int(stamp_ns[0]) - self._read_ns, 0) * 1e-9
+            dt[1:] = np.maximum(np.diff(stamp_ns), 0) * 1e-9
+            with np.errstate(invalid="ignore"):  # NaN: no value
+                raw = np.abs(delta) > STEP_MARGIN + self._step_speed * dt[:, None]
+            rows = np.flatnonzero(raw.any(axis=1))
+            if len(rows):
+                prev = position[np.maximum(rows - 1, 0)]
+                if before is not None and rows[0] == 0:
+                    prev[0] = before
+                stepped[rows] = self._stepped(position[rows], prev, dt[rows, None]).any(axis=1)
             if stepped.any():
                 starts = np.maximum.accumulate(np.where(stepped, np.arange(n), -1))
                 run = np.where(starts >= 0, np.arange(n) - starts + 1, run)
