@@ -36,7 +36,7 @@ def test_the_registry_names_every_kind_once_everywhere() -> None:
         assert method_for(kind) in METHOD_NAMES and method_for(kind) in available()
         cls, whitened = model_class(kind)
         assert cls.name == kind.removesuffix("-whitened") and whitened == kind.endswith("whitened")
-    from cli.calibrate import Model
+    from twincd_cli.calibrate import Model
 
     help_text = Model.__metadata__[0].help
     assert all(stem in help_text for stem in MODEL_CLASSES)
