@@ -17,10 +17,9 @@ from twincd.defaults import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT
 from twincd.errors import UsageError
 
 if TYPE_CHECKING:
-    from twincd.calibration import Calibration
     from twincd.io.options import LogOptions
     from twincd.io.window import TimeWindow
-    from twincd.prepare.setup import Setup
+    from twincd.prepare.setup import CalibrationSettings, Setup
 
 __all__ = ["SetupOptions"]
 
@@ -91,7 +90,7 @@ class SetupOptions:
             self.joint_prefix,
         )
 
-    def resolve(self, calibration: Calibration | None = None) -> Setup:
+    def resolve(self, calibration: CalibrationSettings | None = None) -> Setup:
         """The ``Setup`` these options ask for, on top of ``calibration``'s when given: its
         filter, joints, period and dynamics, with the log options and the robot model given
         in place of its recorded ones (``Calibration.robot_model`` finds the recorded URDF
@@ -126,7 +125,7 @@ class SetupOptions:
             self.log_options(), self.robot, lowpass, strict=self.strict, window=self.window()
         )
 
-    def _check_filter(self, cal: Calibration) -> None:
+    def _check_filter(self, cal: CalibrationSettings) -> None:
         """A ``UsageError`` for the first filter setting given that the calibration's filter
         contradicts (the filter is part of what it learned)."""
         lp = cal.lowpass
@@ -158,7 +157,9 @@ class SetupOptions:
                 )
 
 
-def _contradiction(option: str, given: str, recorded: object, calibration: Calibration) -> None:
+def _contradiction(
+    option: str, given: str, recorded: object, calibration: CalibrationSettings
+) -> None:
     raise UsageError(
         f"{given} contradicts the calibration's {recorded}",
         calibration.source or "calibration",
