@@ -127,3 +127,17 @@ def test_fit_filters_identified_models_without_overshoot_unless_told() -> None:
     assert setup.lowpass.kind == "critical"
     setup, _ = fit_setup(SetupOptions(filter_kind="butterworth"), "identified")
     assert setup.lowpass.kind == "butterworth"
+
+
+def test_a_command_s_keywords_become_one_run_and_one_settings_object() -> None:
+    from twincd.commands.runs import Running, split_options
+
+    running, asked = split_options(
+        {"jobs": 2, "keep_going": True, "robot": "panda", "causal": False}
+    )
+    assert running == Running(jobs=2, keep_going=True)  # the others at Running's defaults
+    assert asked == SetupOptions(robot="panda", causal=False)
+    running, asked = split_options({})
+    assert (running, asked) == (Running(), SetupOptions())
+    with pytest.raises(TypeError, match="cutof"):
+        split_options({"cutof": 3.0})  # type: ignore[typeddict-unknown-key]

@@ -16,7 +16,6 @@ from twincd.commands.runs import (
     as_path,
     check_reports,
     input_files,
-    setup_options,
     split_options,
 )
 from twincd.errors import UsageError
@@ -89,11 +88,11 @@ def detect_files(
     from twincd.io.logs import expand_logs
 
     with gathered_warnings() as warnings:
-        running, settings = split_options(options)
+        running, asked = split_options(options)
         cal = Calibration.given(calibration)
         threshold = cal.require_threshold().value
         paths = expand_logs(logs)
-        setup = setup_options(settings).resolve(cal).for_logs(paths)
+        setup = asked.resolve(cal).for_logs(paths)
         targets = detect_targets(paths, as_path(output))
         inputs = [*paths, *input_files([calibration])]
         for target in targets:

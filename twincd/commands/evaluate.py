@@ -16,7 +16,6 @@ from twincd.commands.runs import (
     as_path,
     check_reports,
     input_files,
-    setup_options,
     split_options,
 )
 from twincd.defaults import DEFAULT_REPEATS
@@ -86,7 +85,7 @@ def evaluate_logs(
     from twincd.io.logs import expand_logs
 
     with gathered_warnings() as warnings:
-        running, settings = split_options(options)
+        running, asked = split_options(options)
         cal = None if calibration is None else Calibration.given(calibration)
         names = _method_names(methods, cal)
         test_paths = expand_logs(logs)
@@ -95,11 +94,11 @@ def evaluate_logs(
         inputs = [*test_paths, *train_paths, *val_paths, *input_files([calibration])]
         report_path, junit_path = as_path(report), as_path(junit)
         check_reports(report_path, junit_path, force=force, inputs=inputs)
-        setup = setup_options(settings).resolve(cal)
+        setup = asked.resolve(cal)
         failed: LogRun[Any] = LogRun()
         paths = (test_paths, train_paths, val_paths)
-        asked = (k_sigma, repeats, settings.get("fast_cutoff_hz"))
-        result = _evaluated(running, failed, paths, names, setup, cal, *asked)
+        given = (k_sigma, repeats, asked.fast_cutoff_hz)
+        result = _evaluated(running, failed, paths, names, setup, cal, *given)
         if result.positives == 0:
             log.warning(
                 "no test sample is labelled as a collision: F1 is 0 and AUC undefined "

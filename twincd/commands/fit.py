@@ -14,7 +14,6 @@ from twincd.commands.runs import (
     Options,
     as_path,
     check_reports,
-    setup_options,
     split_options,
 )
 
@@ -63,13 +62,13 @@ def fit_calibration(
     from twincd.io.logs import expand_logs
 
     with gathered_warnings() as warnings:
-        running, settings = split_options(options)
+        running, asked = split_options(options)
         paths = expand_logs(logs)
         target, report_path = as_path(output), as_path(report)
         if target is not None:
             check_target(target, "calibration", force=force, inputs=paths)
         check_reports(report_path, None, force=force, inputs=paths)
-        setup, model = fit_setup(setup_options(settings), model)
+        setup, model = fit_setup(asked, model)
         setup = setup.for_logs(paths)  # a named option no log has: refused before any work
         figure = report_path is not None and report_path.suffix.lower() == ".html"
         crossfit = scored_by_depth(model)  # its noise from a second pass (below)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from twincd.commands.runs import CommandRun, Settings, setup_options
+from twincd.commands.runs import CommandRun, Settings
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack
@@ -45,11 +45,12 @@ def inspect_logs(
     from twincd.commands.inspection import inspect_log
     from twincd.executors.local import gathered_warnings
     from twincd.io.logs import expand_logs
+    from twincd.prepare.settings import SetupOptions
 
     with gathered_warnings() as warnings:
         cal = None if calibration is None else Calibration.given(calibration)
         paths = expand_logs(logs)
-        setup = setup_options(settings).resolve(cal).for_logs(paths)  # named options checked
+        setup = SetupOptions(**settings).resolve(cal).for_logs(paths)  # named options checked
         found = [
             inspect_log(
                 path, setup.options, setup.robot, cal, setup.strict, setup.allow_urdf_change

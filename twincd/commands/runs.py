@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict, TypeVar
 
@@ -67,16 +67,16 @@ class Options(Settings, RunOptions, total=False):
     """The keyword arguments every command that runs many logs takes."""
 
 
-def split_options(options: Options) -> tuple[Running, Settings]:
-    """The run options (``Running``) and the reading settings of ``options``."""
-    running = Running(
-        options.pop("jobs", 0),
-        options.pop("scheduler", None),
-        options.pop("keep_going", False),
-        options.pop("progress", None),
-        options.pop("on_failure", warn_failure),
-    )
-    return running, options
+def split_options(options: Options) -> tuple[Running, SetupOptions]:
+    """The one run object (``Running``) and the one settings object (``SetupOptions``) of a
+    command's keyword arguments: every command goes on with these two alone, each option's
+    default written once, in its dataclass (an unknown keyword is a ``TypeError``, as any
+    function's)."""
+    from twincd.prepare.settings import SetupOptions
+
+    given: dict[str, Any] = dict(options)
+    run = {name: given.pop(name) for name in RUN_FIELDS if name in given}
+    return Running(**run), SetupOptions(**given)
 
 
 def filter_settings(lowpass: LowPass) -> Settings:
@@ -87,12 +87,6 @@ def filter_settings(lowpass: LowPass) -> Settings:
         causal=lowpass.causal,
         filter_kind=lowpass.kind,
     )
-
-
-def setup_options(settings: Settings) -> SetupOptions:
-    from twincd.prepare.settings import SetupOptions
-
-    return SetupOptions(**settings)
 
 
 class LogsFailed(TwincdError):
@@ -154,6 +148,10 @@ class Running:
         if executor is None and run.failures and not run.results:
             raise LogsFailed(run.failures)
         return run
+
+
+# the keyword arguments that say how a command runs (``RunOptions``), Running's fields
+RUN_FIELDS = tuple(f.name for f in fields(Running))
 
 
 @dataclass(frozen=True, kw_only=True)

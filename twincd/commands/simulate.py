@@ -10,9 +10,7 @@ from typing import TYPE_CHECKING
 from twincd.commands.runs import (
     CommandRun,
     Options,
-    Settings,
     as_path,
-    setup_options,
     split_options,
 )
 from twincd.errors import UsageError
@@ -20,6 +18,7 @@ from twincd.errors import UsageError
 if TYPE_CHECKING:
     from typing_extensions import Unpack
 
+    from twincd.prepare.settings import SetupOptions
     from twincd.prepare.simulate import SimulateResult
 
 # settings of the filter and the calibration: simulate writes the twin's effort as computed
@@ -59,12 +58,11 @@ def simulate_logs(
     from twincd.prepare.simulate import simulate_item
 
     with gathered_warnings() as warnings:
-        running, settings = split_options(options)
-        _refuse_filter_settings(settings)
+        running, asked = split_options(options)
+        _refuse_filter_settings(asked)
         paths = expand_logs(logs)
         target = as_path(output)
         _prepare_output(paths, target, in_place)
-        asked = setup_options(settings)
         # the twin's topic is what simulate writes, not something a log must have
         reading = settle_named(paths, asked.log_options().unnamed("sim_topic"))
         targets = _targets(paths, target, in_place, force)
@@ -82,14 +80,18 @@ def simulate_logs(
     )
 
 
-def _refuse_filter_settings(settings: Settings) -> None:
+def _refuse_filter_settings(asked: SetupOptions) -> None:
     """A usage error when a filter or calibration setting is given: simulate has none."""
     # given at all, whatever the value (causal=False, a cut-off of 0 are settings too);
     # allow_urdf_change only when asked for (False is every command's default)
     given = [
         name
         for name in _NOT_FOR_SIMULATE
-        if settings.get(name) is not None and (name != "allow_urdf_change" or settings.get(name))
+        if (
+            asked.allow_urdf_change
+            if name == "allow_urdf_change"
+            else getattr(asked, name) is not None
+        )
     ]
     if given:
         raise UsageError(

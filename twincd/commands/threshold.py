@@ -13,7 +13,6 @@ from twincd.commands.runs import (
     CommandRun,
     Options,
     as_path,
-    setup_options,
     split_options,
 )
 
@@ -78,14 +77,14 @@ def threshold_calibration(
     from twincd.io.logs import expand_logs
 
     with gathered_warnings() as warnings:
-        running, settings = split_options(options)
+        running, asked = split_options(options)
         check_threshold_choice(k_sigma, false_alarms_per_hour)
         cal = Calibration.given(calibration)
         target = as_path(output)
         paths = expand_logs(logs)
         if target is not None:
             check_target(target, "calibration", force=force, inputs=paths)
-        setup = setup_options(settings).resolve(cal).for_logs(paths)
+        setup = asked.resolve(cal).for_logs(paths)
         scoring: Bound[Path, LogScores] = Bound(score_log, cal, setup)
         done = running.each(scoring, paths, "scoring")
         counted: list[LogFailure] = []
