@@ -28,7 +28,8 @@ from .options import (
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration, Threshold
-    from twincd.commands import RunOptions, Settings
+    from twincd.commands import RunOptions
+    from twincd.prepare.settings import SetupOptions
 
 
 Model = Annotated[
@@ -114,7 +115,7 @@ def fit(
     logs: Logs,
     output: CalibrationOut = Path("calibration.json"),
     report: Report = None,
-    asked: Settings = GIVEN,
+    asked: SetupOptions = GIVEN,
     model: Model = None,
     run: RunOptions = GIVEN,
     force: Force = False,
@@ -139,7 +140,7 @@ def fit(
     from twincd.commands import fit_calibration
 
     done = fit_calibration(
-        logs, model=model, output=output, report=report, force=force, **run, **asked
+        logs, model=model, output=output, report=report, force=force, **run, **asked.keywords()
     )  # fmt: skip
     stdout.print(fit_table(done.calibration))
     finish(done)
@@ -154,7 +155,7 @@ def threshold(
     false_alarms_per_hour: FalseAlarmsPerHour = None,
     output: ThresholdOut = None,
     json_: Json = False,
-    asked: Settings = GIVEN,
+    asked: SetupOptions = GIVEN,
     run: RunOptions = GIVEN,
     force: Force = False,
     quiet: Quiet = False,
@@ -182,7 +183,7 @@ def threshold(
     done = threshold_calibration(
         logs, calibration, k_sigma=sigma,
         false_alarms_per_hour=false_alarms_per_hour,
-        output=output or calibration, force=force, **run, **asked
+        output=output or calibration, force=force, **run, **asked.keywords()
     )  # fmt: skip
     if json_:
         json_document(done, done.to_dict())

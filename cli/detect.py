@@ -9,8 +9,9 @@ import typer
 from rich.table import Table
 
 if TYPE_CHECKING:
-    from twincd.commands import RunOptions, Settings
+    from twincd.commands import RunOptions
     from twincd.detection import DetectionSummary
+    from twincd.prepare.settings import SetupOptions
 
 from .common import command, finish, json_document, stdout
 from .options import (
@@ -64,7 +65,7 @@ def detect(
     report: Report = None,
     junit: Junit = None,
     no_summary: NoSummary = False,
-    asked: Settings = GIVEN,
+    asked: SetupOptions = GIVEN,
     run: RunOptions = GIVEN,
     force: Force = False,
     quiet: Quiet = False,
@@ -84,7 +85,7 @@ def detect(
 
     done = detect_files(
         logs, calibration, output=output, report=report, junit=junit,
-        step_summary=not no_summary, force=force, **run, **asked
+        step_summary=not no_summary, force=force, **run, **asked.keywords()
     )  # fmt: skip
     if json_:
         json_document(done, done.to_dict())

@@ -31,8 +31,9 @@ from .options import (
 )
 
 if TYPE_CHECKING:
-    from twincd.commands import RunOptions, Settings
+    from twincd.commands import RunOptions
     from twincd.evaluation.results import Evaluation
+    from twincd.prepare.settings import SetupOptions
 
 CalibrationMaybe = Annotated[
     Path | None,
@@ -109,7 +110,7 @@ def evaluate(
     no_summary: NoSummary = False,
     min_f1: MinF1 = None,
     min_auc: MinAuc = None,
-    asked: Settings = GIVEN,
+    asked: SetupOptions = GIVEN,
     run: RunOptions = GIVEN,
     force: Force = False,
     quiet: Quiet = False,
@@ -132,7 +133,7 @@ def evaluate(
     done = evaluate_logs(
         logs, calibration, methods=methods, train=train or (), val=val or (), k_sigma=sigma,
         repeats=repeats, min_f1=min_f1, min_auc=min_auc, report=report,
-        junit=junit, step_summary=not no_summary, force=force, **run, **asked
+        junit=junit, step_summary=not no_summary, force=force, **run, **asked.keywords()
     )  # fmt: skip
     if json_:
         json_document(done, done.to_dict(), allow_nan=True)

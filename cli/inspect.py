@@ -20,8 +20,8 @@ from .options import (
 )
 
 if TYPE_CHECKING:
-    from twincd.commands import Settings
     from twincd.commands.inspection import Inspection
+    from twincd.prepare.settings import SetupOptions
 
 
 def _number(value: float | None, spec: str = ".4g") -> str:
@@ -137,7 +137,7 @@ def inspect(
         ),
     ] = None,
     json_: Json = False,
-    asked: Settings = GIVEN,
+    asked: SetupOptions = GIVEN,
     quiet: Quiet = False,
     debug: Debug = False,
 ) -> None:
@@ -155,7 +155,7 @@ def inspect(
 
     from twincd.commands import inspect_logs
 
-    done = inspect_logs(logs, calibration, **asked)
+    done = inspect_logs(logs, calibration, **asked.keywords())
     if json_:
         stdout.out(json.dumps(done.to_dict(), allow_nan=False), highlight=False)
     for found in [] if json_ else done.logs:

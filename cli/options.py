@@ -9,7 +9,7 @@ import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, cast
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -26,7 +26,7 @@ from twincd.defaults import (
 )
 
 if TYPE_CHECKING:
-    from twincd.commands import Settings
+    from twincd.prepare.settings import SetupOptions
 
 Logs = Annotated[
     list[Path],
@@ -207,12 +207,13 @@ Causal = Annotated[
 ]
 
 
-def settings(*, joint_map: str | None = None, **given: Any) -> Settings:
-    """The library's reading settings of the options given (``--joint-map`` parsed)."""
+def settings(*, joint_map: str | None = None, **given: Any) -> SetupOptions:
+    """The library's settings object of the options given (``--joint-map`` parsed)."""
     from twincd.io.options import parse_joint_map
+    from twincd.prepare.settings import SetupOptions
 
     parsed = None if joint_map is None else parse_joint_map(joint_map)
-    return cast("Settings", {"joint_map": parsed, **given})
+    return SetupOptions(joint_map=parsed, **given)
 
 
 # the default of a command's ``asked`` and ``run`` parameters, which ``reads`` fills
@@ -222,7 +223,7 @@ GIVEN: Any = None
 @dataclass(frozen=True)
 class Setting:
     """A reading setting as every command takes it: its option, its default, and its keyword
-    among the library's reading settings (``twincd.commands.Settings``)."""
+    among the library's reading settings (``twincd.SetupOptions``' fields)."""
 
     option: Any
     default: Any
@@ -266,7 +267,7 @@ RUN: dict[str, tuple[Any, Any]] = {"jobs": (Jobs, 0), "scheduler": (Scheduler, N
 
 def reads(*names: str, run: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Give a command the reading settings ``names`` (``SETTINGS``) as options, in the place of
-    its parameter ``asked``, which gets them as one ``Settings`` (the --joint-map parsed); with
+    its parameter ``asked``, which gets them as one ``SetupOptions`` (the --joint-map parsed); with
     ``run``, also --jobs, --scheduler and --keep-going, in the place of its parameter ``run``,
     which gets the library's run options (``run_options``, quiet as --quiet says)."""
     from .common import run_options

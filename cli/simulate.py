@@ -12,7 +12,8 @@ from twincd.errors import UsageError
 from .common import command, finish, stdout
 
 if TYPE_CHECKING:
-    from twincd.commands import RunOptions, Settings
+    from twincd.commands import RunOptions
+    from twincd.prepare.settings import SetupOptions
 
 from .options import (
     GIVEN,
@@ -35,7 +36,7 @@ def simulate(
         Path | None,
         typer.Option("--output", "-o", help="Output .mcap (one log) or folder (several logs)."),
     ] = None,
-    asked: Settings = GIVEN,
+    asked: SetupOptions = GIVEN,
     in_place: Annotated[
         bool, typer.Option("--in-place", help="Rewrite a bare .mcap input atomically.", metavar="")
     ] = False,
@@ -63,7 +64,8 @@ def simulate(
         return
     if not logs:
         raise UsageError("no logs given", "simulate", "pass LOG... or --list-robots")
-    done = simulate_logs(logs, output=output, in_place=in_place, force=force, **run, **asked)
+    given = asked.keywords()
+    done = simulate_logs(logs, output=output, in_place=in_place, force=force, **run, **given)
     for result in done.outputs:
         stdout.print(f"{result.output}\t{result.samples} samples\t{len(result.joints)} joints")
     finish(done)

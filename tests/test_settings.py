@@ -141,3 +141,18 @@ def test_a_command_s_keywords_become_one_run_and_one_settings_object() -> None:
     assert (running, asked) == (Running(), SetupOptions())
     with pytest.raises(TypeError, match="cutof"):
         split_options({"cutof": 3.0})  # type: ignore[typeddict-unknown-key]
+
+
+def test_the_keyword_types_and_the_objects_name_the_same_fields() -> None:
+    """The keyword arguments' types (``Settings``, ``RunOptions``: what mypy checks a call
+    against) and the objects they become (``SetupOptions``, ``Running``) cannot drift apart;
+    the CLI's settings object goes back to the same keywords."""
+    from dataclasses import fields
+
+    from twincd.commands import RunOptions, Settings
+    from twincd.commands.runs import RUN_FIELDS, Running
+
+    assert set(Settings.__annotations__) == {f.name for f in fields(SetupOptions)}
+    assert set(RunOptions.__annotations__) == set(RUN_FIELDS) == {f.name for f in fields(Running)}
+    asked = SetupOptions(robot="panda", joint_map={"a": "b"}, cutoff_hz=0.0, start=1.5)
+    assert SetupOptions(**asked.keywords()) == asked

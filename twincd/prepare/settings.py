@@ -10,8 +10,8 @@ Here, below every stage that reads logs with them (``live``, ``evaluation``, ``c
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, fields, replace
+from typing import TYPE_CHECKING, Any
 
 from twincd.defaults import DEFAULT_CAUSAL_CUTOFF_HZ, DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from twincd.errors import UsageError
@@ -52,6 +52,10 @@ class SetupOptions:
     # "@" and seconds since the epoch; the run's own, never recorded in a calibration
     start: float | str | None = None
     end: float | str | None = None
+
+    def keywords(self) -> dict[str, Any]:
+        """The settings as the keyword arguments every command takes (``twincd.commands``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     def window(self) -> TimeWindow | None:
         """The time window asked for (None: the whole log)."""
