@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 import typer
 from rich.console import Console
 
-from twincd.commands.runs import LogsFailed, RunOptions
+from twincd.commands import LogsFailed, RunOptions
 from twincd.errors import InternalError, OutputError, Terminated, TwincdError, raise_terminated
 
 if TYPE_CHECKING:

@@ -106,3 +106,35 @@ def test_all_or_nothing_keeps_what_a_run_that_worked_wrote(tmp_path: Path) -> No
 
 def test_the_run_api_is_public() -> None:
     assert twincd.run_logs is run_logs
+
+
+def test_a_run_as_a_mapper_gathers_each_failed_log_once(tmp_path: Path) -> None:
+    """``Running.mapper``: what fit's cross-fitting and evaluate's per-log work are given — the
+    results of the logs that worked in order, each failing log recorded once however often it
+    is mapped over, the description after what the run is doing."""
+    import contextlib
+    from collections.abc import Iterator
+
+    from twincd.executors.run import LogsFailed, Running
+
+    shown: list[tuple[int, str]] = []
+
+    @contextlib.contextmanager
+    def display(logs: int, what: str) -> Iterator[object]:
+        shown.append((logs, what))
+        yield lambda _done, _samples: None
+
+    paths = _logs(tmp_path, "a", "bad", "cc")
+    failed: list[LogFailure] = []
+    each = Running(jobs=1, keep_going=True, progress=display, on_failure=lambda f: None).mapper(
+        failed, doing="reading "
+    )
+    assert each(_work, paths, "test logs") == [1, 2]
+    assert each(_work, paths[1:], "val logs") == [2]
+    assert [f.path for f in failed] == [paths[1]]  # once, not once per mapping
+    assert shown == [(3, "reading test logs"), (2, "reading val logs")]
+    assert each(_work, [], "nothing") == [] and len(shown) == 2  # nothing to map: no display
+    with pytest.raises(LogsFailed):  # a run of its own in which every log failed
+        Running(jobs=1, keep_going=True, on_failure=lambda f: None).mapper([])(
+            _work, paths[1:2], "bad only"
+        )

@@ -26,10 +26,10 @@ so a 20 min 1 kHz log holds ≈ 10 MB of it.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,6 +38,7 @@ from twincd.calibration.affine import FIT_EDGE_FACTOR
 from twincd.calibration.clean import BandStats, band_stats, near_labels
 from twincd.calibration.models.constants import MIN_BIN_SAMPLES, MIN_SCALE
 from twincd.calibration.models.statistics import speed_bin
+from twincd.executors.run import Each
 from twincd.signal.features import ModelFeatures, ModelInputs
 from twincd.types import BoolArray, FloatArray, IntArray
 
@@ -334,11 +335,6 @@ def _scored(part: CrossScored, score: Score, model: ResidualModel) -> list[Float
         for band, s in zip(out, scores, strict=True):
             band[rows] = s
     return out
-
-
-# maps a per-log function over logs, results in the order of the paths (``twincd.run_logs``'
-# executors behind it: a command's, or evaluate's)
-Each = Callable[[Callable[[Path], Any], Sequence[Path], str], list[Any]]
 
 
 def crossfit_calibration(

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from twincd.calibration.affine import fit_rows, solve, warn_ill_conditioned
-from twincd.calibration.crossfit import FOLD_BLOCK_S, MAX_FOLDS, Each, Folds, VelocitySteps
+from twincd.calibration.crossfit import FOLD_BLOCK_S, MAX_FOLDS, Folds, VelocitySteps
 from twincd.calibration.crossfit import time_folds as crossfit_folds
 from twincd.calibration.excitation import check_motion, independent_samples
 from twincd.calibration.file import Calibration, calibration_from_fit
@@ -33,6 +33,7 @@ from twincd.calibration.models import (
     speed_bin,
 )
 from twincd.errors import DataError, UsageError
+from twincd.executors.run import Each
 from twincd.prepare.frames import Frame
 from twincd.prepare.joints import agreed_joints
 from twincd.prepare.setup import Setup

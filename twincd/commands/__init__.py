@@ -16,15 +16,14 @@ from twincd.commands.fit import FitRun, fit_calibration
 from twincd.commands.inspect import InspectRun, inspect_logs
 from twincd.commands.runs import (
     CommandRun,
-    LogsFailed,
     Options,
-    ProgressDisplay,
     RunOptions,
     Settings,
     filter_settings,
 )
 from twincd.commands.simulate import SimulateRun, simulate_logs
 from twincd.commands.threshold import ThresholdRun, threshold_calibration
+from twincd.executors.run import LogsFailed, ProgressDisplay
 
 __all__ = [
     "CommandRun",

@@ -4,7 +4,7 @@ its three sets of logs read on one executor, then the reports (all or nothing)."
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Any
 from twincd.commands.runs import (
     CommandRun,
     Options,
-    Running,
     as_path,
     check_reports,
     input_files,
@@ -24,10 +23,9 @@ if TYPE_CHECKING:
     from typing_extensions import Unpack
 
     from twincd.calibration import Calibration
-    from twincd.evaluation.planner import Mapper, Progress
+    from twincd.evaluation.planner import Progress
     from twincd.evaluation.results import Evaluation
-    from twincd.executors.local import MapExecutor
-    from twincd.executors.run import LogRun
+    from twincd.executors.run import LogRun, Running
     from twincd.prepare.setup import Setup
 
 log = logging.getLogger("twincd")
@@ -156,7 +154,7 @@ def _evaluated(
             repeats=repeats,
             progress=_progress_bar(running),
             fast_cutoff_hz=fast_cutoff_hz,
-            run=_mapper(running, executor, failed),
+            run=running.mapper(failed.failures, executor, "reading "),
             batch=max(1, getattr(executor, "workers", 1) or 1),
         )
 
@@ -175,22 +173,6 @@ def _progress_bar(running: Running) -> Progress:
                 advance(1, 0)
 
     return bar
-
-
-def _mapper(running: Running, executor: MapExecutor, failed: LogRun[Any]) -> Mapper:
-    """``evaluate``'s per-log mapper: ``running.each`` on ``executor``, gathering the logs that
-    failed in ``failed``."""
-
-    def run(func: Callable[[Path], Any], paths: Sequence[Path], what: str) -> list[Any]:
-        if not paths:
-            return []
-        done = running.each(func, paths, f"reading {what}", executor=executor)
-        for failure in done.failures:  # with keep_going: reported, the rest goes on
-            if failure.path not in {f.path for f in failed.failures}:  # once per log
-                failed.failures.append(failure)
-        return list(done.results)
-
-    return run
 
 
 def _warn_skipped_and_missed(result: Evaluation, missed: list[str], failed: LogRun[Any]) -> None:

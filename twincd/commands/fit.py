@@ -4,7 +4,7 @@ filter that model fits best with, written with its report (both or neither)."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -84,13 +84,7 @@ def fit_calibration(
         cal = merge_fits(parts, setup, model)
         failures = list(done.failures)
         if crossfit:
-
-            def each(func: Callable[[Path], Any], paths: Sequence[Path], what: str) -> list[Any]:
-                again = running.each(func, paths, what)
-                failures.extend(again.failures)
-                return list(again.results)
-
-            cal = crossfit_calibration(cal, parts, setup, each)
+            cal = crossfit_calibration(cal, parts, setup, running.mapper(failures))
         with all_or_nothing() as written:  # the report, then the calibration: both or neither
             if report_path is not None:
                 from twincd.reports import ThinnedPairs, fit_report

@@ -4,25 +4,18 @@ what it hands back (its warnings as data, the logs that failed)."""
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict, TypeVar
 
-from twincd.errors import TwincdError
-from twincd.executors.run import LogFailure, LogRun, run_logs, warn_failure
+from twincd.executors.run import RUN_FIELDS, LogFailure, ProgressDisplay, Running
 
 if TYPE_CHECKING:
-    from twincd.executors.local import MapExecutor, Progress
     from twincd.prepare.settings import SetupOptions
     from twincd.signal.filters import LowPass
 
 T = TypeVar("T")
-
-# opens a progress display for (number of logs, what is being done) and gives the function the
-# work calls as logs finish: (logs just done, their samples)
-ProgressDisplay = Callable[[int, str], contextlib.AbstractContextManager["Progress"]]
 
 
 class Settings(TypedDict, total=False):
@@ -87,71 +80,6 @@ def filter_settings(lowpass: LowPass) -> Settings:
         causal=lowpass.causal,
         filter_kind=lowpass.kind,
     )
-
-
-class LogsFailed(TwincdError):
-    """Every log of a run failed (with ``keep_going``): nothing to go on with. Each failure was
-    reported as it happened (``on_failure``)."""
-
-    def __init__(self, failures: Sequence[LogFailure]) -> None:
-        first = failures[0]
-        super().__init__(
-            f"every log failed ({len(failures)}); the first: {first.error.what}",
-            first.error.where,
-            first.error.hint,
-            option=first.error.option,
-        )
-        self.failures = list(failures)
-        self.exit_code = max(f.error.exit_code for f in failures)
-
-    def __reduce__(self) -> tuple[type[LogsFailed], tuple[list[LogFailure]]]:  # type: ignore[override]
-        return (type(self), (self.failures,))
-
-
-@contextlib.contextmanager
-def _no_display(_logs: int, _what: str) -> Iterator[Progress]:
-    yield lambda _done, _samples: None
-
-
-@dataclass(frozen=True)
-class Running:
-    """How a command runs its per-log work (see ``twincd.run_logs``)."""
-
-    jobs: int = 0
-    scheduler: str | None = None
-    keep_going: bool = False
-    progress: ProgressDisplay | None = None
-    on_failure: Callable[[LogFailure], None] = warn_failure
-
-    def each(
-        self,
-        func: Callable[[T], Any],
-        items: Sequence[T],
-        what: str,
-        *,
-        executor: MapExecutor | None = None,
-    ) -> LogRun[Any]:
-        """``func`` over ``items`` on this run's executor (or ``executor``, which the caller
-        holds); a run of its own in which every log failed raises ``LogsFailed``."""
-        display = self.progress or _no_display
-        with display(len(items), what) as advance:
-            run = run_logs(
-                func,
-                items,
-                jobs=self.jobs,
-                scheduler=self.scheduler,
-                executor=executor,
-                keep_going=self.keep_going,
-                progress=advance,
-                on_failure=self.on_failure,
-            )
-        if executor is None and run.failures and not run.results:
-            raise LogsFailed(run.failures)
-        return run
-
-
-# the keyword arguments that say how a command runs (``RunOptions``), Running's fields
-RUN_FIELDS = tuple(f.name for f in fields(Running))
 
 
 @dataclass(frozen=True, kw_only=True)

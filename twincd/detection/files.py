@@ -21,8 +21,8 @@ from twincd.prepare.notices import said_already
 
 if TYPE_CHECKING:
     from twincd.calibration import Calibration
-    from twincd.calibration.crossfit import Each
     from twincd.calibration.threshold import LogScores
+    from twincd.executors.run import Each
     from twincd.prepare.setup import Setup
 
 log = logging.getLogger("twincd")

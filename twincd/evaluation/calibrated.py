@@ -18,10 +18,11 @@ from twincd.detection.files import threshold_logs
 from twincd.errors import DataError
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod
 from twincd.evaluation.metrics import EventCounts, ScoredUnits
-from twincd.evaluation.planner import Mapper, by_source, require_labels, require_scores
+from twincd.evaluation.planner import by_source, require_labels, require_scores
 from twincd.evaluation.results import MethodResult, Sources, combine_runs, run_figures
 from twincd.evaluation.streamed import JudgedLog, judge_log
 from twincd.executors.local import Bound
+from twincd.executors.run import Each
 from twincd.prepare.setup import Setup
 
 
@@ -35,7 +36,7 @@ def evaluate_own(
     k_sigma: float,
     own_rule: bool,
     link_topic: str,
-    run: Mapper,
+    run: Each,
 ) -> tuple[MethodResult, Sources]:
     """The calibration's own model, every log streamed (``judge_log``): judged at the
     calibration's threshold (``own_rule``; with validation logs, at what its rule sets on them),
@@ -112,7 +113,7 @@ def _fitted(
     train: Sequence[Path],
     val: Sequence[Path],
     k_sigma: float,
-    run: Mapper,
+    run: Each,
     fast_cutoff_hz: float | None = None,
 ) -> Calibration:
     """The calibration a calibrated ``method`` (one of our models, or the paper's) makes of the
@@ -157,7 +158,7 @@ def evaluate_fitted(
     test_paths: Sequence[Path],
     k_sigma: float,
     link_topic: str,
-    run: Mapper,
+    run: Each,
     fast_cutoff_hz: float | None = None,
 ) -> tuple[MethodResult, Sources]:
     """A calibrated ``method`` fitted on the training logs and thresholded at μ + ``k_sigma``·σ

@@ -2,7 +2,7 @@
 (``plan``), the sets of logs in one order whatever order they come in (``by_source``,
 ``sorted_paths``), the checks every strategy makes of the logs and scores (``require_labels``,
 ``require_scores``), the warning on logs shared between sets (``warn_on_overlap``) and the
-signatures of the per-log mapper and progress they are given."""
+signature of the progress they are given (the per-log mapper's is ``twincd.executors.run.Each``)."""
 
 from __future__ import annotations
 
@@ -22,8 +22,6 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 Progress = Callable[[Sequence[Any], str], Iterable[Any]]
-# maps a per-log function over logs: (func, paths, what they are) -> results in paths' order
-Mapper = Callable[[Callable[[Path], Any], Sequence[Path], str], list[Any]]
 
 log = logging.getLogger("twincd")
 

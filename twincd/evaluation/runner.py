@@ -32,9 +32,10 @@ from twincd.defaults import DEFAULT_K_SIGMA, DEFAULT_REPEATS
 from twincd.errors import UsageError
 from twincd.evaluation.calibrated import evaluate_fitted, evaluate_own
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, make_method
-from twincd.evaluation.planner import Mapper, Progress, plan, sorted_paths, warn_on_overlap
+from twincd.evaluation.planner import Progress, plan, sorted_paths, warn_on_overlap
 from twincd.evaluation.results import Evaluation, MethodResult, Sources, skipped_result
 from twincd.evaluation.whole import evaluate_whole
+from twincd.executors.run import Each
 from twincd.io.named import settle_named
 from twincd.prepare.setup import Setup
 
@@ -53,7 +54,7 @@ def evaluate(
     k_sigma: float | None = None,
     repeats: int = DEFAULT_REPEATS,
     progress: Progress = _no_progress,
-    run: Mapper | None = None,
+    run: Each | None = None,
     batch: int = 1,
     fast_cutoff_hz: float | None = None,
 ) -> Evaluation:
@@ -130,7 +131,7 @@ def _judged_at(k_sigma: float | None, calibration: Calibration | None) -> tuple[
     return (th.k_sigma if th is not None else DEFAULT_K_SIGMA), th is not None
 
 
-def _one_by_one(progress: Progress) -> Mapper:
+def _one_by_one(progress: Progress) -> Each:
     """The default mapper: each log after the other, here."""
 
     def run(func: Callable[[Path], Any], paths: Sequence[Path], desc: str) -> list[Any]:

@@ -21,7 +21,6 @@ from twincd.detection.events import EventRules
 from twincd.evaluation.methods import MethodSkipped, ScoringMethod, make_method
 from twincd.evaluation.metrics import EventCounts, ScoredUnits, event_counts
 from twincd.evaluation.planner import (
-    Mapper,
     Progress,
     by_source,
     require_labels,
@@ -36,6 +35,7 @@ from twincd.evaluation.results import (
     skipped_result,
 )
 from twincd.executors.local import Bound
+from twincd.executors.run import Each
 from twincd.io.links import read_links
 from twincd.prepare.joints import agreed_joints
 from twincd.prepare.prepared import PreparedLog
@@ -169,7 +169,7 @@ def evaluate_whole(
     k_sigma: float,
     repeats: int,
     link_topic: str,
-    run: Mapper,
+    run: Each,
     progress: Progress,
     batch: int,
 ) -> tuple[dict[str, MethodResult], Sources]:

@@ -19,9 +19,9 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Generic, TypeVar, cast
+from typing import TYPE_CHECKING, Any, Generic, TypeVar, cast
 
 from twincd.errors import TwincdError
 
@@ -31,6 +31,10 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 R = TypeVar("R")
 log = logging.getLogger("twincd")
+# maps a per-log function over logs (func, paths, what it does): the results of the logs that
+# worked, in the order of the paths (``Running.mapper``; what fit's cross-fitting, threshold's
+# and evaluate's per-log work is given)
+Each = Callable[[Callable[[Path], Any], Sequence[Path], str], list[Any]]
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,93 @@ class LogRun(Generic[R]):
 def warn_failure(failure: LogFailure) -> None:
     """The default report of a skipped log: one warning."""
     log.warning("log skipped: %s", failure.error.message)
+
+
+# opens a progress display for (number of logs, what is being done) and gives the function the
+# work calls as logs finish: (logs just done, their samples)
+ProgressDisplay = Callable[[int, str], contextlib.AbstractContextManager["Progress"]]
+
+
+class LogsFailed(TwincdError):
+    """Every log of a run failed (with ``keep_going``): nothing to go on with. Each failure was
+    reported as it happened (``on_failure``)."""
+
+    def __init__(self, failures: Sequence[LogFailure]) -> None:
+        first = failures[0]
+        super().__init__(
+            f"every log failed ({len(failures)}); the first: {first.error.what}",
+            first.error.where,
+            first.error.hint,
+            option=first.error.option,
+        )
+        self.failures = list(failures)
+        self.exit_code = max(f.error.exit_code for f in failures)
+
+    def __reduce__(self) -> tuple[type[LogsFailed], tuple[list[LogFailure]]]:  # type: ignore[override]
+        return (type(self), (self.failures,))
+
+
+@contextlib.contextmanager
+def _no_display(_logs: int, _what: str) -> Iterator[Progress]:
+    yield lambda _done, _samples: None
+
+
+@dataclass(frozen=True)
+class Running:
+    """How a command runs its per-log work (see ``twincd.run_logs``)."""
+
+    jobs: int = 0
+    scheduler: str | None = None
+    keep_going: bool = False
+    progress: ProgressDisplay | None = None
+    on_failure: Callable[[LogFailure], None] = warn_failure
+
+    def each(
+        self,
+        func: Callable[[T], Any],
+        items: Sequence[T],
+        what: str,
+        *,
+        executor: MapExecutor | None = None,
+    ) -> LogRun[Any]:
+        """``func`` over ``items`` on this run's executor (or ``executor``, which the caller
+        holds); a run of its own in which every log failed raises ``LogsFailed``."""
+        display = self.progress or _no_display
+        with display(len(items), what) as advance:
+            run = run_logs(
+                func,
+                items,
+                jobs=self.jobs,
+                scheduler=self.scheduler,
+                executor=executor,
+                keep_going=self.keep_going,
+                progress=advance,
+                on_failure=self.on_failure,
+            )
+        if executor is None and run.failures and not run.results:
+            raise LogsFailed(run.failures)
+        return run
+
+    def mapper(
+        self, failed: list[LogFailure], executor: MapExecutor | None = None, doing: str = ""
+    ) -> Each:
+        """This run as an ``Each`` (``each`` on ``executor``, each description after
+        ``doing``): the logs that fail (with ``keep_going``: reported, the others go on) are
+        added to ``failed``, each log once however many times it is mapped over."""
+
+        def each(func: Callable[[Path], Any], paths: Sequence[Path], what: str) -> list[Any]:
+            if not paths:
+                return []
+            done = self.each(func, paths, f"{doing}{what}", executor=executor)
+            seen = {f.path for f in failed}
+            failed.extend(f for f in done.failures if f.path not in seen)
+            return list(done.results)
+
+        return each
+
+
+# the keyword arguments that say how a command runs (``twincd.commands.RunOptions``)
+RUN_FIELDS = tuple(f.name for f in fields(Running))
 
 
 def run_logs(
