@@ -7,8 +7,9 @@ four, at the defaults or with the options given), each test log scored per sampl
 first labelled sample to the first sample whose score reaches f × the calibration's threshold,
 within the push or ``AFTER_S`` after it, for f in ``FACTORS``; and how many runs of such samples
 lie ``CLEAR_S`` or more away from every push (clean excursions: what a lower threshold would
-add as false alarms). Reads ``../shared/data/doosan_m0609/`` when present; writes nothing into
-the project:
+add as false alarms); and each joint's slow-band noise scale in the calibrations, at rest (the
+model's lowest speed bin) against moving (its other bins). Reads ``../shared/data/doosan_m0609/``
+when present; writes nothing into the project:
 
     python studies/rest_delays.py
     python studies/rest_delays.py --fit-args=--causal
@@ -57,10 +58,13 @@ def main() -> int:
 
     delays: dict[tuple[bool, float], list[float | None]] = {}
     clean_runs = dict.fromkeys(FACTORS, 0)
+    scales: list[np.ndarray] = []  # per rotation, (joints, speed bins)
     with tempfile.TemporaryDirectory() as tmp:
         for i, log in enumerate(LOGS):
             cal_path, out = scored(i, Path(tmp), args)
-            threshold = Calibration.load(cal_path).require_threshold().value
+            calibration = Calibration.load(cal_path)
+            threshold = calibration.require_threshold().value
+            scales.append(np.asarray(calibration.model.scale_))
             with out.open() as f:
                 rows = list(csv.reader(f))[1:]
             stamp = np.array([int(r[0]) for r in rows])
@@ -81,6 +85,12 @@ def main() -> int:
             for f in FACTORS:
                 above = score >= f * threshold
                 clean_runs[f] += sum(1 for a, b in runs(above) if not near[a : b + 1].any())
+    scale = np.mean(scales, axis=0)
+    for j, row in enumerate(scale):
+        print(
+            f"joint {j + 1}: slow-band noise {row[0]:.2f} N·m at rest, "
+            f"{row[1:].min():.2f}–{row[1:].max():.2f} N·m moving (mean of the rotations)"
+        )
     for f in FACTORS:
         line = [f"{f:.1f} × threshold:"]
         for rest in (True, False):

@@ -130,9 +130,9 @@ def test_a_run_as_a_mapper_gathers_each_failed_log_once(tmp_path: Path) -> None:
         failed, doing="reading "
     )
     assert each(_work, paths, "test logs") == [1, 2]
-    assert each(_work, paths[1:], "val logs") == [2]
-    assert [f.path for f in failed] == [paths[1]]  # once, not once per mapping
-    assert shown == [(3, "reading test logs"), (2, "reading val logs")]
+    assert each(_work, [paths[1], *paths[1:]], "val logs") == [2]  # bad twice, then cc
+    assert [f.path for f in failed] == [paths[1]]  # once, not once per mapping or per item
+    assert shown == [(3, "reading test logs"), (3, "reading val logs")]
     assert each(_work, [], "nothing") == [] and len(shown) == 2  # nothing to map: no display
     with pytest.raises(LogsFailed):  # a run of its own in which every log failed
         Running(jobs=1, keep_going=True, on_failure=lambda f: None).mapper([])(

@@ -4,10 +4,10 @@ alarms it gives on them counted as ``evaluate`` counts them."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from twincd.commands.runs import (
     CommandRun,
@@ -88,14 +88,9 @@ def threshold_calibration(
         scoring: Bound[Path, LogScores] = Bound(score_log, cal, setup)
         done = running.each(scoring, paths, "scoring")
         counted: list[LogFailure] = []
-
-        def each(func: Callable[[Path], Any], logs: Sequence[Path], what: str) -> list[Any]:
-            again = running.each(func, logs, what)
-            counted.extend(again.failures)
-            return list(again.results)
-
         # the threshold, and the false alarms it gives on these logs: detect's events, counted
         # as evaluate counts them (a second pass: the events need the threshold)
+        each = running.mapper(counted)
         cal = threshold_logs(done.results, cal, setup, each, k_sigma, false_alarms_per_hour)
         if target is not None:
             cal.save(target)

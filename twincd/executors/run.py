@@ -141,7 +141,10 @@ class Running:
                 return []
             done = self.each(func, paths, f"{doing}{what}", executor=executor)
             seen = {f.path for f in failed}
-            failed.extend(f for f in done.failures if f.path not in seen)
+            for failure in done.failures:
+                if failure.path not in seen:
+                    seen.add(failure.path)
+                    failed.append(failure)
             return list(done.results)
 
         return each
