@@ -17,11 +17,9 @@ from .options import (
     RECORDING,
     WINDOW,
     CalibrationIn,
-    Debug,
     Force,
     Json,
     Logs,
-    Quiet,
     Report,
     reads,
 )
@@ -119,8 +117,6 @@ def fit(
     model: Model = None,
     run: RunOptions = GIVEN,
     force: Force = False,
-    quiet: Quiet = False,
-    debug: Debug = False,
 ) -> None:
     """Fit the twin to the robot: per joint, how the measured effort follows the twin's.
 
@@ -158,8 +154,6 @@ def threshold(
     asked: SetupOptions = GIVEN,
     run: RunOptions = GIVEN,
     force: Force = False,
-    quiet: Quiet = False,
-    debug: Debug = False,
 ) -> None:
     """Set the detection threshold from the score on collision-free logs: by default, for the
     whitened models, the threshold that keeps a budget of 1 false alarm per hour of

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import functools
+import inspect
 import json
 import logging
 import os
@@ -13,6 +14,7 @@ import sys
 import threading
 import time
 import traceback
+import typing
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -158,14 +160,26 @@ TYPER_EXITS = (typer.Exit, typer.Abort, typer.TyperException)
 
 
 def command(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Wrap a subcommand: logging set-up; TwincdError → one line on stderr and its exit code;
+    """Wrap a subcommand: its --quiet and --debug (declared here, last; the command gets them
+    only if it names them); logging set-up; TwincdError → one line on stderr and its exit code;
     any other exception (a defect) → one ``internal error`` line and exit 3, never 1 (which
     CI reads as "collision found"); a closed stdout ends quietly."""
+    from .options import Debug, Quiet
+
+    declared = inspect.signature(func)
+    names = declared.parameters
+    kinds = typing.get_type_hints(func, include_extras=True)
+    shared = {"quiet": Quiet, "debug": Debug}
+    params = [p.replace(annotation=kinds.get(p.name, p.annotation)) for p in names.values()] + [
+        inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=False, annotation=kind)
+        for n, kind in shared.items()
+        if n not in names
+    ]
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        debug = bool(kwargs.get("debug", False))
-        setup_logging(bool(kwargs.get("quiet", False)), debug)
+        quiet, debug = (bool(kwargs.get(n) if n in names else kwargs.pop(n, False)) for n in shared)
+        setup_logging(quiet, debug)
         try:
             with terminate_like_interrupt(), closed_stdout_ends_quietly():
                 return func(*args, **kwargs)
@@ -188,6 +202,8 @@ def command(func: Callable[..., Any]) -> Callable[..., Any]:
                 raise typer.Exit(stop) from None
             fail(InternalError.from_exception(exc), debug)
 
+    wrapper.__signature__ = declared.replace(parameters=params)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = {p.name: p.annotation for p in params}
     return wrapper
 
 

@@ -19,14 +19,10 @@ from .options import (
     RECORDING,
     WINDOW,
     CalibrationIn,
-    Debug,
     Force,
     Json,
-    Junit,
     Logs,
-    NoSummary,
-    Quiet,
-    Report,
+    ReportOptions,
     reads,
 )
 
@@ -56,20 +52,16 @@ def events_table(result: DetectionSummary) -> Table:
 
 
 @command
-@reads(*RECORDING, "causal", *WINDOW, "allow_urdf_change", run=True)
+@reads(*RECORDING, "causal", *WINDOW, "allow_urdf_change", run=True, reports=True)
 def detect(
     logs: Logs,
     calibration: CalibrationIn,
     output: DetectOut = None,
     json_: Json = False,
-    report: Report = None,
-    junit: Junit = None,
-    no_summary: NoSummary = False,
+    reports: ReportOptions = GIVEN,
     asked: SetupOptions = GIVEN,
     run: RunOptions = GIVEN,
     force: Force = False,
-    quiet: Quiet = False,
-    debug: Debug = False,
 ) -> None:
     """Find collisions: flag samples whose score reaches the calibrated threshold.
 
@@ -84,8 +76,7 @@ def detect(
     from twincd.commands import detect_files
 
     done = detect_files(
-        logs, calibration, output=output, report=report, junit=junit,
-        step_summary=not no_summary, force=force, **run, **asked.keywords()
+        logs, calibration, output=output, force=force, **reports, **run, **asked.keywords()
     )  # fmt: skip
     if json_:
         json_document(done, done.to_dict())

@@ -19,14 +19,10 @@ from .options import (
     GIVEN,
     RECORDING,
     WINDOW,
-    Debug,
     Force,
     Json,
-    Junit,
     Logs,
-    NoSummary,
-    Quiet,
-    Report,
+    ReportOptions,
     reads,
 )
 
@@ -95,7 +91,7 @@ MinAuc = Annotated[
 
 
 @command
-@reads(*RECORDING, *FILTER, *WINDOW, "allow_urdf_change", run=True)
+@reads(*RECORDING, *FILTER, *WINDOW, "allow_urdf_change", run=True, reports=True)
 def evaluate(
     logs: Logs,
     calibration: CalibrationMaybe = None,
@@ -105,16 +101,12 @@ def evaluate(
     sigma: Sigma = None,
     repeats: Repeats = DEFAULT_REPEATS,
     json_: Json = False,
-    report: Report = None,
-    junit: Junit = None,
-    no_summary: NoSummary = False,
+    reports: ReportOptions = GIVEN,
     min_f1: MinF1 = None,
     min_auc: MinAuc = None,
     asked: SetupOptions = GIVEN,
     run: RunOptions = GIVEN,
     force: Force = False,
-    quiet: Quiet = False,
-    debug: Debug = False,
 ) -> None:
     """Score methods on labelled test logs: F1 over μ + iσ, F1 at threshold, ROC AUC, times.
 
@@ -132,8 +124,8 @@ def evaluate(
 
     done = evaluate_logs(
         logs, calibration, methods=methods, train=train or (), val=val or (), k_sigma=sigma,
-        repeats=repeats, min_f1=min_f1, min_auc=min_auc, report=report,
-        junit=junit, step_summary=not no_summary, force=force, **run, **asked.keywords()
+        repeats=repeats, min_f1=min_f1, min_auc=min_auc, force=force, **reports, **run,
+        **asked.keywords()
     )  # fmt: skip
     if json_:
         json_document(done, done.to_dict(), allow_nan=True)

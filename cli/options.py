@@ -9,7 +9,7 @@ import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, TypedDict
 
 import typer
 
@@ -263,13 +263,28 @@ WINDOW = ("start", "end", "strict")
 # the run options (``RunOptions``: ``twincd.cli.common.run_options``)
 RUN: dict[str, tuple[Any, Any]] = {"jobs": (Jobs, 0), "scheduler": (Scheduler, None),
                                    "keep_going": (KeepGoing, False)}  # fmt: skip
+# what a run writes for people and CI besides its output (``ReportOptions``)
+REPORTS: dict[str, tuple[Any, Any]] = {"report": (Report, None), "junit": (Junit, None),
+                                       "no_summary": (NoSummary, False)}  # fmt: skip
 
 
-def reads(*names: str, run: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+class ReportOptions(TypedDict):
+    """The library's keywords for --report, --junit and --no-summary (detect, evaluate)."""
+
+    report: Path | None
+    junit: Path | None
+    step_summary: bool
+
+
+def reads(
+    *names: str, run: bool = False, reports: bool = False
+) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Give a command the reading settings ``names`` (``SETTINGS``) as options, in the place of
     its parameter ``asked``, which gets them as one ``SetupOptions`` (the --joint-map parsed); with
     ``run``, also --jobs, --scheduler and --keep-going, in the place of its parameter ``run``,
-    which gets the library's run options (``run_options``, quiet as --quiet says)."""
+    which gets the library's run options (``run_options``, quiet as --quiet says); with
+    ``reports``, --report, --junit and --no-summary in the place of its parameter ``reports``
+    (a ``ReportOptions``)."""
     from .common import run_options
 
     def wrap(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -278,6 +293,7 @@ def reads(*names: str, run: bool = False) -> Callable[[Callable[..., Any]], Call
         injected = {
             "asked": [_parameter(n, SETTINGS[n].option, SETTINGS[n].default) for n in names],
             "run": [_parameter(n, option, d) for n, (option, d) in RUN.items()] if run else [],
+            "reports": [_parameter(n, o, d) for n, (o, d) in REPORTS.items()] if reports else [],
         }
         params: list[inspect.Parameter] = []
         for p in declared.parameters.values():
@@ -293,6 +309,11 @@ def reads(*names: str, run: bool = False) -> Callable[[Callable[..., Any]], Call
             if run:
                 go = {n: kwargs.pop(n) for n in RUN}
                 kwargs["run"] = run_options(bool(kwargs.get("quiet")), **go)
+            if reports:
+                report, junit, no_summary = (kwargs.pop(n) for n in REPORTS)
+                kwargs["reports"] = ReportOptions(
+                    report=report, junit=junit, step_summary=not no_summary
+                )
             return func(*args, asked=settings(**given), **kwargs)
 
         command.__signature__ = declared.replace(parameters=params)  # type: ignore[attr-defined]

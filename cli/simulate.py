@@ -18,9 +18,7 @@ if TYPE_CHECKING:
 from .options import (
     GIVEN,
     RECORDING,
-    Debug,
     Force,
-    Quiet,
     reads,
 )
 
@@ -46,8 +44,6 @@ def simulate(
     ] = False,
     run: RunOptions = GIVEN,
     force: Force = False,
-    quiet: Quiet = False,
-    debug: Debug = False,
 ) -> None:
     """Run the digital twin over logs and write its effort to /twincd/sim_effort.
 

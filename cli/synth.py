@@ -13,7 +13,7 @@ from twincd.defaults import SYNTH_SEGMENT_S
 from twincd.errors import UsageError
 
 from .common import command, counter, stdout
-from .options import Debug, Quiet
+from .options import Quiet
 
 
 @command
@@ -47,7 +47,6 @@ def synth(
         int, typer.Option("--jobs", "-j", help="Paths generated in parallel (0: all CPUs).")
     ] = 1,
     quiet: Quiet = False,
-    debug: Debug = False,
 ) -> None:
     """Generate synthetic xArm 7 logs: a plant the twin does not know, hand presses in test/.
 

@@ -17,7 +17,6 @@ import typer
 from .common import command, stderr, stdout
 from .options import (
     CalibrationIn,
-    Debug,
     Force,
     JointMap,
     JointPrefix,
@@ -203,7 +202,6 @@ def watch(
     reorder_window: ReorderWindow = 20.0,
     force: Force = False,
     quiet: Quiet = False,
-    debug: Debug = False,
 ) -> None:
     """Watch a running robot: live collision detection on its joint states.
 

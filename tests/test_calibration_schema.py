@@ -92,6 +92,20 @@ def test_the_converter_writes_what_v1_files_could_leave_out() -> None:
             Calibration.from_dict(v3)
 
 
+def edited_v1(schema: str, path: tuple[object, ...], value: object) -> dict:  # type: ignore[type-arg]
+    """The shipped v1 calibration under ``schema`` with the field at ``path`` set to ``value``
+    (the current schema without a score block, which v1 files lack)."""
+    doc = json.loads((V1 / "calibration.json").read_text())
+    doc["schema"] = schema
+    if schema == SCHEMA:
+        doc["score"] = None
+    at = doc
+    for key in path[:-1]:
+        at = at[key]
+    at[path[-1]] = value
+    return doc  # type: ignore[no-any-return]
+
+
 @pytest.mark.parametrize("schema", ["twincd.calibration/1", V2_SCHEMA, SCHEMA])
 @pytest.mark.parametrize(
     ("path", "value", "message"),
@@ -110,16 +124,8 @@ def test_the_converter_writes_what_v1_files_could_leave_out() -> None:
 def test_every_number_is_validated_in_either_schema(
     schema: str, path: tuple[object, ...], value: object, message: str
 ) -> None:
-    doc = json.loads((V1 / "calibration.json").read_text())
-    doc["schema"] = schema
-    if schema == SCHEMA:
-        doc["score"] = None
-    at = doc
-    for key in path[:-1]:
-        at = at[key]  # type: ignore[index]
-    at[path[-1]] = value  # type: ignore[index]
     with pytest.raises(CalibrationError, match=message):
-        Calibration.from_dict(json.loads(json.dumps(doc)))
+        Calibration.from_dict(json.loads(json.dumps(edited_v1(schema, path, value))))
 
 
 @pytest.mark.parametrize("schema", ["twincd.calibration/1", V2_SCHEMA, SCHEMA])
@@ -138,16 +144,8 @@ def test_a_section_of_the_wrong_kind_is_named_in_the_files_words(
 ) -> None:
     """Not Python's words ("string indices must be integers", "'NoneType' object has no
     attribute 'get'"): the field and what it is instead of an object."""
-    doc = json.loads((V1 / "calibration.json").read_text())
-    doc["schema"] = schema
-    if schema == SCHEMA:
-        doc["score"] = None
-    at = doc
-    for key in path[:-1]:
-        at = at[key]
-    at[path[-1]] = value
     with pytest.raises(CalibrationError, match=message):
-        Calibration.from_dict(doc)
+        Calibration.from_dict(edited_v1(schema, path, value))
 
 
 def test_a_joint_missing_from_the_model_is_named_with_its_section() -> None:

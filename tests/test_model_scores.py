@@ -63,6 +63,17 @@ def batch_scores(cal: Calibration, setup: Setup) -> np.ndarray:
     return detect_frames(LOG, cal, setup)[1].column("score")
 
 
+def with_changed(
+    cal: Calibration, change: str
+) -> tuple[tuple[Calibration, Calibration], Setup, list[np.ndarray]]:
+    """(the changed calibration, ``cal``), the setup made from ``cal`` (both are read the
+    original's way: allowed, and no θ in it) and their batch scores, which differ."""
+    both, setup = (changed(cal, change), cal), Setup.from_calibration(cal)
+    batch = [batch_scores(c, setup) for c in both]
+    assert_differ(*batch)
+    return both, setup, batch
+
+
 def assert_differ(a: np.ndarray, b: np.ndarray) -> None:
     assert a.shape == b.shape
     assert not np.allclose(a, b, rtol=1e-6, atol=0.0)
@@ -87,12 +98,10 @@ def causal() -> Calibration:
 def test_batch_and_whole_log_score_the_calibration_s_own_model(
     shipped: Calibration, change: str
 ) -> None:
-    other = changed(shipped, change)
-    setup = Setup.from_calibration(shipped)  # read the original's way: allowed, and no θ in it
-    assert_differ(batch_scores(other, setup), batch_scores(shipped, setup))
-    whole = [detect_log(c.prepare(LOG, setup), c).scores for c in (other, shipped)]
+    both, setup, batch = with_changed(shipped, change)
+    whole = [detect_log(c.prepare(LOG, setup), c).scores for c in both]
     assert_differ(*whole)
-    np.testing.assert_allclose(whole[1], batch_scores(shipped, setup), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(whole[1], batch[1], rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("change", list(CHANGES))
@@ -104,17 +113,13 @@ def test_streamed_evaluate_and_the_report_score_the_calibration_s_own_model(
     from twincd.evaluation.runner import evaluate
     from twincd.evaluation.streamed import judge_log
 
-    other = changed(shipped, change)
-    setup = Setup.from_calibration(shipped)
-    judged = [judge_log(LOG, c, setup).units for c in (other, shipped)]
+    both, setup, _ = with_changed(shipped, change)
+    judged = [judge_log(LOG, c, setup).units for c in both]
     assert_differ(np.sort(judged[0].negative), np.sort(judged[1].negative))
-    rows = [
-        evaluate([LOG], [method_for(c.model.kind)], setup, c).methods[0].roc
-        for c in (other, shipped)
-    ]
+    rows = [evaluate([LOG], [method_for(c.model.kind)], setup, c).methods[0].roc for c in both]
     assert rows[0] != rows[1]
     traces = []
-    for c in (other, shipped):
+    for c in both:
         summary = detect_and_write((LOG, None), c, setup, trace=True)
         assert summary.trace is not None
         d = len(c.joint_names)  # channels: measured (d), the model's twin (d), score, label
@@ -126,13 +131,10 @@ def test_streamed_evaluate_and_the_report_score_the_calibration_s_own_model(
 def test_causal_and_live_score_the_calibration_s_own_model(
     causal: Calibration, change: str
 ) -> None:
-    other = changed(causal, change)
-    setup = Setup.from_calibration(causal)
-    batch = [batch_scores(c, setup) for c in (other, causal)]
-    assert_differ(*batch)
+    both, setup, batch = with_changed(causal, change)
     states = setup.prepare(LOG).states
     live = []
-    for c in (other, causal):
+    for c in both:
         detector = OnlineDetector(c)
         out = detector.push(states.stamp_ns, states.position, states.velocity, states.effort)
         detector.close()

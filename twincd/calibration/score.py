@@ -170,18 +170,10 @@ class Score:
         return out
 
     def weigh(
-        self,
-        model: ResidualModel,
-        residual: FloatArray,
-        velocity: FloatArray | None,
-        fast_residual: FloatArray | None = None,
-        edge_factor: FloatArray | None = None,
-        fast_off: FloatArray | BoolArray | None = None,
+        self, scores: Sequence[FloatArray], evidence: Sequence[FloatArray]
     ) -> tuple[FloatArray, FloatArray]:
-        """(N,) the score and (N, D) the evidence of the band that gave it, per sample."""
-        scores, evidence = self.band_scores(
-            model, residual, velocity, fast_residual, edge_factor, fast_off
-        )
+        """(N,) the score and (N, D) the evidence of the band that gave it, per sample, from the
+        bands' scores and evidence (``band_scores``)."""
         combined = self.combine(scores)
         if len(scores) == 1:
             return combined, evidence[0]

@@ -99,8 +99,7 @@ def detect_files(
             if target is not None:
                 kind = "detect" if target.suffix.lower() == ".mcap" else "table"
                 check_target(target, kind, force=force, inputs=inputs)
-        report_path, junit_path = as_path(report), as_path(junit)
-        check_reports(report_path, junit_path, force=force, inputs=inputs)
+        report_path, junit_path = check_reports(report, junit, force=force, inputs=inputs)
         trace = report_path is not None and report_path.suffix.lower() == ".html"
         items = list(zip(paths, targets, strict=True))
         with all_or_nothing() as written:

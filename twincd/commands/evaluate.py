@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Any
 from twincd.commands.runs import (
     CommandRun,
     Options,
-    as_path,
     check_reports,
     input_files,
     split_options,
@@ -90,8 +89,7 @@ def evaluate_logs(
         train_paths = expand_logs(train) if train else []
         val_paths = expand_logs(val) if val else []
         inputs = [*test_paths, *train_paths, *val_paths, *input_files([calibration])]
-        report_path, junit_path = as_path(report), as_path(junit)
-        check_reports(report_path, junit_path, force=force, inputs=inputs)
+        report_path, junit_path = check_reports(report, junit, force=force, inputs=inputs)
         setup = asked.resolve(cal)
         failed: LogRun[Any] = LogRun()
         paths = (test_paths, train_paths, val_paths)

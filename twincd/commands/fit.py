@@ -64,10 +64,10 @@ def fit_calibration(
     with gathered_warnings() as warnings:
         running, asked = split_options(options)
         paths = expand_logs(logs)
-        target, report_path = as_path(output), as_path(report)
+        target = as_path(output)
         if target is not None:
             check_target(target, "calibration", force=force, inputs=paths)
-        check_reports(report_path, None, force=force, inputs=paths)
+        report_path, _ = check_reports(report, None, force=force, inputs=paths)
         setup, model = fit_setup(asked, model)
         setup = setup.for_logs(paths)  # a named option no log has: refused before any work
         figure = report_path is not None and report_path.suffix.lower() == ".html"

@@ -99,13 +99,19 @@ class CommandRun:
 
 
 def check_reports(
-    report: Path | None, junit: Path | None, *, force: bool = False, inputs: Sequence[Path] = ()
-) -> None:
-    """Fail before any work when a report or JUnit file cannot be written, or would replace
-    something that is not twincd's own report of that kind (unless ``force``)."""
+    report: str | Path | None,
+    junit: str | Path | None,
+    *,
+    force: bool = False,
+    inputs: Sequence[Path] = (),
+) -> tuple[Path | None, Path | None]:
+    """The report's and the JUnit file's paths; fails before any work when one cannot be
+    written, or would replace something that is not twincd's own report of that kind (unless
+    ``force``)."""
     from twincd.io.atomic import check_target
     from twincd.reports import check_report_kind
 
+    report, junit = as_path(report), as_path(junit)
     if report is not None:
         check_report_kind(report)
         check_target(report, "report", force=force, inputs=inputs)
@@ -115,6 +121,7 @@ def check_reports(
             pyplot()  # a missing plot extra is an error now, not after the work
     if junit is not None:
         check_target(junit, "junit", force=force, inputs=inputs)
+    return report, junit
 
 
 def as_path(path: str | Path | None) -> Path | None:

@@ -111,12 +111,14 @@ class ScoringStage:
         # the events weigh joints as the score does: by their noise at their speed, if known,
         # near a segment's end by the noise its filtering leaves there, in the band that scored
         scores, evidence = self.score.weigh(
-            self.model,
-            r,
-            frame.get("velocity"),
-            frame.get("residual_fast"),
-            frame.get("edge_factor"),
-            frame.get("fast_off"),
+            *self.score.band_scores(
+                self.model,
+                r,
+                frame.get("velocity"),
+                frame.get("residual_fast"),
+                frame.get("edge_factor"),
+                frame.get("fast_off"),
+            )
         )
         flags = scores >= self.threshold
         hold = scores >= self.release

@@ -112,6 +112,22 @@ class _AtomicMcap:
         """What ends ``out`` before the rename."""
         out.finish()
 
+    def _ready(self, channel_id: int) -> McapOutput:
+        """The output, ready for a block of ``channel_id``'s messages (each writer's checks)."""
+        raise NotImplementedError
+
+    def write_many(
+        self,
+        channel_id: int,
+        log_time_ns: Times,
+        payloads: Payloads,
+        publish_time_ns: Times | None = None,
+    ) -> None:
+        """Messages of one channel: log times (n,), CDR payloads as a uint8 array (n, L) of
+        equal-size messages or n ``bytes``; publish times default to the log times. Sequence
+        numbers continue from the channel's previous messages."""
+        self._ready(channel_id).append(channel_id, log_time_ns, payloads, publish_time_ns)
+
     def __enter__(self: _Writer) -> _Writer:
         with contextlib.ExitStack() as stack:
             stream = stack.enter_context(atomic_output(self._path))
@@ -186,19 +202,13 @@ class AugmentedMcap(_AtomicMcap):
         self._new.add(channel_id)
         return channel_id
 
-    def write(
-        self,
-        channel_id: int,
-        log_time_ns: Times,
-        payloads: Payloads,
-        publish_time_ns: Times | None = None,
-    ) -> None:
-        """Messages of one new channel: log times (n,), CDR payloads as a uint8 array (n, L)
-        of equal-size messages or n ``bytes``; publish times default to the log times.
-        Sequence numbers continue from the channel's previous ``write``."""
+    def _ready(self, channel_id: int) -> McapOutput:
         if channel_id not in self._new:
             raise ValueError(f"channel {channel_id} was not added with add_channel")
-        self._output().append(channel_id, log_time_ns, payloads, publish_time_ns)
+        return self._output()
+
+    # a new channel's messages, many at once (``write_many``)
+    write = _AtomicMcap.write_many
 
 
 class McapLogWriter(_AtomicMcap):
@@ -239,17 +249,10 @@ class McapLogWriter(_AtomicMcap):
         publish = log_time_ns if publish_time_ns is None else publish_time_ns
         batches.add(channel_id, int(log_time_ns), int(publish), bytes(data))
 
-    def write_many(
-        self,
-        channel_id: int,
-        log_time_ns: Times,
-        payloads: Payloads,
-        publish_time_ns: Times | None = None,
-    ) -> None:
-        """Many messages of one channel at once, as ``AugmentedMcap.write``."""
+    def _ready(self, channel_id: int) -> McapOutput:
         out, batches = self._parts()
         batches.flush(channel_id)  # keep this channel's sequence numbers in write order
-        out.append(channel_id, log_time_ns, payloads, publish_time_ns)
+        return out
 
 
 def write_augmented(source: Path, target: Path, new_topics: Iterable[NewTopic]) -> None:

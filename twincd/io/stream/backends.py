@@ -16,19 +16,17 @@ from typing import Any
 import numpy as np
 
 from twincd.errors import LogReadError
-from twincd.io.cdr import BOOL, DYNAMIC_JOINT_STATE, JOINT_STATE, CdrStats
+from twincd.io.cdr import JOINT_STATE, CdrStats
 from twincd.io.mcap import MAGIC, McapDamage, McapFile
 from twincd.io.sources import first_line, open_reader, refuse_non_logs, storage_of, unreadable
 from twincd.io.sqlite3 import FETCH, Sqlite3Storage, SqliteDamage
 from twincd.io.stream.batch import (
     END,
     Batch,
-    BoolBatch,
     Damage,
     JointStateBatch,
     RawTopic,
-    StringBatch,
-    dynamic_batches,
+    message_batches,
 )
 from twincd.types import FloatArray
 
@@ -229,12 +227,7 @@ class _Pending:
             )
         for (topic, msgtype), items in self.other.items():
             times = np.array([t for t, _ in items], dtype=np.int64)
-            if msgtype == BOOL:
-                out.append((topic, BoolBatch(times, np.array([bool(m.data) for _, m in items]))))
-            elif msgtype == DYNAMIC_JOINT_STATE:
-                out.extend((topic, b) for b in dynamic_batches(times, [m for _, m in items]))
-            else:
-                out.append((topic, StringBatch(times, [str(m.data) for _, m in items])))
+            out.extend((topic, b) for b in message_batches(msgtype, times, [m for _, m in items]))
         self.joint, self.other, self.count = {}, {}, 0
         out.sort(key=lambda tb: int(tb[1].log_time_ns[0]))
         return iter(out)

@@ -26,6 +26,7 @@ __all__ = [
     "RawTopic",
     "StringBatch",
     "dynamic_batches",
+    "message_batches",
 ]
 
 SUPPORTED = (JOINT_STATE, DYNAMIC_JOINT_STATE, BOOL, STRING)
@@ -120,6 +121,17 @@ def dynamic_batches(log_time_ns: IntArray, msgs: Sequence[Any]) -> list[JointSta
         )
         out.append(JointStateBatch(names, log_time_ns[rows], stamps, *columns))
     return out
+
+
+def message_batches(msgtype: str, log_time_ns: IntArray, msgs: Sequence[Any]) -> list[Batch]:
+    """Decoded messages of one topic of type ``msgtype`` (a ``Bool``, ``DynamicJointState`` or
+    ``String`` type of ``SUPPORTED``) as batches: how both readers turn the messages rosbags
+    deserialised into the stream's batches."""
+    if msgtype == BOOL:
+        return [BoolBatch(log_time_ns, np.array([bool(m.data) for m in msgs], dtype=bool))]
+    if msgtype == DYNAMIC_JOINT_STATE:
+        return list(dynamic_batches(log_time_ns, msgs))
+    return [StringBatch(log_time_ns, [str(m.data) for m in msgs])]
 
 
 def _value(values: Any, at: int) -> float:

@@ -413,17 +413,5 @@ class LogStream:
         )
 
 
-def iter_blocks(
-    path: str | Path,
-    options: LogOptions,
-    joints: Sequence[str] | None = None,
-    block_size: int = DEFAULT_BLOCK,
-    strict: bool = True,
-    reorder: int = DEFAULT_REORDER,
-    known: Sequence[str] | None = None,
-    known_from: str = "the robot model",
-) -> LogStream:
-    """Open a log for streaming; iterate the result for ``SampleBlock``s (see ``LogStream``)."""
-    return LogStream(
-        path, options, joints, block_size, strict, reorder, known=known, known_from=known_from
-    )
+# Open a log for streaming; iterate the result for ``SampleBlock``s (see ``LogStream``).
+iter_blocks = LogStream

@@ -17,14 +17,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from twincd.errors import LogReadError, TopicError, TwincdError
 from twincd.io.cdr import (
     BOOL,
-    DYNAMIC_JOINT_STATE,
     JOINT_STATE,
     CdrStats,
     decode_bools,
@@ -36,15 +34,13 @@ from twincd.io.stream.backends import McapBackend, open_backend
 from twincd.io.stream.batch import (
     DEFAULT_BATCH,
     END,
-    STRING,
     SUPPORTED,
     Batch,
     BoolBatch,
     Damage,
     JointStateBatch,
     RawTopic,
-    StringBatch,
-    dynamic_batches,
+    message_batches,
 )
 from twincd.types import ByteArray, IntArray
 
@@ -180,16 +176,10 @@ class TopicReader:
                 ]
             if msgtype == BOOL:
                 return [BoolBatch(log_time, decode_bools(payloads, self.stats))]
-            if msgtype == DYNAMIC_JOINT_STATE:  # rare, and nested: decoded by rosbags
-                msgs = [typestore().deserialize_cdr(row.tobytes(), msgtype) for row in payloads]
-                self.stats.add(fallback=len(msgs))
-                return list(dynamic_batches(log_time, msgs))
-            values = []
-            for row in payloads:
-                msg: Any = typestore().deserialize_cdr(row.tobytes(), STRING)
-                values.append(str(msg.data))
-            self.stats.add(fallback=len(values))
-            return [StringBatch(log_time, values)]
+            # rare (String), or nested (DynamicJointState): decoded by rosbags
+            msgs = [typestore().deserialize_cdr(row.tobytes(), msgtype) for row in payloads]
+            self.stats.add(fallback=len(msgs))
+            return message_batches(msgtype, log_time, msgs)
         except TwincdError:
             raise
         except Exception as exc:  # a payload even rosbags cannot decode
