@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.builders import XARM, Message, joint_recording, joint_state, write
+from support.builders import SUFFIX, XARM, Message, joint_recording, joint_state, write
 from support.clitools import run
 from support.robots import xarm_urdf
 
+from twincd.calibration import Calibration
 from twincd.commands.inspection import inspect_log
 
 SAMPLE = Path(__file__).parents[1] / "sample_logs"
@@ -161,3 +162,28 @@ def test_a_log_cut_before_its_first_joint_state_says_so(tmp_path):
     assert any("damaged" in w for w in found.warnings)
     result = run("inspect", cut)
     assert result.exit_code == 2 and result.stderr.count("twincd: error:") == 1
+
+
+@pytest.mark.parametrize("form", ["mcap", "rosbag2-sqlite3"])
+def test_a_log_sampled_over_the_gap_rule_below_the_calibration_is_refused_alike(tmp_path, form):
+    """Sampled every 60 ms against the calibration's 10 ms, every interval would be a gap: no
+    sample can be judged, so detect refuses the log (exit 2, not events on one-sample
+    segments) and inspect calls it unusable in the same words; every 20 ms is judged, said."""
+    cal = SAMPLE / "calibration.json"
+    for period_ms, refused in ((60, True), (20, False)):
+        n = 30_000 // period_ms
+        effort = np.ones((n, 7)) + np.arange(n)[:, None] * 1e-3
+        msgs = joint_recording(n=n, period_ns=period_ms * 1_000_000, effort=effort)
+        log = write(tmp_path / f"every_{period_ms}ms{SUFFIX[form]}", form, msgs)
+        found = inspect_log(log, calibration=Calibration.load(cal))
+        detected = run("detect", log, "-c", cal, "--json")
+        words = f"sampled every {period_ms} ms"
+        if refused:
+            assert not found.usable and found.problem is not None
+            assert words in found.problem and "every interval is a gap" in found.problem
+            assert detected.exit_code == 2 and detected.stdout == ""
+            assert found.problem in detected.stderr
+        else:
+            assert found.usable and any(words in w for w in found.warnings)
+            assert detected.exit_code in (0, 1) and words in detected.stderr
+            assert json.loads(detected.stdout)["logs"][0]["unjudged_spans"] == []

@@ -225,6 +225,10 @@ def _inspect(
         path, options, tuple(joints), strict, model, calibration, found, has_sim
     )
     if found.sampling is not None:
+        if calibration is not None and found.sampling.rate_hz > 0:
+            from twincd.prepare.notices import judged_period
+
+            judged_period(found.path, 1.0 / found.sampling.rate_hz, calibration.period_s)
         _warn_if_too_short(found.path, found.sampling, calibration)
     # what fit and detect refuse, refused here alike (the same checks, the same words)
     from twincd.prepare.notices import require_effort, require_enough_samples

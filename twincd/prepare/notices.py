@@ -1,5 +1,6 @@
 """What preparing a log says about it, and the logs it refuses: a stream's warnings (a sampling
-rate other than the calibration's, velocity differentiated from position, positions unwrapped,
+rate other than the calibration's, ``judged_period``, refused when every interval is a gap at
+the calibration's; velocity differentiated from position, positions unwrapped,
 a log most of whose samples lie near a segment's end: ``warn_short``, ``edges_s``),
 ``said_already`` to silence them on a second pass, and the refusal of a log without measured
 effort or with fewer than ``MIN_SAMPLES`` usable samples.
@@ -55,6 +56,26 @@ def other_rate(source: str, own_s: float, calibrated_s: float | None) -> str | N
         f"{source} is sampled every {own_s * 1e3:.4g} ms, the calibration every "
         f"{calibrated_s * 1e3:.4g} ms; its filter and gap rule follow the calibration"
     )
+
+
+def judged_period(source: str, own_s: float, calibrated_s: float | None) -> float:
+    """The period a log sampled every ``own_s`` is judged at: the calibration's (said when the
+    log's differs, ``other_rate``), else its own. Refused when every interval of the log is a
+    gap at the calibration's period: no sample of it could be judged."""
+    from twincd.signal.stream import DEFAULT_GAP_FACTOR
+
+    if calibrated_s and own_s > DEFAULT_GAP_FACTOR * calibrated_s:
+        raise DataError(
+            f"the log is sampled every {own_s * 1e3:.4g} ms, over {DEFAULT_GAP_FACTOR:g}× the "
+            f"calibration's {calibrated_s * 1e3:.4g} ms: at the calibration's rate every "
+            "interval is a gap, so no sample could be judged",
+            source,
+            "fit a calibration on logs recorded at this rate",
+        )
+    text = other_rate(source, own_s, calibrated_s)
+    if text is not None:
+        log.warning("%s", text)
+    return calibrated_s or own_s
 
 
 def edges_s(lowpass: LowPass, period_s: float) -> float:

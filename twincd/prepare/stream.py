@@ -28,7 +28,7 @@ from twincd.prepare.frames import Frame, prefetched
 from twincd.prepare.joints import joint_order
 from twincd.prepare.notices import (
     SHORT_FACTOR,
-    other_rate,
+    judged_period,
     require_effort,
     require_enough_samples,
     warn_short,
@@ -348,15 +348,10 @@ class PreparedStream:
         return tuple(calibrated)
 
     def _period(self, stamp_ns: IntArray) -> float:
-        """The calibration's sampling period (said when the log's differs), else the log's."""
+        """The period the log is judged at (``judged_period``)."""
         from twincd.signal import nominal_period
 
-        own = nominal_period(stamp_ns)
-        calibrated = self.setup.period_s
-        text = other_rate(self.source, own, calibrated)
-        if text is not None:
-            log.warning("%s", text)
-        return calibrated or own
+        return judged_period(self.source, nominal_period(stamp_ns), self.setup.period_s)
 
     def __iter__(self) -> Iterator[Frame]:
         assert self._log is not None, "use PreparedStream as a context manager"
