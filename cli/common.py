@@ -166,19 +166,25 @@ def command(func: Callable[..., Any]) -> Callable[..., Any]:
     CI reads as "collision found"); a closed stdout ends quietly."""
     from .options import Debug, Quiet
 
+    shared = {"quiet": Quiet, "debug": Debug}
     declared = inspect.signature(func)
     names = declared.parameters
     kinds = typing.get_type_hints(func, include_extras=True)
-    shared = {"quiet": Quiet, "debug": Debug}
     params = [p.replace(annotation=kinds.get(p.name, p.annotation)) for p in names.values()] + [
         inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=False, annotation=kind)
         for n, kind in shared.items()
         if n not in names
     ]
+    # the flags go on to a command that names them, and to ``options.reads``' wrapper, which
+    # takes **kwargs (its run options need --quiet)
+    code = getattr(func, "__code__", None)
+    passed = set(shared) if code and code.co_flags & inspect.CO_VARKEYWORDS else set(names)
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        quiet, debug = (bool(kwargs.get(n) if n in names else kwargs.pop(n, False)) for n in shared)
+        quiet, debug = (
+            bool(kwargs.get(n) if n in passed else kwargs.pop(n, False)) for n in shared
+        )
         setup_logging(quiet, debug)
         try:
             with terminate_like_interrupt(), closed_stdout_ends_quietly():

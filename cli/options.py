@@ -314,6 +314,9 @@ def reads(
                 kwargs["reports"] = ReportOptions(
                     report=report, junit=junit, step_summary=not no_summary
                 )
+            for flag in ("quiet", "debug"):  # ``common.command``'s, for run_options above
+                if flag not in declared.parameters:
+                    kwargs.pop(flag, None)
             return func(*args, asked=settings(**given), **kwargs)
 
         command.__signature__ = declared.replace(parameters=params)  # type: ignore[attr-defined]
