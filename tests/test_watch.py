@@ -554,6 +554,21 @@ def test_a_source_at_another_rate_than_the_calibration_is_said(causal_cal, tmp_p
     assert words in notices[0].text and words in detected.stderr
 
 
+def test_a_source_sampled_over_the_gap_rule_below_the_calibration_is_refused(
+    causal_cal, tmp_path, clock
+):
+    """Every 60 ms against the calibration's 10 ms every interval is a gap: refused in
+    ``detect``'s words (a ``DataError``: exit 2), not scored as one-sample segments."""
+    from twincd.errors import DataError
+
+    log = build_twin_log(tmp_path / "slower.mcap", rate_hz=1000 / 60)
+    detected = run("detect", log, "-c", causal_cal)
+    with pytest.raises(DataError, match="every interval is a gap") as refused:
+        _scripted(read_messages(log)[1], causal_cal, clock)
+    words = "sampled every 60 ms, over 5× the calibration's 10 ms"
+    assert words in str(refused.value) and detected.exit_code == 2 and words in detected.stderr
+
+
 def _renamed(messages: list[tuple[str, int, bytes]], prefix: str) -> list[tuple[str, int, bytes]]:
     """The joint states' joints named ``prefix`` + their name (one arm of two)."""
     from twincd.io.cdr import decode_joint_states, joint_state_cdr

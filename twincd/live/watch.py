@@ -225,14 +225,16 @@ class _Session:
     def rate_notice(self, elapsed_s: float) -> WatchNotice | None:
         """Once the first samples are in: a notice when the source is sampled at another
         rate than the calibration (``twincd.prepare.notices.other_rate``, as ``detect`` says
-        it of a log)."""
+        it of a log); refused as ``detect`` refuses a log when every interval is a gap at the
+        calibration's period."""
         if self.rate_said or len(self.first_stamps) < _RATE_SAMPLES:
             return None
-        from twincd.prepare.notices import other_rate
+        from twincd.prepare.notices import other_rate, refuse_all_gaps
         from twincd.signal import nominal_period
 
         self.rate_said = True
         own = nominal_period(np.sort(np.asarray(self.first_stamps, dtype=np.int64)))
+        refuse_all_gaps(self.source_name, own, self.detector.period_s)
         text = other_rate(self.source_name, own, self.detector.period_s)
         return None if text is None else WatchNotice("rate", text, elapsed_s)
 

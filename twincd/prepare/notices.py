@@ -60,22 +60,27 @@ def other_rate(source: str, own_s: float, calibrated_s: float | None) -> str | N
 
 def judged_period(source: str, own_s: float, calibrated_s: float | None) -> float:
     """The period a log sampled every ``own_s`` is judged at: the calibration's (said when the
-    log's differs, ``other_rate``), else its own. Refused when every interval of the log is a
-    gap at the calibration's period: no sample of it could be judged."""
+    log's differs, ``other_rate``), else its own (``refuse_all_gaps`` first)."""
+    refuse_all_gaps(source, own_s, calibrated_s)
+    text = other_rate(source, own_s, calibrated_s)
+    if text is not None:
+        log.warning("%s", text)
+    return calibrated_s or own_s
+
+
+def refuse_all_gaps(source: str, own_s: float, calibrated_s: float | None) -> None:
+    """Refuse a log or a live source sampled every ``own_s`` when every interval of it is a gap
+    at the calibration's period: no sample of it could be judged."""
     from twincd.signal.stream import DEFAULT_GAP_FACTOR
 
     if calibrated_s and own_s > DEFAULT_GAP_FACTOR * calibrated_s:
         raise DataError(
-            f"the log is sampled every {own_s * 1e3:.4g} ms, over {DEFAULT_GAP_FACTOR:g}× the "
+            f"sampled every {own_s * 1e3:.4g} ms, over {DEFAULT_GAP_FACTOR:g}× the "
             f"calibration's {calibrated_s * 1e3:.4g} ms: at the calibration's rate every "
             "interval is a gap, so no sample could be judged",
             source,
             "fit a calibration on logs recorded at this rate",
         )
-    text = other_rate(source, own_s, calibrated_s)
-    if text is not None:
-        log.warning("%s", text)
-    return calibrated_s or own_s
 
 
 def edges_s(lowpass: LowPass, period_s: float) -> float:
