@@ -166,24 +166,36 @@ def test_a_log_cut_before_its_first_joint_state_says_so(tmp_path):
 
 @pytest.mark.parametrize("form", ["mcap", "rosbag2-sqlite3"])
 def test_a_log_sampled_over_the_gap_rule_below_the_calibration_is_refused_alike(tmp_path, form):
-    """Sampled every 60 ms against the calibration's 10 ms, every interval would be a gap: no
-    sample can be judged, so detect refuses the log (exit 2, not events on one-sample
-    segments) and inspect calls it unusable in the same words; every 20 ms is judged, said."""
+    """Sampled every 60 ms against the calibration's 10 ms, every interval is a gap: no sample
+    can be judged, so detect refuses the log (exit 2, not events on one-sample segments) and
+    inspect calls it unusable in the same words. Every 20 ms is judged, said; so is a log
+    whose first 10 s only are that slow (the rest judged, the slow start not)."""
     cal = SAMPLE / "calibration.json"
-    for period_ms, refused in ((60, True), (20, False)):
-        n = 30_000 // period_ms
-        effort = np.ones((n, 7)) + np.arange(n)[:, None] * 1e-3
-        msgs = joint_recording(n=n, period_ns=period_ms * 1_000_000, effort=effort)
-        log = write(tmp_path / f"every_{period_ms}ms{SUFFIX[form]}", form, msgs)
+    fast = joint_recording(n=3000, effort=np.ones((3000, 7)) + np.arange(3000)[:, None] * 1e-3)
+    logs = {
+        "every_60ms": (joint_recording(n=500, period_ns=60_000_000, effort=np.ones((500, 7))), 1),
+        "every_20ms": (joint_recording(n=1500, period_ns=20_000_000, effort=np.ones((1500, 7))), 0),
+        "slow_start": ([*fast[:1000:6], *fast[1000:]], 0),
+    }
+    for name, (msgs, refused) in logs.items():
+        log = write(tmp_path / f"{name}{SUFFIX[form]}", form, msgs)
         found = inspect_log(log, calibration=Calibration.load(cal))
         detected = run("detect", log, "-c", cal, "--json")
-        words = f"sampled every {period_ms} ms"
         if refused:
-            assert not found.usable and found.problem is not None
-            assert words in found.problem and "every interval is a gap" in found.problem
+            words = f"{len(msgs) - 1} of the {len(msgs) - 1} intervals between its samples are gaps"
+            assert not found.usable and found.problem is not None and words in found.problem
             assert detected.exit_code == 2 and detected.stdout == ""
             assert found.problem in detected.stderr
-        else:
-            assert found.usable and any(words in w for w in found.warnings)
-            assert detected.exit_code in (0, 1) and words in detected.stderr
-            assert json.loads(detected.stdout)["logs"][0]["unjudged_spans"] == []
+            copy = tmp_path / "cal.json"
+            copy.write_bytes(cal.read_bytes())
+            for refusal in (run("threshold", log, "-c", copy), run("evaluate", log, "-c", cal)):
+                assert refusal.exit_code == 2 and found.problem in refusal.stderr
+            assert copy.read_bytes() == cal.read_bytes()
+            continue
+        assert found.usable, found.problem
+        assert detected.exit_code in (0, 1), detected.stderr
+        spans = json.loads(detected.stdout)["logs"][0]["unjudged_spans"]
+        if name == "every_20ms":
+            assert "sampled every 20 ms" in detected.stderr and spans == []
+        else:  # the slow start's 166 intervals are gaps, then every sample lies together
+            assert len(spans) == 166 and spans[-1][1] == pytest.approx(9.96)

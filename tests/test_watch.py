@@ -558,15 +558,24 @@ def test_a_source_sampled_over_the_gap_rule_below_the_calibration_is_refused(
     causal_cal, tmp_path, clock
 ):
     """Every 60 ms against the calibration's 10 ms every interval is a gap: refused in
-    ``detect``'s words (a ``DataError``: exit 2), not scored as one-sample segments."""
+    ``detect``'s words (a ``DataError``: exit 2) after its first ten intervals, before any of
+    its samples is scored, so no event comes first (a push in its first second would give one
+    on one-sample segments)."""
+    import twincd
     from twincd.errors import DataError
+    from twincd.live import WatchEvent
 
-    log = build_twin_log(tmp_path / "slower.mcap", rate_hz=1000 / 60)
+    log = build_twin_log(tmp_path / "slower.mcap", rate_hz=1000 / 60, bumps=((0.1, 0.5, 3.0),))
     detected = run("detect", log, "-c", causal_cal)
-    with pytest.raises(DataError, match="every interval is a gap") as refused:
-        _scripted(read_messages(log)[1], causal_cal, clock)
-    words = "sampled every 60 ms, over 5× the calibration's 10 ms"
-    assert words in str(refused.value) and detected.exit_code == 2 and words in detected.stderr
+    source = Scripted(read_messages(log)[1], clock, 1.0, ())
+    items = []
+    with pytest.raises(DataError, match="intervals between its samples are gaps") as refused:
+        for item in twincd.watch(source, causal_cal, idle_timeout_s=3.0):
+            items.append(item)
+    words = "10 of the 10 intervals between its samples are gaps, longer than 5 of the"
+    assert words in str(refused.value) and detected.exit_code == 2
+    assert "intervals between its samples are gaps" in detected.stderr
+    assert not [i for i in items if isinstance(i, WatchEvent)]
 
 
 def _renamed(messages: list[tuple[str, int, bytes]], prefix: str) -> list[tuple[str, int, bytes]]:

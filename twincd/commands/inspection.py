@@ -226,9 +226,11 @@ def _inspect(
     )
     if found.sampling is not None:
         if calibration is not None and found.sampling.rate_hz > 0:
-            from twincd.prepare.notices import judged_period
+            from twincd.prepare.notices import judged_period, refuse_gapped
 
             judged_period(found.path, 1.0 / found.sampling.rate_hz, calibration.period_s)
+            intervals = max(found.sampling.samples - 1, 0)
+            refuse_gapped(found.path, found.sampling.gaps, intervals, calibration.period_s)
         _warn_if_too_short(found.path, found.sampling, calibration)
     # what fit and detect refuse, refused here alike (the same checks, the same words)
     from twincd.prepare.notices import require_effort, require_enough_samples
@@ -296,14 +298,16 @@ def _match_robot(
 class _Ranges:
     """Streaming per-joint ranges and sampling intervals (flat memory at any length)."""
 
-    def __init__(self, width: int) -> None:
+    def __init__(self, width: int, period_s: float | None = None) -> None:
         from twincd.signal import DEFAULT_GAP_FACTOR
 
         self.gap_factor = DEFAULT_GAP_FACTOR
         self.samples = 0
         self.first: int | None = None
         self.last: int | None = None
-        self.period_ns = 0.0  # nominal, from the first block (as ``twincd.prepare.stream`` does)
+        self.period_ns = 0.0  # the log's nominal one, from the first block
+        # gaps by the calibration's period, else the log's own (as ``twincd.prepare.stream``)
+        self.judged_ns = (period_s or 0.0) * 1e9
         self.steps = np.zeros(3)  # count, sum, sum of squares of the intervals (ns)
         self.gaps = 0
         self.largest_gap_ns = 0
@@ -322,7 +326,8 @@ class _Ranges:
         steps = np.diff(stamp if self.last is None else np.concatenate([[self.last], stamp]))
         steps = steps.astype(np.float64)
         self.steps += (len(steps), steps.sum(), (steps**2).sum())
-        gaps = steps[steps > self.gap_factor * self.period_ns] if self.period_ns else steps[:0]
+        judged = self.judged_ns or self.period_ns
+        gaps = steps[steps > self.gap_factor * judged] if judged else steps[:0]
         self.gaps += len(gaps)
         self.largest_gap_ns = max(self.largest_gap_ns, int(gaps.max()) if len(gaps) else 0)
         self.last = int(stamp[-1])
@@ -389,7 +394,8 @@ def _read_samples(
         found.joint_topic = stream.topic  # ros2_control's DynamicJointState may stand in
         joints = tuple(stream.joint_names)
         bounds = sample_bounds(model, joints)
-        scan = _SignalScan(joints, limits, bounds, has_sim)
+        period = calibration.period_s if calibration is not None else None
+        scan = _SignalScan(joints, limits, bounds, has_sim, period)
         for block in stream:
             scan.push(block)
         found.absurd = bounds.dropped
@@ -417,13 +423,14 @@ class _SignalScan:
         limits: dict[str, tuple[float, float]],
         bounds: SampleBounds,
         has_sim: bool,
+        period_s: float | None = None,
     ) -> None:
         from twincd.signal.checks import SignalChecks
 
         self.joints = joints
         self.bounds = bounds
         self.has_sim = has_sim
-        self.ranges = _Ranges(len(joints))
+        self.ranges = _Ranges(len(joints), period_s)
         self.checks = SignalChecks(joints, limits)
         self.has_velocity = np.ones(len(joints), dtype=bool)
         self.from_position: bool | None = None  # decided on the first block, as detect does

@@ -59,6 +59,9 @@ _POLL_S = 0.05
 _KEEP_SAMPLES = 30_000
 # samples of the first segment whose stamps tell the source's rate (a second at 100 Hz)
 _RATE_SAMPLES = 100
+# a source whose first intervals are all gaps at the calibration's period is refused after
+# this many (``_Session._checked``): sampled over 5 × slower, nothing of it could be judged
+_GAP_CHECK = 10
 
 
 class _Latency:
@@ -139,6 +142,8 @@ class _Session:
         self.latency = _Latency()
         self.received: deque[int] = deque()  # pushed samples not scored yet: their arrival
         self.first_stamps: list[int] = []  # the first segment's, for the rate (``rate_notice``)
+        self.held: list[Sample] = []  # the first samples, while their intervals are all gaps
+        self.rate_checked = False  # an interval within the calibration's gap rule has come
         self.rate_said = False
         self.events = 0
         self.collision = False
@@ -183,7 +188,28 @@ class _Session:
             self.recorder.tick()
         return usable, events
 
+    def _checked(self, samples: list[Sample]) -> list[Sample]:
+        """``samples`` once the source's first intervals show that it can be judged: while
+        every interval so far is a gap at the calibration's period they are held, and after
+        ``_GAP_CHECK`` such intervals the source is refused as ``detect`` refuses such a log
+        (``refuse_gapped``), before any of its samples is scored."""
+        if self.rate_checked:
+            return samples
+        from twincd.prepare.notices import gap_ns, refuse_gapped
+
+        self.held += samples
+        period = self.detector.period_s
+        steps = np.diff([s.stamp_ns for s in self.held])
+        if not period or np.any(steps <= gap_ns(period)):
+            self.rate_checked = True
+            held, self.held = self.held, []
+            return held
+        if len(steps) >= _GAP_CHECK:
+            refuse_gapped(self.source_name, len(steps), len(steps), period)
+        return []
+
     def _push(self, samples: list[Sample]) -> list[Event]:
+        samples = self._checked(samples)
         if not samples:
             return []
         joints = len(self.detector.joint_names)
@@ -225,16 +251,14 @@ class _Session:
     def rate_notice(self, elapsed_s: float) -> WatchNotice | None:
         """Once the first samples are in: a notice when the source is sampled at another
         rate than the calibration (``twincd.prepare.notices.other_rate``, as ``detect`` says
-        it of a log); refused as ``detect`` refuses a log when every interval is a gap at the
-        calibration's period."""
+        it of a log)."""
         if self.rate_said or len(self.first_stamps) < _RATE_SAMPLES:
             return None
-        from twincd.prepare.notices import other_rate, refuse_all_gaps
+        from twincd.prepare.notices import other_rate
         from twincd.signal import nominal_period
 
         self.rate_said = True
         own = nominal_period(np.sort(np.asarray(self.first_stamps, dtype=np.int64)))
-        refuse_all_gaps(self.source_name, own, self.detector.period_s)
         text = other_rate(self.source_name, own, self.detector.period_s)
         return None if text is None else WatchNotice("rate", text, elapsed_s)
 

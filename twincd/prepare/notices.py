@@ -1,9 +1,9 @@
 """What preparing a log says about it, and the logs it refuses: a stream's warnings (a sampling
-rate other than the calibration's, ``judged_period``, refused when every interval is a gap at
-the calibration's; velocity differentiated from position, positions unwrapped,
-a log most of whose samples lie near a segment's end: ``warn_short``, ``edges_s``),
-``said_already`` to silence them on a second pass, and the refusal of a log without measured
-effort or with fewer than ``MIN_SAMPLES`` usable samples.
+rate other than the calibration's, ``judged_period``; velocity differentiated from position,
+positions unwrapped, a log most of whose samples lie near a segment's end: ``warn_short``,
+``edges_s``), ``said_already`` to silence them on a second pass, and the refusal of a log
+without measured effort, with fewer than ``MIN_SAMPLES`` usable samples, or most of whose
+intervals are gaps at the calibration's period (``refuse_gapped``).
 
 ``twincd.prepare.stream`` says them of a log read from disk, ``inspect`` and ``watch`` the same
 of what they read, so every path says the same of a log.
@@ -60,24 +60,31 @@ def other_rate(source: str, own_s: float, calibrated_s: float | None) -> str | N
 
 def judged_period(source: str, own_s: float, calibrated_s: float | None) -> float:
     """The period a log sampled every ``own_s`` is judged at: the calibration's (said when the
-    log's differs, ``other_rate``), else its own (``refuse_all_gaps`` first)."""
-    refuse_all_gaps(source, own_s, calibrated_s)
+    log's differs, ``other_rate``), else its own."""
     text = other_rate(source, own_s, calibrated_s)
     if text is not None:
         log.warning("%s", text)
     return calibrated_s or own_s
 
 
-def refuse_all_gaps(source: str, own_s: float, calibrated_s: float | None) -> None:
-    """Refuse a log or a live source sampled every ``own_s`` when every interval of it is a gap
-    at the calibration's period: no sample of it could be judged."""
+def gap_ns(period_s: float) -> float:
+    """The interval over which two samples lie in different segments at ``period_s``."""
     from twincd.signal.stream import DEFAULT_GAP_FACTOR
 
-    if calibrated_s and own_s > DEFAULT_GAP_FACTOR * calibrated_s:
+    return DEFAULT_GAP_FACTOR * period_s * 1e9
+
+
+def refuse_gapped(source: str, gapped: int, intervals: int, calibrated_s: float | None) -> None:
+    """Refuse a log, or a live source, ``gapped`` of whose ``intervals`` (more than half) are
+    gaps at the calibration's period (``gap_ns``): sampled that much slower than the
+    calibration, its samples lie one or two to a segment, with nothing to filter them with."""
+    from twincd.signal.stream import DEFAULT_GAP_FACTOR
+
+    if calibrated_s and intervals and 2 * gapped > intervals:
         raise DataError(
-            f"sampled every {own_s * 1e3:.4g} ms, over {DEFAULT_GAP_FACTOR:g}× the "
-            f"calibration's {calibrated_s * 1e3:.4g} ms: at the calibration's rate every "
-            "interval is a gap, so no sample could be judged",
+            f"{gapped} of the {intervals} intervals between its samples are gaps, longer than "
+            f"{DEFAULT_GAP_FACTOR:g} of the calibration's {calibrated_s * 1e3:.4g} ms periods: "
+            "sampled this much slower than the calibration, it cannot be judged",
             source,
             "fit a calibration on logs recorded at this rate",
         )

@@ -28,7 +28,9 @@ from twincd.prepare.frames import Frame, prefetched
 from twincd.prepare.joints import joint_order
 from twincd.prepare.notices import (
     SHORT_FACTOR,
+    gap_ns,
     judged_period,
+    refuse_gapped,
     require_effort,
     require_enough_samples,
     warn_short,
@@ -361,16 +363,21 @@ class PreparedStream:
         start_ns = int(first["stamp_ns"][0])
         first_ns = last_ns = None
         cleaned = self._cleaned(first, blocks, built.layout.to_twin)
+        gap, gapped = gap_ns(self.period_s), 0
         for out in self._windowed(built.chain.run(cleaned), start_ns):
             if out.n:
-                first_ns = int(out["stamp_ns"][0]) if first_ns is None else first_ns
-                last_ns = int(out["stamp_ns"][-1])
+                stamps = out["stamp_ns"]
+                steps = np.diff(stamps) if last_ns is None else np.diff(stamps, prepend=last_ns)
+                gapped += int(np.count_nonzero(steps > gap))
+                first_ns = int(stamps[0]) if first_ns is None else first_ns
+                last_ns = int(stamps[-1])
             self.samples += out.n
             samples_done(out.n)
             if "edge_factor" in out:
                 self.near_ends += int(np.count_nonzero(out["edge_factor"][:, 0] >= SHORT_FACTOR))
             yield out
         seconds = 0.0 if first_ns is None or last_ns is None else (last_ns - first_ns) * 1e-9
+        refuse_gapped(self.source, gapped, max(self.samples - 1, 0), self.setup.period_s)
         self._finish(built, start_ns, seconds)
 
     def _first_samples(self, blocks: Iterator[Any]) -> Frame:

@@ -117,6 +117,7 @@ class LogStream:
         block_size: int = DEFAULT_BLOCK,
         strict: bool = True,
         reorder: int = DEFAULT_REORDER,
+        *,
         batch_size: int = DEFAULT_BATCH,
         known: Sequence[str] | None = None,
         known_from: str = "the robot model",
