@@ -22,6 +22,7 @@ from twincd.commands import fit_calibration
 from twincd.detection import OnlineDetector, detect_log, detect_streamed
 from twincd.errors import DataError, UsageError
 from twincd.prepare.setup import Setup
+from twincd.signal.features import ModelInputs
 
 SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
 LOG = SAMPLE_LOGS / "test" / "test_000.mcap"
@@ -162,3 +163,22 @@ def test_samples_prepared_for_another_model_are_refused(shipped: Calibration) ->
         detect_log(shipped.prepare(LOG, setup), other)
     with pytest.raises(DataError, match="another θ"):  # prepared for a fit, with its θ
         detect_log(setup.prepare(LOG, shipped.model.features), replace(other, score=Score()))
+
+
+def test_a_model_s_own_residual_is_what_every_path_scores(shipped: Calibration) -> None:
+    """A kind may define its residual (``ResidualModel.residual``): the streamed chain scores
+    that, as the whole-log path does — not its own measured-less-predicted."""
+
+    class Shifted(type(shipped.model)):  # type: ignore[misc]
+        def residual(self, inputs: ModelInputs, predicted: np.ndarray | None = None) -> np.ndarray:
+            out: np.ndarray = super().residual(inputs, predicted) + 1.0
+            return out
+
+    model = copy.deepcopy(shipped.model)
+    model.__class__ = Shifted
+    other = replace(shipped, model=model)
+    setup = Setup.from_calibration(shipped)
+    batch = [batch_scores(c, setup) for c in (other, shipped)]
+    assert_differ(*batch)
+    whole = detect_log(other.prepare(LOG, setup), other).scores
+    np.testing.assert_allclose(whole, batch[0], rtol=1e-9, atol=1e-12)

@@ -39,7 +39,7 @@ from twincd.calibration.clean import BandStats, band_stats, near_labels
 from twincd.calibration.models.constants import MIN_BIN_SAMPLES, MIN_SCALE
 from twincd.calibration.models.statistics import speed_bin
 from twincd.executors.run import Each
-from twincd.signal.features import ModelFeatures, ModelInputs
+from twincd.signal.features import FittedModel, ModelFeatures, ModelInputs
 from twincd.types import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
@@ -179,6 +179,11 @@ class TimeFolded:
             out[rows] = self.models[int(k)].predict(inputs.take(rows))
         return out
 
+    def residual(self, inputs: ModelInputs, predicted: FloatArray | None = None) -> FloatArray:
+        """Each sample's residual under its fold's model (``ResidualModel.residual``)."""
+        twin = self.predict(inputs) if predicted is None else predicted
+        return self.models[0].residual(inputs, twin)
+
 
 @dataclass(frozen=True)
 class CrossScored:
@@ -212,7 +217,9 @@ def crossfit_log(
     from twincd.prepare.notices import said_already
 
     source = str(path)
-    model = TimeFolded(models, folds) if folds.by_time else models[folds.groups[source]]
+    model: FittedModel = (
+        TimeFolded(models, folds) if folds.by_time else models[folds.groups[source]]
+    )
     # each column kept as it will be stored (float32, bool) block by block: a 20 min 1 kHz log
     # keeps 120 000 rows, whose float64 blocks and their concatenation were 75 MB of peak memory
     kept: dict[str, list[np.ndarray]] = {}

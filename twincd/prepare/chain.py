@@ -476,7 +476,7 @@ def _raw_residual(
             stamp_ns=frame.get("stamp_ns"),
             **_regressor_inputs(frame.get("regressor"), mask, theta, on_grid),
         )
-        raw = inputs.measured - model.predict(inputs)
+        raw = model.residual(inputs)  # the model's own, as evaluate and fit score it
         rest = {k: v for k, v in frame.items() if k not in ("regressor", "coulomb")}
         return Frame(rest, frame.n).with_columns(residual_raw=raw)
 

@@ -130,10 +130,14 @@ class ModelInputs:
 class FittedModel(Protocol):
     """What preparing and scoring a log asks of a fitted model
     (``twincd.calibration.models.ResidualModel`` is one): the features the chain computes for
-    it, and its prediction of the measured effort from them. The chain runs below the models,
-    so it knows them only through this."""
+    it, its prediction of the measured effort from them and its residual. The chain runs below
+    the models, so it knows them only through this."""
 
     @property
     def features(self) -> ModelFeatures: ...
 
     def predict(self, inputs: ModelInputs) -> FloatArray: ...
+
+    def residual(self, inputs: ModelInputs, predicted: FloatArray | None = None) -> FloatArray:
+        """The measured effort less the model's prediction (what its score judges)."""
+        ...
