@@ -16,7 +16,7 @@ import time
 import traceback
 import typing
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
@@ -30,6 +30,12 @@ if TYPE_CHECKING:
     from twincd.executors.run import LogFailure
 
 log = logging.getLogger("twincd")
+
+# the two options every command takes (``command`` declares them)
+Quiet = Annotated[
+    bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.", metavar="")
+]
+Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.", metavar="")]
 
 stderr = Console(stderr=True, highlight=False)
 # not a terminal (a CI log, a pipe): no 80-column default that would cut tables
@@ -164,8 +170,6 @@ def command(func: Callable[..., Any]) -> Callable[..., Any]:
     only if it names them); logging set-up; TwincdError → one line on stderr and its exit code;
     any other exception (a defect) → one ``internal error`` line and exit 3, never 1 (which
     CI reads as "collision found"); a closed stdout ends quietly."""
-    from .options import Debug, Quiet
-
     shared = {"quiet": Quiet, "debug": Debug}
     declared = inspect.signature(func)
     names = declared.parameters

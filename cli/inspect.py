@@ -8,14 +8,12 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
-from .common import command, finish, stdout
+from .common import Debug, Quiet, command, finish, stdout
 from .options import (
     GIVEN,
     RECORDING,
-    Debug,
     Json,
     Logs,
-    Quiet,
     reads,
 )
 

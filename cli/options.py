@@ -72,9 +72,6 @@ JointPrefix = Annotated[
     ),
 ]
 Json = Annotated[bool, typer.Option("--json", help="Print one JSON document.", metavar="")]
-Quiet = Annotated[
-    bool, typer.Option("--quiet", "-q", help="Silence stderr except errors.", metavar="")
-]
 Jobs = Annotated[
     int,
     typer.Option(
@@ -108,7 +105,6 @@ NoSummary = Annotated[
         metavar="",
     ),
 ]
-Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.", metavar="")]
 Start = Annotated[
     str | None,
     typer.Option(

@@ -12,8 +12,7 @@ import typer
 from twincd.defaults import SYNTH_SEGMENT_S
 from twincd.errors import UsageError
 
-from .common import command, counter, stdout
-from .options import Quiet
+from .common import Quiet, command, counter, stdout
 
 
 @command

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 
-from .common import command, stderr, stdout
+from .common import Quiet, command, stderr, stdout
 from .options import (
     CalibrationIn,
     Force,
@@ -23,7 +23,6 @@ from .options import (
     Json,
     LabelTopic,
     LinkTopic,
-    Quiet,
     Robot,
     SimTopic,
     Topic,
