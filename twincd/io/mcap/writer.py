@@ -11,6 +11,7 @@ chunks in time; readers find them through the chunk index.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
@@ -95,7 +96,7 @@ def _finish(
     stack.close()
 
 
-class _AtomicMcap:
+class _AtomicMcap(abc.ABC):
     """An MCAP written to ``path`` atomically and marked as twincd's ``output``: opened on
     entering, finished and renamed into place when the block ends without error."""
 
@@ -105,16 +106,16 @@ class _AtomicMcap:
         self._stack: contextlib.ExitStack | None = None
         self._out: McapOutput | None = None
 
-    def _begin(self, out: McapOutput) -> None:
+    def _begin(self, out: McapOutput) -> None:  # noqa: B027 (a hook: nothing, unless overridden)
         """What goes into ``out`` before the mark (nothing here)."""
 
     def _end(self, out: McapOutput) -> None:
         """What ends ``out`` before the rename."""
         out.finish()
 
+    @abc.abstractmethod
     def _ready(self, channel_id: int) -> McapOutput:
         """The output, ready for a block of ``channel_id``'s messages (each writer's checks)."""
-        raise NotImplementedError
 
     def write_many(
         self,
