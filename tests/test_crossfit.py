@@ -12,7 +12,13 @@ from conftest import build_twin_log
 from support.clitools import run
 
 from twincd.calibration import Calibration
-from twincd.calibration.crossfit import Folds, crossfit_log
+from twincd.calibration.crossfit import (
+    FAST_TAIL_QUANTILE,
+    CrossScored,
+    Folds,
+    band_noise,
+    crossfit_log,
+)
 from twincd.prepare.setup import Setup
 
 
@@ -40,3 +46,52 @@ def test_the_rows_kept_are_the_same_in_any_blocks(tmp_path: Path, blocks: int) -
     assert np.array_equal(stamps, whole_stamps)
     for a, b in zip(residual, whole, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def _scored(source: str, residual: np.ndarray, velocity: np.ndarray) -> CrossScored:
+    n = len(residual)
+    return CrossScored(
+        source=source,
+        residual=(np.zeros_like(residual, dtype=np.float32), residual.astype(np.float32)),
+        velocity=velocity.astype(np.float32),
+        fit=np.ones(n, dtype=bool),
+        clean=np.ones(n, dtype=bool),
+        edge_factor=np.ones((n, 2), dtype=np.float32),
+        fast_off=None,
+        stamp_ns=np.arange(n, dtype=np.int64) * 10_000_000,
+        period_s=0.01,
+    )
+
+
+def test_a_joint_whose_fast_residual_bursts_is_judged_on_its_tail() -> None:
+    """The fast band's noise at a speed is the residual's RMS or, if heavier, its tail's (the
+    99.9th percentile over a normal's): a joint at rest that bursts (1 % of its samples at
+    8–16 σ) then crosses 3.29 of its scales no more often than a Gaussian joint does, where by
+    its RMS it crossed them five times as often or more; a Gaussian joint keeps its RMS within
+    a few %."""
+    rng = np.random.default_rng(3)
+    n = 60_000
+    quiet = rng.standard_normal(n)
+    bursty = rng.standard_normal(n)
+    spikes = rng.random(n) < 0.01
+    size = rng.uniform(8.0, 16.0, spikes.sum())
+    bursty[spikes] = size * np.sign(rng.standard_normal(spikes.sum()))
+    residual = np.column_stack([quiet, bursty])
+    velocity = np.zeros((n, 2))  # both in the rest bin
+    parts = [_scored("a", residual[: n // 2], velocity[: n // 2]),
+             _scored("b", residual[n // 2 :], velocity[n // 2 :])]  # fmt: skip
+    bins = [0.003, 0.01, 0.03, 0.1, 0.3]
+    rms, rms_overall = band_noise(parts, 1, bins)
+    scale, overall = band_noise(parts, 1, bins, tail=FAST_TAIL_QUANTILE)
+    np.testing.assert_allclose(rms[:, 0], np.sqrt((residual**2).mean(axis=0)), rtol=1e-5)
+    assert abs(scale[0, 0] / rms[0, 0] - 1.0) < 0.05
+    assert scale[1, 0] > 2.0 * rms[1, 0]
+    assert np.all(overall >= rms_overall)
+    crossing = np.abs(residual) > 3.29 * scale[:, 0]
+    by_rms = np.abs(residual) > 3.29 * rms[:, 0]
+    assert crossing[:, 1].mean() <= 1.5e-3 and by_rms[:, 1].mean() > 5e-3
+    # a bin with too few samples takes the joint's overall scale, tail included
+    np.testing.assert_allclose(scale[:, 3], overall)
+    # the parts' order does not matter (but for the sums' rounding)
+    again, _ = band_noise(parts[::-1], 1, bins, tail=FAST_TAIL_QUANTILE)
+    np.testing.assert_allclose(again, scale, rtol=1e-12)

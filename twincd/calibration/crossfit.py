@@ -11,8 +11,8 @@ others; with one log, its time cut into blocks of ``FOLD_BLOCK_S`` dealt into as
 scores come (``cross_fitted``):
 
 - each band's noise per joint and speed bin (the slow band's is the whitened model's
-  ``scale_``, the fast band's ``twincd.calibration.score.FastBand``), over the samples a fit
-  sums (``fit_rows``);
+  ``scale_``, the fast band's ``twincd.calibration.score.FastBand``, its tail's where heavier:
+  ``FAST_TAIL_QUANTILE``), over the samples a fit sums (``fit_rows``);
 - each band's score statistics and excursions on every collision-free sample
   (``FitInfo.clean``), which ``threshold`` merges with its validation logs' for a false-alarm
   budget set on all the clean data a user has, and which still travel with the calibration
@@ -51,6 +51,7 @@ if TYPE_CHECKING:
     from twincd.signal.bands import Band
 
 __all__ = [
+    "FAST_TAIL_QUANTILE",
     "FOLD_BLOCK_S",
     "MAX_FOLDS",
     "CrossScored",
@@ -65,6 +66,13 @@ Float32Array = NDArray[np.float32]
 
 MAX_FOLDS = 5
 FOLD_BLOCK_S = 10.0
+# the fast band's noise at a joint's speed is its residual's RMS there or, if heavier, its tail's:
+# the 99.9th percentile of |r| over a normal's (3.29 σ). A joint whose clean fast residual bursts
+# (at rest while the others move, at speed reversals) then holds the band's excursions no more
+# than the others, and its share of the budget no longer blinds the band to the others' strikes
+# (the tail the threshold fits begins about there: ``twincd.calibration.tail``). Chosen on the
+# injection study of three real arms (docs: models and results, "What the detector finds").
+FAST_TAIL_QUANTILE = 0.999
 # samples a second the second pass keeps at most (a 1 kHz log: every tenth, a grid node's)
 KEPT_PER_SECOND = 100.0
 # a jump of the velocity: a one-period change above this many times the joint's 99th percentile
@@ -267,24 +275,49 @@ def _step(period_s: float) -> int:
 
 
 def band_noise(
-    parts: Sequence[CrossScored], band: int, speed_bins: Sequence[float]
+    parts: Sequence[CrossScored],
+    band: int,
+    speed_bins: Sequence[float],
+    tail: float | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """(D, bins) a band's residual RMS per joint and speed bin over the samples a fit sums (a
-    bin with fewer than ``MIN_BIN_SAMPLES`` takes the joint's overall RMS), and (D,) that
-    overall RMS."""
+    """(D, bins) a band's noise scale per joint and speed bin over the samples a fit sums (a
+    bin with fewer than ``MIN_BIN_SAMPLES`` takes the joint's overall scale), and (D,) that
+    overall scale: the residual's RMS, or with ``tail`` (a quantile q) the larger of the RMS
+    and the q-th quantile of |r| over a normal's (``FAST_TAIL_QUANTILE``)."""
     joints = parts[0].residual[band].shape[1]
     bins = len(speed_bins) + 1
+    r = np.concatenate([p.residual[band][p.fit] for p in parts]).astype(np.float64)
+    b = np.concatenate([speed_bin(p.velocity[p.fit].astype(np.float64), speed_bins) for p in parts])
     ss = np.zeros((joints, bins))
     n = np.zeros((joints, bins))
-    for part in parts:
-        r = part.residual[band][part.fit].astype(np.float64)
-        b = speed_bin(part.velocity[part.fit].astype(np.float64), speed_bins)
-        for j in range(joints):
-            ss[j] += np.bincount(b[:, j], weights=r[:, j] ** 2, minlength=bins)
-            n[j] += np.bincount(b[:, j], minlength=bins)
+    for j in range(joints):
+        ss[j] = np.bincount(b[:, j], weights=r[:, j] ** 2, minlength=bins)
+        n[j] = np.bincount(b[:, j], minlength=bins)
     overall = np.sqrt(ss.sum(axis=1) / np.maximum(n.sum(axis=1), 1))
-    scale = np.where(n >= MIN_BIN_SAMPLES, np.sqrt(ss / np.maximum(n, 1)), overall[:, None])
+    scale = np.sqrt(ss / np.maximum(n, 1))
+    if tail is not None and len(r):
+        tails = _tail_scales(np.abs(r), b, bins, tail)
+        overall = np.maximum(overall, tails[:, -1])
+        scale = np.maximum(scale, tails[:, :-1])
+    scale = np.where(n >= MIN_BIN_SAMPLES, scale, overall[:, None])
     return np.maximum(scale, MIN_SCALE), np.maximum(overall, MIN_SCALE)
+
+
+def _tail_scales(size: FloatArray, bins_of: IntArray, bins: int, q: float) -> FloatArray:
+    """(D, bins + 1) the q-th quantile of each joint's |r| (``size``, (N, D)) in each speed bin
+    (``bins_of``; 0 where a bin has fewer than ``MIN_BIN_SAMPLES``) and, last, over all its
+    samples, each over the q-th quantile of |x| for a standard normal x."""
+    from scipy import stats
+
+    normal = float(stats.norm.ppf(0.5 + q / 2.0))
+    out = np.zeros((size.shape[1], bins + 1))
+    for j in range(size.shape[1]):
+        out[j, -1] = np.quantile(size[:, j], q)
+        for k in range(bins):
+            in_bin = size[bins_of[:, j] == k, j]
+            if len(in_bin) >= MIN_BIN_SAMPLES:
+                out[j, k] = np.quantile(in_bin, q)
+    return out / normal
 
 
 def cross_fitted(
@@ -307,7 +340,7 @@ def cross_fitted(
         model.scale_ = slow
     score = Score()
     if fast is not None and len(parts[0].residual) > 1:
-        noise, _ = band_noise(parts, 1, bins)
+        noise, _ = band_noise(parts, 1, bins, tail=FAST_TAIL_QUANTILE)
         score = Score(FastBand(fast, noise, FAST_FLOOR * overall), jump)
     calibration = replace(calibration, score=score)
     clean = [BandStats() for _ in range(score.bands)]

@@ -7,8 +7,10 @@ speed, or a sum of squares). A calibration fitted for contacts of every length a
 (``twincd.signal.bands``): a hand strike of 0.1–0.7 s that the slow filter flattens stands out
 there. Its noise is its own:
 
-- each joint's residual RMS per bin of its speed, as for the slow band, measured on the fit's
-  logs each scored by a model fitted without it (``twincd.calibration.crossfit``);
+- each joint's residual RMS per bin of its speed, as for the slow band, or where larger its
+  tail's (``FAST_TAIL_QUANTILE``: a joint whose fast residual bursts is judged on its bursts),
+  measured on the fit's logs each scored by a model fitted without it
+  (``twincd.calibration.crossfit``);
 - never below ``FAST_FLOOR`` × the joint's slow-band noise: a joint at rest while the others move
   slips in its stiction band by a fraction of a newton-metre, bursts that no speed bin holds
   enough of to measure, yet a few times the fast band's noise of a resting joint;
