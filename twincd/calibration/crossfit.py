@@ -71,7 +71,8 @@ FOLD_BLOCK_S = 10.0
 # (at rest while the others move, at speed reversals) then holds the band's excursions no more
 # than the others, and its share of the budget no longer blinds the band to the others' strikes
 # (the tail the threshold fits begins about there: ``twincd.calibration.tail``). Chosen on the
-# injection study of three real arms (docs: models and results, "What the detector finds").
+# injection study of three real arms (docs: models and results, "Contacts of every length"). A bin
+# of fewer than a thousand samples gets about its largest |r|: cautious where little is known.
 FAST_TAIL_QUANTILE = 0.999
 # samples a second the second pass keeps at most (a 1 kHz log: every tenth, a grid node's)
 KEPT_PER_SECOND = 100.0
@@ -309,6 +310,8 @@ def _tail_scales(size: FloatArray, bins_of: IntArray, bins: int, q: float) -> Fl
     samples, each over the q-th quantile of |x| for a standard normal x."""
     from scipy import stats
 
+    if not 0.0 < q < 1.0:
+        raise ValueError(f"a tail quantile is within (0, 1), not {q:g}")
     normal = float(stats.norm.ppf(0.5 + q / 2.0))
     out = np.zeros((size.shape[1], bins + 1))
     for j in range(size.shape[1]):
